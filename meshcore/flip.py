@@ -1,0 +1,128 @@
+"""Edge flipping to local optimality under a triangle quality measure (paper, section 2).
+
+A diagonal of a strictly convex quadrangle is flipped when the smaller measure
+of the two alternative triangles exceeds the smaller measure of the current two
+by more than a relative tolerance.  Kernels compare *scores*, a monotone
+transform of the measure that needs no root: S1 itself, and S3 cubed.  Every flip raises the sorted vector of
+triangle measures, so the procedure terminates; the tolerance keeps rounding
+noise from flipping back and forth between equivalent diagonals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._jit import njit
+from .delaunay import Triangulation, _flip, _next, _prev
+from .predicates import orient2d
+from .quality import s1_kernel, s3_cubed_kernel
+
+__all__ = ["flip_edges", "FLIP_TOLERANCE"]
+
+FLIP_TOLERANCE = 1e-9
+"""Relative improvement a flip must bring to the score: alt > current * (1 + FLIP_TOLERANCE)."""
+
+_S1 = 1
+_S3 = 3
+
+
+@njit
+def triangle_score_kernel(measure: int, x, y, a: int, b: int, c: int) -> float:
+    """Score of the triangle with vertex ids a, b, c: S1, or S3 cubed."""
+    if measure == _S1:
+        return s1_kernel(x[a], y[a], x[b], y[b], x[c], y[c])
+    return s3_cubed_kernel(x[a], y[a], x[b], y[b], x[c], y[c])
+
+
+@njit
+def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
+    """Score of every triangle of a half-edge triangulation."""
+    nt = tri.shape[0] // 3
+    q = np.empty(nt)
+    for t in range(nt):
+        q[t] = triangle_score_kernel(measure, x, y, tri[3 * t], tri[3 * t + 1], tri[3 * t + 2])
+    return q
+
+
+@njit
+def is_strictly_convex_pair(x, y, tri, he, e: int) -> bool:
+    """True when the two triangles sharing half-edge ``e`` form a strictly convex quadrangle."""
+    f = he[e]
+    a = tri[e]
+    b = tri[_next(e)]
+    c = tri[_prev(e)]
+    d = tri[_prev(f)]
+    return (
+        orient2d(x[c], y[c], x[d], y[d], x[a], y[a]) < 0
+        and orient2d(x[c], y[c], x[d], y[d], x[b], y[b]) > 0
+    )
+
+
+@njit
+def _flip_kernel(x, y, tri, he, measure: int, tolerance: float) -> int:
+    q = triangle_scores(measure, x, y, tri)
+    m = tri.shape[0]
+    queued = np.zeros(m, dtype=np.uint8)
+    stack = np.empty(m, dtype=np.int32)
+    n = 0
+    for e in range(m):
+        if he[e] > e:
+            stack[n] = e
+            n += 1
+            queued[e] = 1
+    flips = 0
+    while n > 0:
+        n -= 1
+        e = int(stack[n])
+        queued[e] = 0
+        f = he[e]
+        if f < 0:
+            continue
+        t1 = e // 3
+        t2 = f // 3
+        current = min(q[t1], q[t2])
+        a = tri[e]
+        b = tri[_next(e)]
+        c = tri[_prev(e)]
+        d = tri[_prev(f)]
+        qa = triangle_score_kernel(measure, x, y, a, d, c)
+        if qa <= current * (1.0 + tolerance):
+            continue
+        qb = triangle_score_kernel(measure, x, y, b, c, d)
+        if qb <= current * (1.0 + tolerance):
+            continue
+        if not is_strictly_convex_pair(x, y, tri, he, e):
+            continue
+        _flip(tri, he, e)
+        q[t1] = qa
+        q[t2] = qb
+        flips += 1
+        for j in range(4):
+            g = e if j == 0 else (_prev(e) if j == 1 else (f if j == 2 else _prev(f)))
+            h = he[g]
+            if h < 0:
+                continue
+            k = min(g, h)
+            if queued[k] == 0:
+                queued[k] = 1
+                stack[n] = k
+                n += 1
+    return flips
+
+
+def flip_edges(triangulation: Triangulation, measure: str, tolerance: float = FLIP_TOLERANCE) -> int:
+    """Flip diagonals in place until no flip improves ``measure`` ("s1" or "s3").
+
+    Returns the number of flips made.
+    """
+    code = {"s1": _S1, "s3": _S3}[measure]
+    return int(
+        _flip_kernel(
+            triangulation.x,
+            triangulation.y,
+            triangulation.triangles,
+            triangulation.halfedges,
+            code,
+            float(tolerance),
+        )
+    )

@@ -1,0 +1,152 @@
+"""Elimination of diagonals: pairs of triangles become quadrangles (paper, section 2).
+
+For every interior edge e12 that is the diagonal of a strictly convex
+quadrangle q, with e34 the other diagonal,
+
+    gain = S_q(q) - max{ S(e12), S(e34) },   S(e) = min of the pair's triangle measures,
+
+where the quad measure S2 is paired with the triangle measure S1, and S4 with
+S3.  ``greedy`` (the paper's scheme) sorts the edges by decreasing gain (ties
+by half-edge index, deterministic for a given input) and deletes a diagonal
+while both of its triangles are still triangles and the gain is positive.
+``optimal`` deletes the set of diagonals with the largest total gain: a
+maximum-weight matching of the triangles (networkx's blossom algorithm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._jit import njit
+from .delaunay import Triangulation, _next, _prev
+from .flip import is_strictly_convex_pair, triangle_score_kernel, triangle_scores
+from .quality import s2_kernel, s4_cubed_kernel
+
+__all__ = ["merge_candidates", "merge_triangles"]
+
+_PAIRED_TRIANGLE_MEASURE = {"s2": 1, "s4": 3}
+_QUAD_CODE = {"s2": 2, "s4": 4}
+
+
+@njit
+def _quad_score_kernel(measure: int, x, y, a: int, b: int, c: int, d: int) -> float:
+    """Score of a quadrangle: S2, or S4 cubed (paired with the triangle scores S1, S3 cubed)."""
+    if measure == 2:
+        return s2_kernel(x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d])
+    return s4_cubed_kernel(x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d])
+
+
+@njit
+def _score_to_measure(measure: int, score: float) -> float:
+    return score if measure == 2 else np.cbrt(score)
+
+
+@njit
+def _candidates_kernel(x, y, tri, he, triangle_measure: int, quad_measure: int):
+    q = triangle_scores(triangle_measure, x, y, tri)
+    m = tri.shape[0]
+    edges = np.empty(m // 2 + 1, dtype=np.int32)
+    gains = np.empty(m // 2 + 1)
+    n = 0
+    for e in range(m):
+        f = he[e]
+        if f <= e:
+            continue
+        a = tri[e]
+        b = tri[_next(e)]
+        c = tri[_prev(e)]
+        d = tri[_prev(f)]
+        sq = _quad_score_kernel(quad_measure, x, y, a, d, b, c)
+        best = min(q[e // 3], q[f // 3])
+        if sq <= best:
+            continue
+        best = max(
+            best,
+            min(
+                triangle_score_kernel(triangle_measure, x, y, a, d, c),
+                triangle_score_kernel(triangle_measure, x, y, b, c, d),
+            ),
+        )
+        if sq <= best or not is_strictly_convex_pair(x, y, tri, he, e):
+            continue
+        gain = _score_to_measure(quad_measure, sq) - _score_to_measure(quad_measure, best)
+        if gain > 0.0:
+            edges[n] = e
+            gains[n] = gain
+            n += 1
+    return edges[:n].copy(), gains[:n].copy()
+
+
+@njit
+def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
+    partner = np.full(nt, -1, dtype=np.int32)
+    for k in range(order.shape[0]):
+        e = edges[order[k]]
+        f = he[e]
+        t1 = e // 3
+        t2 = f // 3
+        if partner[t1] == -1 and partner[t2] == -1:
+            partner[t1] = e
+            partner[t2] = f
+    return partner
+
+
+def _order_by_gain(gains: np.ndarray) -> np.ndarray:
+    """Indices by decreasing gain; equal gains keep increasing index (half-edge) order."""
+    order = np.argsort(-gains)
+    _sort_ties(gains, order)
+    return order
+
+
+@njit
+def _sort_ties(gains: np.ndarray, order: np.ndarray) -> None:
+    n = order.shape[0]
+    k = 0
+    while k < n:
+        m = k + 1
+        while m < n and gains[order[m]] == gains[order[k]]:
+            m += 1
+        if m - k > 1:
+            order[k:m] = np.sort(order[k:m])
+        k = m
+
+
+def merge_candidates(
+    triangulation: Triangulation, quad_measure: str
+) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+    """Half-edges (one per edge) whose elimination has a positive gain, and the gains."""
+    return _candidates_kernel(
+        triangulation.x,
+        triangulation.y,
+        triangulation.triangles,
+        triangulation.halfedges,
+        _PAIRED_TRIANGLE_MEASURE[quad_measure],
+        _QUAD_CODE[quad_measure],
+    )
+
+
+def _optimal_partner(he: NDArray[np.int32], edges: NDArray[np.int32], gains, nt: int) -> NDArray[np.int32]:
+    import networkx as nx
+
+    graph = nx.Graph()
+    twins = he[edges]
+    for e, f, g in zip(edges.tolist(), twins.tolist(), gains.tolist()):
+        graph.add_edge(e // 3, f // 3, weight=g, halfedges=(e, f))
+    partner = np.full(nt, -1, dtype=np.int32)
+    for t1, t2 in nx.max_weight_matching(graph, maxcardinality=False):
+        e, f = graph.edges[t1, t2]["halfedges"]
+        partner[e // 3] = e
+        partner[f // 3] = f
+    return partner
+
+
+def merge_triangles(triangulation: Triangulation, quad_measure: str, merge: str = "greedy") -> NDArray[np.int32]:
+    """Choose the diagonals to delete; returns, per triangle, the half-edge of its
+    deleted diagonal or -1 when it stays a triangle."""
+    nt = triangulation.triangles.shape[0] // 3
+    edges, gains = merge_candidates(triangulation, quad_measure)
+    if merge == "optimal":
+        return _optimal_partner(triangulation.halfedges, edges, gains, nt)
+    order = _order_by_gain(gains)
+    return _greedy_kernel(triangulation.halfedges, edges, gains, order, nt)

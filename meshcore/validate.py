@@ -1,0 +1,143 @@
+"""``validate``: structural checks of a combined mesh, with a clear error for the first failure."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._jit import njit
+from .delaunay import bbox_origin
+from .errors import InvalidMeshError
+from .mesh import Mesh
+from .predicates import orient2d
+
+__all__ = ["validate", "convex_hull"]
+
+
+@njit
+def _face_turns(x, y, faces) -> int:
+    """Index of the first face that is not strictly convex and counter-clockwise, or -1."""
+    for k in range(faces.shape[0]):
+        nv = 4 if faces[k, 3] >= 0 else 3
+        for j in range(nv):
+            a = faces[k, j]
+            b = faces[k, (j + 1) % nv]
+            c = faces[k, (j + 2) % nv]
+            if orient2d(x[a], y[a], x[b], y[b], x[c], y[c]) <= 0:
+                return k
+    return -1
+
+
+@njit
+def _hull_kernel(x, y, order) -> np.ndarray:
+    """Convex hull (counter-clockwise, collinear boundary points kept) of sorted points."""
+    n = order.shape[0]
+    out = np.empty(2 * n + 1, dtype=np.int64)
+    k = 0
+    for i in range(n):  # lower chain
+        p = order[i]
+        while k >= 2 and orient2d(x[out[k - 2]], y[out[k - 2]], x[out[k - 1]], y[out[k - 1]], x[p], y[p]) < 0:
+            k -= 1
+        out[k] = p
+        k += 1
+    lower = k + 1
+    for i in range(n - 2, -1, -1):  # upper chain
+        p = order[i]
+        while k >= lower and orient2d(x[out[k - 2]], y[out[k - 2]], x[out[k - 1]], y[out[k - 1]], x[p], y[p]) < 0:
+            k -= 1
+        out[k] = p
+        k += 1
+    return out[: k - 1]
+
+
+def convex_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Indices of the convex hull, counter-clockwise, with points on hull edges included."""
+    if x.shape[0] < 3:
+        return np.arange(x.shape[0], dtype=np.int64)
+    order = np.lexsort((y, x)).astype(np.int64)
+    return _hull_kernel(x, y, order)
+
+
+def _fail(message: str) -> None:
+    raise InvalidMeshError(message)
+
+
+def validate(mesh: Mesh) -> None:
+    """Raise :class:`InvalidMeshError` unless ``mesh`` is a valid combined mesh.
+
+    Checked: shapes and index ranges; every face counter-clockwise and strictly
+    convex (exact predicates); every edge shared by at most two faces, in
+    opposite directions; the boundary edges are exactly the convex hull of the
+    vertices; the total area equals the hull's; every vertex is used; the
+    ``input_to_vertex`` map points at a vertex with the same coordinates.
+    """
+    v = np.asarray(mesh.vertices)
+    f = np.asarray(mesh.faces)
+    if v.ndim != 2 or v.shape[1] != 2 or not np.isfinite(v).all():
+        _fail(f"vertices must be a finite (n, 2) array, got shape {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 4 or not np.issubdtype(f.dtype, np.integer):
+        _fail(f"faces must be an integer (m, 4) array, got {f.dtype} {f.shape}")
+    n_v = v.shape[0]
+    if f.size and (f[:, :3].min() < 0 or f.max() >= n_v or f[:, 3].min() < -1):
+        _fail("faces reference vertices out of range (only column 3 may be -1)")
+    is_quad = f[:, 3] >= 0
+    ordered = np.sort(f, axis=1)
+    same = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, :-1] >= 0)
+    if same.any():
+        _fail(f"face {int(np.flatnonzero(same.any(axis=1))[0])} repeats a vertex")
+
+    origin = bbox_origin(v)
+    x = np.ascontiguousarray(v[:, 0] - origin[0])
+    y = np.ascontiguousarray(v[:, 1] - origin[1])
+    bad = _face_turns(x, y, np.ascontiguousarray(f, dtype=np.int64))
+    if bad >= 0:
+        kind = "quadrangle" if is_quad[bad] else "triangle"
+        _fail(f"face {bad} ({kind} {f[bad].tolist()}) is not strictly convex and counter-clockwise")
+
+    # directed edges
+    nxt = np.where(is_quad[:, None], np.roll(f, -1, axis=1), np.column_stack([f[:, 1:3], f[:, 0], f[:, 3]]))
+    mask = f >= 0
+    src = f[mask]
+    dst = nxt[mask]
+    key = src * n_v + dst
+    order = np.argsort(key, kind="stable")
+    dup = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if dup.size:
+        k = order[dup[0]]
+        _fail(f"edge ({int(src[k])}, {int(dst[k])}) is used twice in the same direction (overlapping faces)")
+    twin_key = dst * n_v + src
+    has_twin = np.isin(twin_key, key)
+    boundary = {(int(a), int(b)) for a, b in zip(src[~has_twin], dst[~has_twin])}
+
+    used = np.zeros(n_v, dtype=bool)
+    used[src] = True
+    hull = convex_hull(x, y)
+    if f.shape[0] == 0:
+        if n_v >= 3 and hull.shape[0] >= 3:
+            area = 0.5 * np.abs(np.dot(x[hull], np.roll(y[hull], -1)) - np.dot(y[hull], np.roll(x[hull], -1)))
+            if area > 0:
+                _fail("the mesh has no faces but its vertices are not collinear")
+    else:
+        if not used.all():
+            _fail(f"vertex {int(np.flatnonzero(~used)[0])} is not used by any face")
+        hull_edges = {(int(a), int(b)) for a, b in zip(hull, np.roll(hull, -1))}
+        if boundary != hull_edges:
+            extra = sorted(boundary - hull_edges)[:3]
+            missing = sorted(hull_edges - boundary)[:3]
+            _fail(f"the boundary is not the convex hull: extra edges {extra}, missing hull edges {missing}")
+        hull_area = 0.5 * (np.dot(x[hull], np.roll(y[hull], -1)) - np.dot(y[hull], np.roll(x[hull], -1)))
+        px = x[f.clip(0)]
+        py = y[f.clip(0)]
+        tri_area = 0.5 * ((px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (py[:, 1] - py[:, 0]) * (px[:, 2] - px[:, 0]))
+        quad_extra = 0.5 * ((px[:, 2] - px[:, 0]) * (py[:, 3] - py[:, 0]) - (py[:, 2] - py[:, 0]) * (px[:, 3] - px[:, 0]))
+        total = float(tri_area.sum() + quad_extra[is_quad].sum())
+        extent2 = float(np.ptp(x) * np.ptp(y)) if x.size else 0.0
+        if abs(total - hull_area) > 1e-9 * abs(hull_area) + 1e-12 * extent2:
+            _fail(f"faces cover an area of {total!r}, the convex hull {hull_area!r}")
+
+    itv = np.asarray(mesh.input_to_vertex)
+    if itv.size:
+        if itv.min() < 0 or itv.max() >= n_v:
+            _fail("input_to_vertex references vertices out of range")
+        if not np.isin(np.arange(n_v), itv).all():
+            _fail("some vertex is not the image of any input point")

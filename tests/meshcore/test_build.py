@@ -1,0 +1,221 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import meshcore
+from meshcore import InvalidInputError, MeshError, build_mesh, validate
+from meshcore.flip import FLIP_TOLERANCE
+
+from .mesh_checks import pair_scores, quad_gains, strictly_convex, triangle_pairs
+
+OPTIONS = [
+    ("delaunay", None),
+    ("s1", None),
+    ("s3", None),
+    ("s1", "s2"),
+    ("s3", "s4"),
+    ("delaunay", "s2"),
+]
+
+
+def test_square_becomes_one_quad():
+    mesh = build_mesh(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+    validate(mesh)
+    assert mesh.faces.shape == (1, 4)
+    assert sorted(mesh.faces[0].tolist()) == [0, 1, 2, 3]
+    pure = build_mesh(mesh.vertices, "s1", None)
+    assert pure.faces.shape == (2, 4) and (pure.faces[:, 3] == -1).all()
+
+
+def test_regular_hexagon_with_centre():
+    a = np.arange(6) * math.pi / 3
+    xy = np.vstack([[0.0, 0.0], np.c_[np.cos(a), np.sin(a)]])
+    tri = build_mesh(xy, "s1", None)
+    validate(tri)
+    # six equilateral triangles: already optimal for S1, nothing to flip
+    assert tri.n_triangles == 6
+    assert np.allclose(meshcore.s1(tri.vertices[tri.faces[:, :3]]), 1.0)
+    combined = build_mesh(xy, "s1", "s2")
+    validate(combined)
+    # two equilateral triangles make a rhombus with 60/120 degree angles:
+    # S2 = min(sin 60, 1 + cos 120) = 0.5 < S1 = 1, so no diagonal is removed
+    assert combined.n_quads == 0
+
+
+def test_four_cocircular_points():
+    xy = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    mesh = build_mesh(xy, "delaunay", None)
+    validate(mesh)
+    assert mesh.n_triangles == 2
+    mesh = build_mesh(xy, "s3", "s4")
+    validate(mesh)
+    assert mesh.n_quads == 1 and mesh.n_triangles == 0
+
+
+def test_collinear_points_keep_every_point():
+    xy = np.c_[np.arange(7) * 0.25, 2.0 + np.arange(7) * 0.5]
+    mesh = build_mesh(xy)
+    validate(mesh)
+    assert mesh.faces.shape == (0, 4)
+    assert mesh.vertices.shape == (7, 2)
+    assert (mesh.input_to_vertex == np.arange(7)).all()
+
+
+@pytest.mark.parametrize("n", [0, 1, 2])
+def test_tiny_inputs_give_empty_meshes(n):
+    xy = np.arange(2 * n, dtype=float).reshape(n, 2)
+    mesh = build_mesh(xy)
+    validate(mesh)
+    assert mesh.faces.shape == (0, 4)
+    assert mesh.vertices.shape == (n, 2)
+    assert mesh.input_to_vertex.tolist() == list(range(n))
+
+
+def test_duplicates_share_a_vertex(rng):
+    xy = rng.random((100, 2))
+    noisy = np.vstack([xy, xy[:10], xy[:10]])
+    order = rng.permutation(len(noisy))
+    noisy = noisy[order]
+    mesh = build_mesh(noisy, "s3", "s4")
+    validate(mesh)
+    assert mesh.vertices.shape == (100, 2)
+    assert (mesh.vertices[mesh.input_to_vertex] == noisy).all()
+    # the vertex of a point is its first occurrence in the input
+    first = {}
+    for i, p in enumerate(map(tuple, noisy)):
+        first.setdefault(p, len(first))
+    assert mesh.input_to_vertex.tolist() == [first[tuple(p)] for p in noisy]
+
+
+def test_all_points_identical():
+    mesh = build_mesh(np.full((50, 2), 3.25))
+    validate(mesh)
+    assert mesh.vertices.shape == (1, 2)
+    assert (mesh.input_to_vertex == 0).all()
+
+
+@pytest.mark.parametrize("triangle_measure, quad_measure", OPTIONS)
+def test_random_meshes_are_valid_and_keep_every_point(rng, triangle_measure, quad_measure):
+    xy = rng.random((1500, 2)) * [300.0, 200.0] + [612000.0, 5120000.0]
+    mesh = build_mesh(xy, triangle_measure, quad_measure)
+    validate(mesh)
+    assert (mesh.vertices[mesh.input_to_vertex] == xy).all()
+    if quad_measure is None:
+        assert mesh.n_quads == 0
+    else:
+        assert mesh.n_quads > 0.2 * mesh.faces.shape[0]
+
+
+def test_delaunay_option_matches_scipy(rng):
+    from scipy.spatial import Delaunay
+
+    xy = rng.random((500, 2))
+    mesh = build_mesh(xy, "delaunay", None)
+    ours = {tuple(sorted(f[:3])) for f in mesh.faces.tolist()}
+    theirs = {tuple(sorted(s)) for s in Delaunay(xy).simplices.tolist()}
+    assert ours == theirs
+
+
+@pytest.mark.parametrize("measure", ["s1", "s3"])
+def test_no_improving_flip_is_left(rng, measure):
+    mesh = build_mesh(rng.random((800, 2)), measure, None)
+    pairs = triangle_pairs(mesh)
+    current, alternative = pair_scores(mesh, measure, pairs)
+    convex = strictly_convex(mesh.vertices, *pairs.T)
+    # scores compared by the kernel are S1 and S3**3: allow its tolerance in S3 terms
+    slack = 1.0 + 3 * FLIP_TOLERANCE
+    assert not np.any(convex & (alternative > current * slack + 1e-12))
+    # and flips did happen: the Delaunay triangulation was not already optimal
+    delaunay = build_mesh(mesh.vertices, "delaunay", None)
+    assert {tuple(sorted(f)) for f in delaunay.faces[:, :3].tolist()} != {
+        tuple(sorted(f)) for f in mesh.faces[:, :3].tolist()
+    }
+
+
+@pytest.mark.parametrize("triangle_measure, quad_measure", [("s1", "s2"), ("s3", "s4")])
+def test_elimination_rule(rng, triangle_measure, quad_measure):
+    mesh = build_mesh(rng.random((800, 2)), triangle_measure, quad_measure)
+    quads = mesh.faces[mesh.faces[:, 3] >= 0]
+    assert (quad_gains(mesh, quad_measure, quads) > 0).all()
+    # no pair of adjacent triangles left with a positive gain
+    pairs = triangle_pairs(mesh)
+    a, b, c, d = pairs.T
+    convex = strictly_convex(mesh.vertices, a, b, c, d)
+    left = quad_gains(mesh, quad_measure, np.stack([a, d, b, c], 1)[convex])
+    assert (left <= 1e-12).all()
+
+
+def test_optimal_merge_gains_at_least_as_much_as_greedy(rng):
+    xy = rng.random((300, 2))
+    totals = {}
+    for merge in ("greedy", "optimal"):
+        mesh = build_mesh(xy, "s3", "s4", merge=merge)
+        validate(mesh)
+        quads = mesh.faces[mesh.faces[:, 3] >= 0]
+        totals[merge] = quad_gains(mesh, "s4", quads).sum()
+    assert totals["optimal"] >= totals["greedy"] - 1e-9
+
+
+def test_scale_and_translation_invariance(rng):
+    xy = rng.integers(0, 4000, size=(600, 2)) / 16.0
+    reference = build_mesh(xy, "s3", "s4")
+    for scale, shift in ((4.0, (0.0, 0.0)), (0.125, (0.0, 0.0)), (1.0, (2.0**19, 2.0**22))):
+        other = build_mesh(xy * scale + np.array(shift), "s3", "s4")
+        assert np.array_equal(other.faces, reference.faces)
+
+
+def test_input_is_not_modified(rng):
+    xy = rng.random((200, 2))
+    before = xy.copy()
+    build_mesh(xy, "s3", "s4")
+    assert np.array_equal(xy, before)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"triangle_measure": "s2"}, r"triangle_measure='s2' is not valid; expected one of 'delaunay', 's1', 's3'"),
+        ({"quad_measure": "s3"}, r"quad_measure='s3' is not valid; expected one of 's2', 's4'"),
+        ({"merge": "best"}, r"merge='best' is not valid; expected one of 'greedy', 'optimal'"),
+    ],
+)
+def test_unknown_options_are_named(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        build_mesh(np.zeros((3, 2)), **kwargs)
+
+
+@pytest.mark.parametrize(
+    "xy, match",
+    [
+        (np.zeros((4, 3)), r"shape \(n, 2\)"),
+        (np.zeros(4), r"shape \(n, 2\)"),
+        (np.array([[0.0, 0.0], [np.nan, 1.0]]), r"NaN or infinite .*index 1"),
+        (np.array([[0.0, 0.0], [1.0, np.inf]]), r"NaN or infinite"),
+        (np.array([["a", "b"]]), r"numeric"),
+    ],
+)
+def test_bad_points_raise_value_errors(xy, match):
+    with pytest.raises(ValueError, match=match) as info:
+        build_mesh(xy)
+    assert isinstance(info.value, MeshError)
+
+
+point_sets = st.one_of(
+    arrays(np.float64, st.tuples(st.integers(3, 60), st.just(2)), elements=st.floats(-1e3, 1e3, width=32)),
+    arrays(np.int64, st.tuples(st.integers(3, 60), st.just(2)), elements=st.integers(-4, 4)).map(
+        lambda a: a.astype(np.float64) * 0.5 + 1e6
+    ),
+)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(xy=point_sets, option=st.sampled_from(OPTIONS))
+def test_property_conforming_and_lossless(xy, option):
+    mesh = build_mesh(xy, *option)
+    validate(mesh)
+    assert (mesh.vertices[mesh.input_to_vertex] == xy).all()
+    assert len(np.unique(xy, axis=0)) == mesh.vertices.shape[0]

@@ -1,0 +1,88 @@
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from meshcore import incircle, orient2d
+
+
+def exact_orient(a, b, c):
+    ax, ay, bx, by, cx, cy = map(Fraction, (*a, *b, *c))
+    d = (ax - cx) * (by - cy) - (ay - cy) * (bx - cx)
+    return (d > 0) - (d < 0)
+
+
+def exact_incircle(a, b, c, d):
+    rows = []
+    for p in (a, b, c):
+        x = Fraction(p[0]) - Fraction(d[0])
+        y = Fraction(p[1]) - Fraction(d[1])
+        rows.append((x, y, x * x + y * y))
+    (a1, a2, a3), (b1, b2, b3), (c1, c2, c3) = rows
+    det = a1 * (b2 * c3 - b3 * c2) - a2 * (b1 * c3 - b3 * c1) + a3 * (b1 * c2 - b2 * c1)
+    return (det > 0) - (det < 0)
+
+
+def test_sign_conventions():
+    assert orient2d(0.0, 0.0, 1.0, 0.0, 0.0, 1.0) == 1
+    assert orient2d(0.0, 0.0, 0.0, 1.0, 1.0, 0.0) == -1
+    assert orient2d(0.0, 0.0, 1.0, 1.0, 3.0, 3.0) == 0
+    assert incircle(0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.2, 0.2) == 1
+    assert incircle(0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 2.0, 2.0) == -1
+    assert incircle(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0) == 0
+    # clockwise triangle reverses the in-circle sign
+    assert incircle(0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.2, 0.2) == -1
+
+
+def test_nearly_collinear_points_at_survey_scale():
+    # the float determinant of these is dominated by rounding; the exact sign is known
+    base = 6.0e5
+    a = (base + 0.5, base + 0.5)
+    b = (base + 12.0, base + 12.0)
+    for k in range(-3, 4):
+        c = (base + 24.0, np.nextafter(base + 24.0, np.inf if k > 0 else -np.inf) if k else base + 24.0)
+        assert orient2d(*a, *b, *c) == exact_orient(a, b, c)
+
+
+# exactness holds while no product of coordinate differences underflows
+# (|difference| either 0 or above ~1e-150): keep generated values in that range
+coords = st.floats(min_value=-1e3, max_value=1e3).filter(lambda v: v == 0.0 or abs(v) > 1e-100)
+tiny = st.sampled_from([0.0, 1e-90, 5e-17, 1e-12, -1e-12, -5e-17])
+
+
+@settings(max_examples=300, deadline=None)
+@given(t=st.lists(coords, min_size=3, max_size=3), slope=coords, offset=coords, eps=tiny)
+def test_orient2d_matches_rational_on_near_lines(t, slope, offset, eps):
+    pts = [(ti, slope * ti + offset) for ti in t]
+    pts[2] = (pts[2][0] + eps, pts[2][1])
+    assert orient2d(*pts[0], *pts[1], *pts[2]) == exact_orient(*pts)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    angles=st.lists(st.floats(0, 2 * np.pi).filter(lambda v: v == 0.0 or v > 1e-100), min_size=4, max_size=4),
+    radius=st.sampled_from([1e-3, 1.0, 7.5, 1e3]),
+    centre=st.sampled_from([0.0, 0.1, 6.0e5, -3.3e6]),
+)
+def test_incircle_matches_rational_on_near_circles(angles, radius, centre):
+    pts = [(centre + radius * np.cos(a), centre + radius * np.sin(a)) for a in angles]
+    assert incircle(*pts[0], *pts[1], *pts[2], *pts[3]) == exact_incircle(*pts)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(-3, 3), st.integers(-3, 3)), min_size=4, max_size=4))
+def test_grid_points_are_exact(points):
+    pts = [(0.25 * x + 1e6, 0.25 * y + 5e6) for x, y in points]
+    assert orient2d(*pts[0], *pts[1], *pts[2]) == exact_orient(*pts[:3])
+    assert incircle(*pts[0], *pts[1], *pts[2], *pts[3]) == exact_incircle(*pts)
+
+
+@pytest.mark.parametrize("shift", [0.0, 1024.0, 2.0**20])
+def test_translation_by_exact_amounts_keeps_signs(rng, shift):
+    p = rng.integers(-50, 50, size=(200, 4, 2)) / 8.0
+    for q in p:
+        a, b, c, d = q
+        assert orient2d(*a, *b, *c) == orient2d(*(a + shift), *(b + shift), *(c + shift))
+        assert incircle(*a, *b, *c, *d) == incircle(*(a + shift), *(b + shift), *(c + shift), *(d + shift))

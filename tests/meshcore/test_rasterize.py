@@ -1,0 +1,304 @@
+"""Tests of meshcore.rasterize: the face scan agrees with point evaluation and with scipy."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import Delaunay
+
+from meshcore.errors import InvalidInputError
+from meshcore.interpolate import interpolate
+from meshcore.mesh import Mesh
+from meshcore.rasterize import rasterize
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20240612)
+
+
+def _mesh(vertices, faces) -> Mesh:
+    v = np.asarray(vertices, dtype=np.float64)
+    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
+
+
+def mixed() -> Mesh:
+    """Two quads and three triangles sharing edges."""
+    return _mesh(
+        [[0, 0], [2, 0], [4, 0], [0, 2], [2, 2.3], [4, 2], [1, 4], [3, 4.2]],
+        [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6, -1], [4, 7, 6, -1], [4, 5, 7, -1]],
+    )
+
+
+def grid_mesh(rng: np.random.Generator, nx: int, ny: int, jitter: float = 0.2) -> Mesh:
+    """A jittered nx x ny grid, each cell a quad or two triangles (boundary kept straight)."""
+    gx, gy = np.meshgrid(np.arange(nx + 1.0), np.arange(ny + 1.0))
+    interior = (gx > 0) & (gx < nx) & (gy > 0) & (gy < ny)
+    gx = gx + interior * rng.uniform(-jitter, jitter, gx.shape)
+    gy = gy + interior * rng.uniform(-jitter, jitter, gy.shape)
+    faces = []
+    for j in range(ny):
+        for i in range(nx):
+            a, b = j * (nx + 1) + i, j * (nx + 1) + i + 1
+            c, d = b + nx + 1, a + nx + 1
+            kind = rng.integers(3)
+            if kind == 0:
+                faces.append([a, b, c, d])
+            elif kind == 1:
+                faces += [[a, b, c, -1], [a, c, d, -1]]
+            else:
+                faces += [[a, b, d, -1], [b, c, d, -1]]
+    return _mesh(np.column_stack([gx.ravel(), gy.ravel()]), faces)
+
+
+def delaunay_mesh(points: np.ndarray) -> tuple[Mesh, Delaunay]:
+    """scipy's triangulation as a Mesh, every triangle turned counter-clockwise."""
+    tri = Delaunay(points)
+    s = tri.simplices.astype(np.int64)
+    a, b, c = points[s[:, 0]], points[s[:, 1]], points[s[:, 2]]
+    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
+    s[cw, 1], s[cw, 2] = s[cw, 2], s[cw, 1]
+    return _mesh(points, np.column_stack([s, np.full(len(s), -1)])), tri
+
+
+def cell_centres(x0, y0, resolution, nx, ny):
+    return np.meshgrid(x0 + (np.arange(nx) + 0.5) * resolution, y0 + (np.arange(ny) + 0.5) * resolution)
+
+
+def longest_edges(mesh: Mesh) -> np.ndarray:
+    f = mesh.faces
+    closed = np.where(f >= 0, f, f[:, :1])  # a triangle's 4th corner repeats its 1st
+    p = mesh.vertices[closed]
+    return np.linalg.norm(p - np.roll(p, -1, axis=1), axis=2).max(axis=1)
+
+
+def threshold_between(longest: np.ndarray, q: float) -> float:
+    """A max_edge halfway between two distinct longest edges (no face near it)."""
+    s = np.unique(longest)
+    k = int(q * (len(s) - 1))
+    return 0.5 * (s[k] + s[k + 1])
+
+
+# --------------------------------------------------------------------------
+# Agreement with point evaluation and with scipy
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("x0", "y0", "resolution", "nx", "ny"),
+    [
+        (-0.5, -0.5, 0.1, 50, 52),  # grid larger than the mesh on every side
+        (0.3, 0.2, 0.05, 40, 30),  # grid inside the mesh
+        (-0.05, -0.05, 0.1, 44, 44),  # centres exactly on vertices, edges and the hull
+    ],
+)
+def test_agrees_with_interpolate_at_cell_centres(x0, y0, resolution, nx, ny, rng):
+    mesh = mixed()
+    z = rng.normal(size=len(mesh.vertices))
+    got = rasterize(mesh, z, x0, y0, resolution, nx, ny)
+    assert got.shape == (ny, nx) and got.dtype == np.float64
+    x, y = cell_centres(x0, y0, resolution, nx, ny)
+    ref = interpolate(mesh, z, x, y)
+    assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+    assert (~np.isnan(got)).sum() > 100
+
+
+def test_agrees_with_interpolate_on_jittered_mixed_grid(rng):
+    mesh = grid_mesh(rng, 15, 10)
+    z = np.sin(mesh.vertices[:, 0]) * np.cos(mesh.vertices[:, 1])
+    args = (-1.03, -0.71, 0.07, 250, 180)
+    got = rasterize(mesh, z, *args)
+    ref = interpolate(mesh, z, *cell_centres(*args))
+    assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+
+def test_every_cell_on_edges_and_hull_of_a_regular_grid_gets_a_value(rng):
+    # an unjittered 8 x 6 grid: with these centres whole rows and columns lie on
+    # grid lines (shared edges and the hull), others on the triangle diagonals
+    mesh = grid_mesh(rng, 8, 6, jitter=0.0)
+    z = 1.0 + mesh.vertices[:, 0] - 2.0 * mesh.vertices[:, 1]
+    got = rasterize(mesh, z, -0.125, -0.125, 0.25, 33, 25)
+    x, y = cell_centres(-0.125, -0.125, 0.25, 33, 25)
+    assert not np.isnan(got).any()
+    assert_allclose(got, 1.0 + x - 2.0 * y, rtol=1e-12, atol=1e-12)
+    # one more cell on each side is outside
+    wider = rasterize(mesh, z, -0.375, -0.375, 0.25, 35, 27)
+    assert np.isnan(wider[0]).all() and np.isnan(wider[-1]).all()
+    assert np.isnan(wider[:, 0]).all() and np.isnan(wider[:, -1]).all()
+    assert not np.isnan(wider[1:-1, 1:-1]).any()
+
+
+def test_agrees_with_scipy_on_delaunay_mesh(rng):
+    points = rng.random((3000, 2)) * [100.0, 60.0] + [1000.0, 2000.0]
+    mesh, tri = delaunay_mesh(points)
+    z = np.sin(points[:, 0] / 9.0) * np.cos(points[:, 1] / 7.0) * 20.0 + 0.1 * points[:, 0]
+    args = (995.0, 1995.0, 0.37, 300, 180)
+    got = rasterize(mesh, z, *args)
+    x, y = cell_centres(*args)
+    ref = LinearNDInterpolator(tri, z)(x, y)
+    assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert np.isnan(got).any() and (~np.isnan(got)).sum() > 20000
+    assert_allclose(got, ref, rtol=1e-12, atol=1e-10)
+
+
+def test_rows_run_south_to_north_and_columns_west_to_east():
+    mesh = mixed()
+    got_x = rasterize(mesh, mesh.vertices[:, 0], 0.0, 0.0, 0.5, 8, 8)
+    got_y = rasterize(mesh, mesh.vertices[:, 1], 0.0, 0.0, 0.5, 8, 8)
+    assert_allclose(got_x[0], 0.25 + 0.5 * np.arange(8))
+    assert_allclose(got_y[:, 2], 0.25 + 0.5 * np.arange(8))
+
+
+def test_grid_away_from_the_mesh_is_all_nan():
+    mesh = mixed()
+    assert np.isnan(rasterize(mesh, np.zeros(8), 10.0, 10.0, 1.0, 5, 5)).all()
+    assert np.isnan(rasterize(mesh, np.zeros(8), -100.0, 0.0, 1.0, 50, 5)).all()
+
+
+def test_nan_z_blanks_its_faces_only():
+    mesh = mixed()
+    z = np.arange(8, dtype=np.float64)
+    z[2] = np.nan  # a corner of quad 1 only
+    got = rasterize(mesh, z, 0.0, 0.0, 0.5, 8, 8)
+    x, y = cell_centres(0.0, 0.0, 0.5, 8, 8)
+    ref = interpolate(mesh, z, x, y)
+    assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert np.isnan(got[0, 5]) and not np.isnan(got[0, 1])
+
+
+# --------------------------------------------------------------------------
+# max_edge
+# --------------------------------------------------------------------------
+
+
+def test_max_edge_blanks_the_long_triangle():
+    # a unit square quad plus a long triangle to its east
+    mesh = _mesh([[0, 0], [1, 0], [1, 1], [0, 1], [3, 0.5]], [[0, 1, 2, 3], [1, 4, 2, -1]])
+    z = np.array([0.0, 1.0, 2.0, 1.0, 5.0])
+    full = rasterize(mesh, z, 0.0, 0.0, 0.25, 12, 4)
+    cut = rasterize(mesh, z, 0.0, 0.0, 0.25, 12, 4, max_edge=1.5)
+    assert not np.isnan(full[:, :4]).any() and not np.isnan(full[1:3, 4:6]).any()
+    assert_array_equal(cut[:, :4], full[:, :4])
+    assert np.isnan(cut[:, 4:]).all()
+
+
+def test_max_edge_blanks_exactly_the_faces_with_long_edges(rng):
+    points = rng.random((800, 2))
+    mesh, tri = delaunay_mesh(points)
+    z = points[:, 0] ** 2 - points[:, 1]
+    args = (0.0, 0.0, 0.01, 100, 100)
+    x, y = cell_centres(*args)
+    face = tri.find_simplex(np.column_stack([x.ravel(), y.ravel()])).reshape(x.shape)
+    longest = longest_edges(mesh)
+    max_edge = threshold_between(longest, 0.8)
+    full = rasterize(mesh, z, *args)
+    cut = rasterize(mesh, z, *args, max_edge=max_edge)
+    inside = face >= 0
+    blanked = inside & (longest[face] > max_edge)
+    assert blanked.sum() > 100 and (inside & ~blanked).sum() > 1000
+    assert np.isnan(cut[blanked]).all()
+    assert_array_equal(cut[inside & ~blanked], full[inside & ~blanked])
+    assert np.isnan(cut[~inside]).all()
+    # bounds: above every edge keeps all, below every edge blanks all
+    assert_array_equal(rasterize(mesh, z, *args, max_edge=1.001 * longest.max()), full)
+    assert np.isnan(rasterize(mesh, z, *args, max_edge=0.5 * longest.min())).all()
+
+
+def test_max_edge_on_quads(rng):
+    mesh = grid_mesh(rng, 10, 10)
+    z = mesh.vertices[:, 0] + mesh.vertices[:, 1]
+    args = (0.0, 0.0, 0.1, 100, 100)
+    longest = longest_edges(mesh)
+    max_edge = threshold_between(longest, 0.5)
+    full = rasterize(mesh, z, *args)
+    cut = rasterize(mesh, z, *args, max_edge=max_edge)
+    # cells covered only by short faces are kept: rasterize the short faces alone
+    short = _mesh(mesh.vertices, mesh.faces[longest <= max_edge])
+    kept = rasterize(short, z, *args)
+    assert_array_equal(np.isnan(cut), np.isnan(kept))
+    assert_allclose(cut, kept, rtol=1e-12)
+    assert np.isnan(cut).sum() > 1000 and not np.isnan(full).any()
+
+
+# --------------------------------------------------------------------------
+# Arguments
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"resolution": 0.0}, r"resolution must be > 0"),
+        ({"resolution": -1.0}, r"resolution must be > 0"),
+        ({"resolution": np.nan}, r"resolution must be a finite real number"),
+        ({"resolution": np.inf}, r"resolution must be a finite real number"),
+        ({"resolution": "1"}, r"resolution must be a finite real number"),
+        ({"nx": 0}, r"nx must be a positive integer"),
+        ({"nx": 2.5}, r"nx must be a positive integer"),
+        ({"nx": True}, r"nx must be a positive integer"),
+        ({"ny": -3}, r"ny must be a positive integer"),
+        ({"x0": np.nan}, r"x0 must be a finite real number"),
+        ({"y0": np.inf}, r"y0 must be a finite real number"),
+        ({"max_edge": 0.0}, r"max_edge must be None or a number > 0"),
+        ({"max_edge": -2.0}, r"max_edge must be None or a number > 0"),
+        ({"max_edge": np.nan}, r"max_edge must be None or a number > 0"),
+        ({"max_edge": "1"}, r"max_edge must be None or a number > 0"),
+        ({"z": np.zeros(7)}, r"z must have shape \(n_vertices,\) = \(8,\)"),
+        ({"z": np.full(8, np.inf)}, r"z must be finite or NaN"),
+    ],
+)
+def test_bad_arguments_raise(kwargs, match):
+    args = {"z": np.zeros(8), "x0": 0.0, "y0": 0.0, "resolution": 0.5, "nx": 4, "ny": 4}
+    args.update(kwargs)
+    with pytest.raises(InvalidInputError, match=match):
+        rasterize(mixed(), **args)
+    with pytest.raises(ValueError, match=match):
+        rasterize(mixed(), **args)
+
+
+def test_numpy_scalars_accepted():
+    got = rasterize(mixed(), np.zeros(8), np.float32(0.0), np.int64(0), np.float64(0.5),
+                    np.int32(4), np.int64(3), max_edge=np.float64(10.0))
+    assert got.shape == (3, 4)
+    assert_array_equal(got, 0.0)
+
+
+def test_inputs_not_modified(rng):
+    mesh = mixed()
+    before = (mesh.vertices.copy(), mesh.faces.copy())
+    z = rng.normal(size=8)
+    z0 = z.copy()
+    rasterize(mesh, z, 0.0, 0.0, 0.5, 8, 8, max_edge=3.0)
+    for a, b in zip((mesh.vertices, mesh.faces, z), (*before, z0)):
+        assert_array_equal(a, b)
+
+
+def test_python_form_of_kernel_agrees():
+    """The kernel run with NUMBA_DISABLE_JIT=1 gives the same numbers."""
+    script = (
+        "import json, numpy as np\n"
+        "from meshcore.mesh import Mesh\n"
+        "from meshcore.rasterize import rasterize\n"
+        "v = np.array([[0, 0], [2, 0], [4, 0], [0, 2], [2, 2.3], [4, 2], [1, 4], [3, 4.2]])\n"
+        "f = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6, -1], [4, 7, 6, -1], [4, 5, 7, -1]])\n"
+        "m = Mesh(v.astype(float), f, np.arange(8))\n"
+        "out = rasterize(m, np.cos(np.arange(8.0)), -0.3, -0.2, 0.3, 16, 16, max_edge=2.5)\n"
+        "print(json.dumps(np.where(np.isnan(out), None, out).tolist()))\n"
+    )
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    result = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True
+    )
+    py_values = np.array(json.loads(result.stdout), dtype=np.float64)
+    jit_values = rasterize(mixed(), np.cos(np.arange(8.0)), -0.3, -0.2, 0.3, 16, 16, max_edge=2.5)
+    assert_allclose(py_values, jit_values, rtol=1e-14, atol=1e-14)
+    assert np.isnan(jit_values).any() and not np.isnan(jit_values).all()
