@@ -64,24 +64,37 @@ def _faces_kernel(tri, he, partner, vertex_of) -> np.ndarray:
     return faces
 
 
-def _vertex_numbering(
-    triangulation: Triangulation, n: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-    """(vertex id per sorted position, input index per vertex, vertex per input point)."""
-    order = triangulation.order.astype(np.int64)
-    rep = triangulation.rep.astype(np.int64)
-    while True:  # resolve chains (a point merged with another merged point)
-        nxt = rep[rep]
-        if np.array_equal(nxt, rep):
-            break
-        rep = nxt
-    is_vertex = np.zeros(n, dtype=bool)
-    is_vertex[order[rep == np.arange(n)]] = True
-    vertex_input = np.flatnonzero(is_vertex)
-    vertex_id_of_input = np.cumsum(is_vertex) - 1
-    vertex_of_sorted = vertex_id_of_input[order[rep]]
-    input_to_vertex = np.empty(n, dtype=np.int64)
-    input_to_vertex[order] = vertex_of_sorted
+@njit
+def _vertex_numbering(order, rep):
+    """Vertices are the distinct points in order of first occurrence in the input.
+
+    Returns (vertex id of every sorted point, input index of every vertex,
+    vertex of every input point).
+    """
+    n = order.shape[0]
+    is_vertex = np.zeros(n, dtype=np.bool_)
+    for k in range(n):
+        r = rep[k]
+        while rep[r] != r:  # chains appear only through points merged after the sweep
+            r = rep[r]
+        rep[k] = r
+        if r == k:
+            is_vertex[order[k]] = True
+    input_to_vertex = np.empty(n, dtype=np.int64)  # first holds the vertex id of each vertex input
+    count = 0
+    for i in range(n):
+        if is_vertex[i]:
+            input_to_vertex[i] = count
+            count += 1
+    vertex_input = np.empty(count, dtype=np.int64)
+    for i in range(n):
+        if is_vertex[i]:
+            vertex_input[input_to_vertex[i]] = i
+    vertex_of_sorted = np.empty(n, dtype=np.int32)
+    for k in range(n):
+        vertex_of_sorted[k] = input_to_vertex[order[rep[k]]]
+    for k in range(n):
+        input_to_vertex[order[k]] = vertex_of_sorted[k]
     return vertex_of_sorted, vertex_input, input_to_vertex
 
 
@@ -119,7 +132,6 @@ def build_mesh(
     qm = None if quad_measure is None else parse_option(QuadMeasure, quad_measure, "quad_measure")
     mm = parse_option(MergeMethod, merge, "merge")
     points = as_points(xy)
-    n = points.shape[0]
 
     triangulation = delaunay(points)
     if tm is not TriangleMeasure.DELAUNAY:
@@ -130,8 +142,11 @@ def build_mesh(
     else:
         partner = merge_triangles(triangulation, qm.value, mm.value)
 
-    vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation, n)
-    faces = _faces_kernel(triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted)
+    vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
+    tri, he = triangulation.triangles, triangulation.halfedges
+    del triangulation  # release the sweep's coordinates before the faces are allocated
+    faces = _faces_kernel(tri, he, partner, vertex_of_sorted)
+    del tri, he, partner, vertex_of_sorted
     return Mesh(
         vertices=points[vertex_input],
         faces=faces,

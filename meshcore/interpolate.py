@@ -54,7 +54,7 @@ from .mesh import Mesh
 
 __all__ = ["interpolate", "gradient"]
 
-_INSIDE_TOL = 0.0
+_INSIDE_TOL = 1e-10
 """Relative tolerance of the inside tests (a fraction of a barycentric coordinate)."""
 
 _BBOX_MARGIN = 4.0 * _INSIDE_TOL

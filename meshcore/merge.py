@@ -46,8 +46,9 @@ def _score_to_measure(measure: int, score: float) -> float:
 def _candidates_kernel(x, y, tri, he, triangle_measure: int, quad_measure: int):
     q = triangle_scores(triangle_measure, x, y, tri)
     m = tri.shape[0]
-    edges = np.empty(m // 2 + 1, dtype=np.int32)
-    gains = np.empty(m // 2 + 1)
+    capacity = m // 8 + 16
+    edges = np.empty(capacity, dtype=np.int32)
+    gains = np.empty(capacity)
     n = 0
     for e in range(m):
         f = he[e]
@@ -72,6 +73,14 @@ def _candidates_kernel(x, y, tri, he, triangle_measure: int, quad_measure: int):
             continue
         gain = _score_to_measure(quad_measure, sq) - _score_to_measure(quad_measure, best)
         if gain > 0.0:
+            if n == capacity:
+                capacity *= 2
+                grown_edges = np.empty(capacity, dtype=np.int32)
+                grown_gains = np.empty(capacity)
+                grown_edges[:n] = edges[:n]
+                grown_gains[:n] = gains[:n]
+                edges = grown_edges
+                gains = grown_gains
             edges[n] = e
             gains[n] = gain
             n += 1

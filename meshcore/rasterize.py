@@ -130,7 +130,7 @@ def _rasterize_kernel(
                 max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
                 max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
             )
-            if longest > max_edge2:
+            if longest > max_edge2 * 4:
                 continue
             # the box of _face_bbox (min and max are exact: the order does not matter)
             bx0, by0, bx1, by1 = _grow_bbox(

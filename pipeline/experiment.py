@@ -391,43 +391,35 @@ def _shapes(fixed: NDArray[np.float64], free: NDArray[np.float64]) -> NDArray[np
     return np.stack([np.broadcast_to(c, free.shape) for c in corners], axis=-2)
 
 
-def _argmax_vertex(measure, fixed: NDArray[np.float64], start: NDArray[np.float64], step: float) -> NDArray:
-    """Refine a grid maximum of ``measure`` over the free vertex by repeated zoomed grids."""
-    best = np.asarray(start, dtype=np.float64)
-    offsets = np.linspace(-1.0, 1.0, 21)
-    for _ in range(10):
-        gx, gy = np.meshgrid(best[0] + step * offsets, best[1] + step * offsets)
-        values = measure(_shapes(fixed, np.stack([gx, gy], axis=-1)))
-        i = np.unravel_index(int(np.argmax(values)), values.shape)
-        best = np.array([gx[i], gy[i]])
-        step /= 5.0
-    return best
-
-
 def figure_measures(path: Path, resolution: int = 301) -> None:
     """Write the paper's Figure 2: S1..S4 as functions of one free vertex.
 
     Top row: S1(t) of the triangle (0,0), (1,0), (x,y); S2(q) of the square
     (0,0), (1,0), (x,y), (0,1) and of the rectangle (0,0), (2,0), (x,y), (0,1).
     Bottom row: the same for S3 and S4.  Fixed sides are bold; the dotted
-    sides and the star show the optimal free vertex (the equilateral apex for
-    triangles; for quadrangles the maximum, found numerically).
+    sides and the star show the optimal free vertex: the equilateral apex
+    (0.5, sqrt(3)/2) for S1 and S3, the square's corner (1, 1) for S2 and
+    S4, the rectangle's corner (2, 1) for S2 and, for S4 on the rectangle,
+    (1.5, 1.5): the point of the fixed circumcircle (centre (1, 0.5)) equally
+    far from (0, 1) and (2, 0), the paper's remark on Figure 2.  These maxima
+    sit on kinks of ridges, where a grid search lands beside them.
     """
     triangle = np.array([[0.0, 0.0], [1.0, 0.0]])
     square = np.array([[0.0, 1.0], [0.0, 0.0], [1.0, 0.0]])
     rectangle = np.array([[0.0, 1.0], [0.0, 0.0], [2.0, 0.0]])
+    apex = (0.5, math.sqrt(3.0) / 2.0)
     panels = (
-        ("$S_1(t)$", s1, triangle, (-0.5, 1.5), (-0.1, 1.6)),
-        ("$S_2(q)$, square", s2, square, (-0.1, 2.0), (-0.1, 2.0)),
-        ("$S_2(q)$, rectangle", s2, rectangle, (-0.1, 3.5), (-0.1, 2.5)),
-        ("$S_3(t)$", s3, triangle, (-0.5, 1.5), (-0.1, 1.6)),
-        ("$S_4(q)$, square", s4, square, (-0.1, 2.0), (-0.1, 2.0)),
-        ("$S_4(q)$, rectangle", s4, rectangle, (-0.1, 3.5), (-0.1, 2.5)),
+        ("$S_1(t)$", s1, triangle, apex, (-0.5, 1.5), (-0.1, 1.6)),
+        ("$S_2(q)$, square", s2, square, (1.0, 1.0), (-0.1, 2.0), (-0.1, 2.0)),
+        ("$S_2(q)$, rectangle", s2, rectangle, (2.0, 1.0), (-0.1, 3.5), (-0.1, 2.5)),
+        ("$S_3(t)$", s3, triangle, apex, (-0.5, 1.5), (-0.1, 1.6)),
+        ("$S_4(q)$, square", s4, square, (1.0, 1.0), (-0.1, 2.0), (-0.1, 2.0)),
+        ("$S_4(q)$, rectangle", s4, rectangle, (1.5, 1.5), (-0.1, 3.5), (-0.1, 2.5)),
     )
     levels = np.linspace(0.0, 1.0, 11)
     fig = _figure(figsize=(16, 9.5), layout="constrained")
     axes = fig.subplots(2, 3)
-    for ax, (title, measure, fixed, xr, yr) in zip(axes.ravel(), panels):
+    for ax, (title, measure, fixed, optimum, xr, yr) in zip(axes.ravel(), panels):
         gx, gy = np.meshgrid(np.linspace(*xr, resolution), np.linspace(*yr, resolution))
         value = measure(_shapes(fixed, np.stack([gx, gy], axis=-1)))
         filled = ax.contourf(gx, gy, value, levels=levels, cmap="viridis")
@@ -435,16 +427,13 @@ def figure_measures(path: Path, resolution: int = 301) -> None:
         ax.clabel(lines, levels=levels[2:-1:2], fmt="%.1f", fontsize=7)
         fig.colorbar(filled, ax=ax, shrink=0.9, ticks=levels[::2], label=measure.__name__.upper())
         name = measure.__name__.upper()
+        best = np.array(optimum)
+        best_value = float(measure(_shapes(fixed, best)))
+        best_label = f"optimum ({best[0]:.2f}, {best[1]:.2f}), {name} = {best_value:.3f}"
         if fixed.shape[0] == 2:
-            best = np.array([0.5, math.sqrt(3.0) / 2.0])
-            best_label = f"optimum: equilateral apex, {name} = 1"
             free_sides = np.array([fixed[0], best, fixed[1]])
             fixed_label = "fixed side"
         else:
-            i = np.unravel_index(int(np.argmax(value)), value.shape)
-            best = _argmax_vertex(measure, fixed, np.array([gx[i], gy[i]]), 2.0 * (xr[1] - xr[0]) / resolution)
-            best_value = float(measure(_shapes(fixed, best)))
-            best_label = f"optimum ({best[0]:.3f}, {best[1]:.3f}), {name} = {best_value:.3f}"
             free_sides = np.array([fixed[2], best, fixed[0]])
             fixed_label = "fixed sides"
         ax.plot(*free_sides.T, linestyle=":", color="red", linewidth=2.0, zorder=4)

@@ -1,0 +1,189 @@
+"""Benchmarks of the meshcore engine; prints tables (run by hand).
+
+    python bench/bench_mesh.py [--sizes 100000 1000000 4000000] [--repeat 3]
+
+1. build_mesh(xy, "s3", "s4") against Triangle (plain Delaunay, ``-Q``) and
+   scipy's Qhull on the same uniform points, side by side in one run; medians.
+2. rasterize of a 1M-point combined mesh to 1000 x 1000 cells against scipy's
+   LinearNDInterpolator evaluating the same grid (its triangulation excluded).
+3. Peak memory of build_mesh per input point (a fresh process per size; the
+   kernel's peak resident set is reset right before the call).
+4. Start-up: the first process compiles the kernels and fills the cache, the
+   second loads them from it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+
+import numpy as np
+
+import meshcore
+
+
+def median_time(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def table(title: str, header: list[str], rows: list[list[str]]) -> None:
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    print(f"\n{title}")
+    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
+    print("  ".join("-" * w for w in widths))
+    for r in rows:
+        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+
+
+def bench_build(sizes: list[int], repeat: int) -> None:
+    import triangle
+    from scipy.spatial import Delaunay
+
+    rows = []
+    rng = np.random.default_rng(1)
+    meshcore.build_mesh(rng.random((1000, 2)), "s3", "s4")  # compile outside the timings
+    for n in sizes:
+        xy = rng.random((n, 2))
+        ours = median_time(lambda: meshcore.build_mesh(xy, "s3", "s4"), repeat)
+        ours_dt = median_time(lambda: meshcore.build_mesh(xy, "delaunay", None), repeat)
+        tri = median_time(lambda: triangle.triangulate({"vertices": xy}, "Q"), repeat)
+        qhull = median_time(lambda: Delaunay(xy), 1) if n <= 1_000_000 else float("nan")
+        rows.append(
+            [
+                f"{n:,}",
+                f"{ours:.3f}",
+                f"{ours_dt:.3f}",
+                f"{tri:.3f}",
+                f"{qhull:.3f}",
+                f"{ours / tri:.2f}",
+            ]
+        )
+    table(
+        f"build_mesh vs Triangle (median of {repeat}; seconds)",
+        ["points", "s3+s4", "delaunay only", "Triangle", "Qhull", "s3+s4 / Triangle"],
+        rows,
+    )
+
+
+def bench_rasterize(repeat: int) -> None:
+    from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(2)
+    n = 1_000_000
+    xy = rng.random((n, 2)) * 1000.0
+    z = np.sin(xy[:, 0] / 80.0) * np.cos(xy[:, 1] / 120.0) * 20.0
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    zv = np.empty(len(mesh.vertices))
+    zv[mesh.input_to_vertex] = z
+    meshcore.rasterize(mesh, zv, 0.0, 0.0, 100.0, 10, 10)  # compile
+    ours = median_time(lambda: meshcore.rasterize(mesh, zv, 0.0, 0.0, 1.0, 1000, 1000), repeat)
+    interp = LinearNDInterpolator(Delaunay(xy), z)
+    centres = (np.arange(1000) + 0.5) * 1.0
+    gx, gy = np.meshgrid(centres, centres)
+    theirs = median_time(lambda: interp(gx, gy), repeat)
+    table(
+        f"rasterize 1000 x 1000 of a 1M-point mesh (median of {repeat}; seconds)",
+        ["meshcore.rasterize", "LinearNDInterpolator", "speed-up"],
+        [[f"{ours:.3f}", f"{theirs:.3f}", f"{theirs / ours:.1f}x"]],
+    )
+
+
+_MEMORY_PROBE = textwrap.dedent(
+    """
+    import json, sys
+    import numpy as np
+    import meshcore
+
+    def rss(field):
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field):
+                    return int(line.split()[1]) * 1024
+    n = int(sys.argv[1])
+    meshcore.build_mesh(np.random.default_rng(0).random((1000, 2)), "s3", "s4")
+    xy = np.random.default_rng(3).random((n, 2))
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+    base = rss("VmRSS:")
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    peak = rss("VmHWM:")
+    print(json.dumps({"n": n, "peak_bytes": peak - base}))
+    """
+)
+
+
+def bench_memory(sizes: list[int]) -> None:
+    rows = []
+    for n in sizes:
+        out = subprocess.run(
+            [sys.executable, "-c", _MEMORY_PROBE, str(n)], capture_output=True, text=True, check=True
+        )
+        res = json.loads(out.stdout.strip().splitlines()[-1])
+        rows.append([f"{n:,}", f"{res['peak_bytes'] / 2**20:.1f}", f"{res['peak_bytes'] / n:.0f}"])
+    table("peak memory of build_mesh(xy, 's3', 's4') above the input", ["points", "MiB", "bytes/point"], rows)
+
+
+_STARTUP_PROBE = textwrap.dedent(
+    """
+    import time
+    t0 = time.perf_counter()
+    import numpy as np
+    import meshcore
+    xy = np.random.default_rng(0).random((1000, 2))
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    zv = np.zeros(len(mesh.vertices))
+    meshcore.rasterize(mesh, zv, 0.0, 0.0, 0.1, 10, 10)
+    meshcore.interpolate(mesh, zv, [0.5], [0.5])
+    meshcore.validate(mesh)
+    print(time.perf_counter() - t0)
+    """
+)
+
+
+def bench_startup() -> None:
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        runs = []
+        for _ in range(3):
+            out = subprocess.run(
+                [sys.executable, "-c", _STARTUP_PROBE], capture_output=True, text=True, check=True, env=env
+            )
+            runs.append(float(out.stdout.strip().splitlines()[-1]))
+    table(
+        "start-up: import + first build_mesh/rasterize/interpolate/validate (seconds)",
+        ["first process (compile + cache)", "second process (cached)", "third process (cached)"],
+        [[f"{runs[0]:.2f}", f"{runs[1]:.2f}", f"{runs[2]:.2f}"]],
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000, 4_000_000])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--skip", nargs="*", default=[], choices=["build", "rasterize", "memory", "startup"])
+    args = parser.parse_args()
+    if "startup" not in args.skip:
+        bench_startup()
+    if "build" not in args.skip:
+        bench_build(args.sizes, args.repeat)
+    if "rasterize" not in args.skip:
+        bench_rasterize(args.repeat)
+    if "memory" not in args.skip:
+        bench_memory(args.sizes)
+
+
+if __name__ == "__main__":
+    main()
