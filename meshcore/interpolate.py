@@ -262,7 +262,9 @@ def _grow_bbox(
 
 
 @njit
-def _face_bbox(vertices: np.ndarray, faces: np.ndarray, f: int) -> tuple[float, float, float, float]:
+def _face_bbox(
+    vertices: np.ndarray, faces: np.ndarray, f: int
+) -> tuple[float, float, float, float]:
     """``(xmin, ymin, xmax, ymax)`` of face ``f``, grown by :func:`_grow_bbox`."""
     n = 4 if faces[f, 3] >= 0 else 3
     v = faces[f, 0]
@@ -457,7 +459,7 @@ def _gradient_kernel(
 
 
 class _Locator(NamedTuple):
-    """A uniform bucket grid over a mesh: faces of bucket ``b`` are ``items[start[b]:start[b+1]]``."""
+    """A uniform bucket grid: the faces of bucket ``b`` are ``items[start[b]:start[b + 1]]``."""
 
     bbox: NDArray[np.float64]
     xmin: float

@@ -58,7 +58,7 @@ def _centre(origin: float, i: int, resolution: float) -> float:
 
 @njit
 def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> tuple[int, int]:
-    """Inclusive range ``first .. last`` of cells ``0 .. n-1`` whose centres may lie in ``[lo, hi]``.
+    """Inclusive range ``first .. last`` of the cells whose centres may lie in ``[lo, hi]``.
 
     A superset: the estimate is widened by more than its rounding error, so it
     may hold one cell too many at either end (only when a centre is within a
@@ -130,7 +130,7 @@ def _rasterize_kernel(
                 max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
                 max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
             )
-            if longest > max_edge2 * 4:
+            if longest > max_edge2:
                 continue
             # the box of _face_bbox (min and max are exact: the order does not matter)
             bx0, by0, bx1, by1 = _grow_bbox(

@@ -68,8 +68,9 @@ def validate(mesh: Mesh) -> None:
     Checked: shapes and index ranges; every face counter-clockwise and strictly
     convex (exact predicates); every edge shared by at most two faces, in
     opposite directions; the boundary edges are exactly the convex hull of the
-    vertices; the total area equals the hull's; every vertex is used; the
-    ``input_to_vertex`` map points at a vertex with the same coordinates.
+    vertices; the total area equals the hull's; every vertex is used; every
+    entry of ``input_to_vertex`` is a vertex and every vertex is some input
+    point's.  A mesh without faces is valid only when its vertices are collinear.
     """
     v = np.asarray(mesh.vertices)
     f = np.asarray(mesh.faces)

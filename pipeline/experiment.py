@@ -474,12 +474,16 @@ def figure_combined_mesh(mesh: Mesh, path: Path, title: str) -> None:
             Patch(facecolor=tri_colour, edgecolor="#303030", label=f"triangles ({mesh.n_triangles})"),
             Patch(facecolor=quad_colour, edgecolor="#303030", label=f"quadrangles ({mesh.n_quads})"),
         ],
-        loc="upper right",
-        bbox_to_anchor=(1.0, 1.0),
-        framealpha=0.9,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.06),
+        ncol=2,
+        frameon=False,
     )
     ax.set_aspect("equal")
     ax.autoscale_view()
+    ax.margins(0.02)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
     ax.set_title(title)
     _save(fig, path, title)
 
@@ -513,8 +517,8 @@ def experiment_command(
     figure_combined_mesh(
         mesh,
         out / "combined_mesh.png",
-        f"Combined mesh (row S4(q): S3 flips + S4 eliminations, {merge}), "
-        f"{points} points uniform in the unit disc",
+        f"Combined mesh of row S4(q): S3 flips + S4 eliminations ({merge})\n"
+        f"{points} points uniform in the unit disc (first trial, seed {seed})",
     )
     print(f"Figures: {out / 'figure2_measures.png'}, {out / 'combined_mesh.png'}")
     return 0

@@ -219,3 +219,20 @@ def test_property_conforming_and_lossless(xy, option):
     validate(mesh)
     assert (mesh.vertices[mesh.input_to_vertex] == xy).all()
     assert len(np.unique(xy, axis=0)) == mesh.vertices.shape[0]
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(xy=point_sets, measures=st.sampled_from([("s1", "s2"), ("s3", "s4")]))
+def test_property_local_optimality(xy, measures):
+    triangle_measure, quad_measure = measures
+    mesh = build_mesh(xy, triangle_measure, quad_measure)
+    pairs = triangle_pairs(mesh)
+    if len(pairs):
+        current, alternative = pair_scores(mesh, triangle_measure, pairs)
+        convex = strictly_convex(mesh.vertices, *pairs.T)
+        assert not np.any(convex & (alternative > current * (1 + 1e-6) + 1e-9))
+        a, b, c, d = pairs.T
+        left = quad_gains(mesh, quad_measure, np.stack([a, d, b, c], 1)[convex])
+        assert (left <= 1e-9).all()
+    quads = mesh.faces[mesh.faces[:, 3] >= 0]
+    assert (quad_gains(mesh, quad_measure, quads) > -1e-9).all()

@@ -309,7 +309,9 @@ def test_continuous_across_shared_edge(edge, face_a, face_b, rng):
     on_edge = (1 - t)[:, None] * pa + t[:, None] * pb
     expected = (1 - t) * z[edge[0]] + t * z[edge[1]]
     for f in (face_a, face_b):
-        values = [_face_value_and_gradient(mesh.vertices, mesh.faces, z, f, x, y)[0] for x, y in on_edge]
+        values = [
+            _face_value_and_gradient(mesh.vertices, mesh.faces, z, f, x, y)[0] for x, y in on_edge
+        ]
         assert_allclose(values, expected, rtol=1e-12, atol=1e-12)
     # approached from both sides the surface tends to the same edge values
     normal = np.array([pa[1] - pb[1], pb[0] - pa[0]]) / np.hypot(*(pb - pa))
@@ -342,8 +344,9 @@ def test_nan_outside_hull(make):
     z = np.arange(len(mesh.vertices), dtype=np.float64)
     lo = mesh.vertices.min(axis=0)
     hi = mesh.vertices.max(axis=0)
-    x = np.array([lo[0] - 1e-6, hi[0] + 1e-6, lo[0] - 10.0, 0.5 * (lo[0] + hi[0]), np.nan, np.inf, 0.0])
-    y = np.array([0.5 * (lo[1] + hi[1]), 0.5 * (lo[1] + hi[1]), lo[1], hi[1] + 1e-6, 0.0, 0.0, -np.inf])
+    mid = 0.5 * (lo + hi)
+    x = np.array([lo[0] - 1e-6, hi[0] + 1e-6, lo[0] - 10.0, mid[0], np.nan, np.inf, 0.0])
+    y = np.array([mid[1], mid[1], lo[1], hi[1] + 1e-6, 0.0, 0.0, -np.inf])
     assert np.isnan(interpolate(mesh, z, x, y)).all()
     gx, gy = gradient(mesh, z, x, y)
     assert np.isnan(gx).all() and np.isnan(gy).all()

@@ -69,7 +69,10 @@ def delaunay_mesh(points: np.ndarray) -> tuple[Mesh, Delaunay]:
 
 
 def cell_centres(x0, y0, resolution, nx, ny):
-    return np.meshgrid(x0 + (np.arange(nx) + 0.5) * resolution, y0 + (np.arange(ny) + 0.5) * resolution)
+    """The centres ``x0 + (i + 0.5) * resolution`` (and in y) as (ny, nx) arrays."""
+    return np.meshgrid(
+        x0 + (np.arange(nx) + 0.5) * resolution, y0 + (np.arange(ny) + 0.5) * resolution
+    )
 
 
 def longest_edges(mesh: Mesh) -> np.ndarray:

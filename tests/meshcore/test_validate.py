@@ -1,0 +1,73 @@
+import numpy as np
+import pytest
+
+from meshcore import InvalidMeshError, Mesh, build_mesh, validate
+
+SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def mesh_of(vertices, faces, input_to_vertex=None):
+    vertices = np.asarray(vertices, dtype=float)
+    if input_to_vertex is None:
+        input_to_vertex = np.arange(len(vertices))
+    return Mesh(vertices, np.asarray(faces, dtype=np.int64), np.asarray(input_to_vertex, dtype=np.int64))
+
+
+def test_valid_meshes_pass(rng):
+    validate(mesh_of(SQUARE, [[0, 1, 2, 3]]))
+    validate(mesh_of(SQUARE, [[0, 1, 2, -1], [0, 2, 3, -1]]))
+    validate(build_mesh(rng.random((300, 2)), "s3", "s4"))
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, match",
+    [
+        (SQUARE, [[0, 2, 1, -1], [0, 2, 3, -1]], "not strictly convex and counter-clockwise"),
+        (SQUARE, [[0, 1, 2, -1]], "vertex 3 is not used"),
+        (np.vstack([SQUARE, [[0.5, 0.5]]]), [[0, 1, 2, -1], [0, 2, 3, -1]], "vertex 4 is not used"),
+        (SQUARE, [[0, 1, 2, -1], [0, 1, 2, -1], [0, 2, 3, -1]], "same direction"),
+        (SQUARE, [[0, 1, 1, -1]], "repeats a vertex"),
+        (SQUARE, [[0, 1, 2, 7]], "out of range"),
+        (SQUARE, [[0, 1, -1, -1]], "out of range"),
+        (np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.2], [1.0, 2.0]]), [[0, 1, 2, 3]], "not strictly convex"),
+        (np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [1.0, 1.0]]), [[0, 1, 2, 3]], "not strictly convex"),
+    ],
+)
+def test_broken_meshes_are_named(vertices, faces, match):
+    with pytest.raises(InvalidMeshError, match=match):
+        validate(mesh_of(vertices, faces))
+
+
+def test_hole_is_detected():
+    # a ring of four quads around a missing centre square
+    g = np.array([[x, y] for y in range(4) for x in range(4)], dtype=float)
+    idx = lambda x, y: 4 * y + x  # noqa: E731
+    faces = []
+    for y in range(3):
+        for x in range(3):
+            if (x, y) != (1, 1):
+                faces.append([idx(x, y), idx(x + 1, y), idx(x + 1, y + 1), idx(x, y + 1)])
+    validate(mesh_of(g, faces + [[idx(1, 1), idx(2, 1), idx(2, 2), idx(1, 2)]]))
+    with pytest.raises(InvalidMeshError, match="boundary is not the convex hull"):
+        validate(mesh_of(g, faces))
+
+
+def test_concave_boundary_is_detected():
+    # an L-shaped mesh does not cover the convex hull of its vertices
+    v = np.array([[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2], [0, 1], [1, 0]], dtype=float)
+    faces = [[0, 7, 3, 6], [7, 1, 2, 3], [6, 3, 4, 5]]
+    with pytest.raises(InvalidMeshError, match="convex hull"):
+        validate(mesh_of(v, faces))
+
+
+def test_bad_input_map_is_detected():
+    with pytest.raises(InvalidMeshError, match="input_to_vertex"):
+        validate(mesh_of(SQUARE, [[0, 1, 2, 3]], input_to_vertex=[0, 1, 2, 9]))
+    with pytest.raises(InvalidMeshError, match="not the image"):
+        validate(mesh_of(SQUARE, [[0, 1, 2, 3]], input_to_vertex=[0, 1, 2, 2]))
+
+
+def test_no_faces_is_valid_only_for_collinear_vertices():
+    validate(mesh_of([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]], np.empty((0, 4))))
+    with pytest.raises(InvalidMeshError, match="not collinear"):
+        validate(mesh_of(SQUARE, np.empty((0, 4))))
