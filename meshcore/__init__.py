@@ -19,6 +19,7 @@ from .interpolate import gradient, interpolate
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure
 from .predicates import incircle, orient2d
+from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
 from .validate import validate
@@ -37,6 +38,9 @@ __all__ = [
     "s3",
     "s4",
     "quality_summary",
+    "face_quadrature",
+    "l2_errors",
+    "FaceQuadrature",
     "QualitySummary",
     "MeasureSummary",
     "orient2d",

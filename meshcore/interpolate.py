@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError
-from .mesh import Mesh
+from .mesh import Mesh, mesh_arrays, vertex_values
 
 __all__ = ["interpolate", "gradient"]
 
@@ -474,34 +474,6 @@ class _Locator(NamedTuple):
     items: NDArray[np.int64]
 
 
-def _mesh_arrays(mesh: Mesh) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Contiguous ``(n_v, 2)`` float64 vertices and ``(n_f, 4)`` int64 faces of ``mesh``."""
-    vertices = np.asarray(getattr(mesh, "vertices", None), dtype=np.float64)
-    faces = np.asarray(getattr(mesh, "faces", None))
-    if vertices.ndim != 2 or vertices.shape[1] < 2 or faces.ndim != 2 or faces.shape[1] != 4:
-        raise InvalidInputError(
-            "mesh must be a Mesh with vertices of shape (n_v, 2) and faces of shape (n_f, 4), "
-            f"got vertices {vertices.shape} and faces {faces.shape}"
-        )
-    return np.ascontiguousarray(vertices[:, :2]), np.ascontiguousarray(faces, dtype=np.int64)
-
-
-def _vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:
-    """``z`` as a contiguous float64 array of shape ``(n_vertices,)``, finite or NaN."""
-    arr = np.asarray(z)
-    if arr.dtype.kind not in "biuf":
-        raise InvalidInputError(f"z must be a real numeric array, got dtype {arr.dtype}")
-    if arr.shape != (n_vertices,):
-        raise InvalidInputError(
-            f"z must have shape (n_vertices,) = ({n_vertices},), one value per vertex, "
-            f"got {arr.shape}"
-        )
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if np.isinf(arr).any():
-        raise InvalidInputError("z must be finite or NaN (NaN marks unknown values), got inf")
-    return arr
-
-
 def _query_points(
     x: ArrayLike, y: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], tuple[int, ...]]:
@@ -597,8 +569,8 @@ def interpolate(mesh: Mesh, z: ArrayLike, x: ArrayLike, y: ArrayLike) -> NDArray
     >>> interpolate(square, [0.0, 1.0, 3.0, 1.0], [0.5, 2.0], [0.5, 0.5]).tolist()
     [1.25, nan]
     """
-    vertices, faces = _mesh_arrays(mesh)
-    zv = _vertex_values(z, vertices.shape[0])
+    vertices, faces = mesh_arrays(mesh)
+    zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
     face = _locate(vertices, faces, px, py)
     out = np.empty(px.shape[0])
@@ -630,8 +602,8 @@ def gradient(
     >>> float(gx), float(gy)
     (2.0, 5.0)
     """
-    vertices, faces = _mesh_arrays(mesh)
-    zv = _vertex_values(z, vertices.shape[0])
+    vertices, faces = mesh_arrays(mesh)
+    zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
     face = _locate(vertices, faces, px, py)
     gx = np.empty(px.shape[0])

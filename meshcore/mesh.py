@@ -5,9 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Mesh"]
+from .errors import InvalidInputError, InvalidMeshError
+
+__all__ = ["Mesh", "mesh_arrays", "vertex_values"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,3 +55,39 @@ class Mesh:
             f"{self.n_quads} quads, triangle_measure={self.triangle_measure!r}, "
             f"quad_measure={self.quad_measure!r}, merge={self.merge!r})"
         )
+
+
+def mesh_arrays(mesh: Mesh) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Contiguous ``(n_v, 2)`` float64 vertices and ``(n_f, 4)`` int64 faces, checked.
+
+    The shapes must be right (:class:`InvalidInputError`) and every index in
+    range (:class:`InvalidMeshError`); kernels can then index without checks.
+    """
+    vertices = np.asarray(getattr(mesh, "vertices", None), dtype=np.float64)
+    faces = np.asarray(getattr(mesh, "faces", None))
+    if vertices.ndim != 2 or vertices.shape[1] < 2 or faces.ndim != 2 or faces.shape[1] != 4:
+        raise InvalidInputError(
+            "mesh must be a Mesh with vertices of shape (n_v, 2) and faces of shape (n_f, 4), "
+            f"got vertices {vertices.shape} and faces {faces.shape}"
+        )
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    n_v = vertices.shape[0]
+    if faces.size and (faces[:, :3].min() < 0 or faces[:, 3].min() < -1 or faces.max() >= n_v):
+        raise InvalidMeshError(f"faces refer to vertices outside 0..{n_v - 1}")
+    return np.ascontiguousarray(vertices[:, :2]), faces
+
+
+def vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:
+    """``z`` as a contiguous float64 array of shape ``(n_vertices,)``, finite or NaN."""
+    arr = np.asarray(z)
+    if arr.dtype.kind not in "biuf":
+        raise InvalidInputError(f"z must be a real numeric array, got dtype {arr.dtype}")
+    if arr.shape != (n_vertices,):
+        raise InvalidInputError(
+            f"z must have shape (n_vertices,) = ({n_vertices},), one value per vertex, "
+            f"got {arr.shape}"
+        )
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    if np.isinf(arr).any():
+        raise InvalidInputError("z must be finite or NaN (NaN marks unknown values), got inf")
+    return arr

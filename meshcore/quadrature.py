@@ -56,7 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
-from .mesh import Mesh
+from .mesh import Mesh, mesh_arrays, vertex_values
 
 __all__ = ["FaceQuadrature", "face_quadrature", "gauss_legendre", "l2_errors"]
 
@@ -218,17 +218,6 @@ def _quadrature_kernel(vertices, faces, nodes, nweights, points, weights, values
     return bad
 
 
-def _check_mesh(mesh: Mesh) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    vertices = np.ascontiguousarray(np.asarray(mesh.vertices, dtype=np.float64)[:, :2])
-    faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
-    if faces.ndim != 2 or faces.shape[1] != 4:
-        raise InvalidMeshError(f"faces must have shape (n_f, 4), got {faces.shape}")
-    n_v = vertices.shape[0]
-    if faces.size and (faces[:, :3].min() < 0 or faces.max() >= n_v):
-        raise InvalidMeshError(f"faces refer to vertices outside 0..{n_v - 1}")
-    return vertices, faces
-
-
 def face_quadrature(mesh: Mesh, order: int = 4) -> FaceQuadrature:
     """Map the ``order x order`` Gauss-Legendre rule onto every face of ``mesh``.
 
@@ -261,7 +250,7 @@ def face_quadrature(mesh: Mesh, order: int = 4) -> FaceQuadrature:
     ((1, 4, 2), 2.0)
     """
     n = _check_order(order)
-    vertices, faces = _check_mesh(mesh)
+    vertices, faces = mesh_arrays(mesh)
     nodes, nweights = gauss_legendre(n)
     n_f, k = faces.shape[0], n * n
     points = np.empty((n_f, k, 2))
@@ -309,15 +298,13 @@ def l2_errors(
     >>> [round(e, 12) for e in l2_errors(mesh, z, x * y, grad, q)]
     [0.0, 0.0]
     """
-    vertices, faces = _check_mesh(mesh)
+    vertices, faces = mesh_arrays(mesh)
     weights = quadrature.weights
     if weights.shape[0] != faces.shape[0]:
         raise InvalidInputError(
             f"quadrature has {weights.shape[0]} faces but the mesh has {faces.shape[0]}"
         )
-    zv = np.asarray(z, dtype=np.float64)
-    if zv.shape != (vertices.shape[0],):
-        raise InvalidInputError(f"z must have shape ({vertices.shape[0]},), got {zv.shape}")
+    zv = vertex_values(z, vertices.shape[0])
     fv = np.asarray(f_values, dtype=np.float64)
     fg = np.asarray(f_gradients, dtype=np.float64)
     if fv.shape != weights.shape:

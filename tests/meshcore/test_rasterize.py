@@ -11,61 +11,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import Delaunay
 
 from meshcore.errors import InvalidInputError
 from meshcore.interpolate import interpolate
 from meshcore.mesh import Mesh
 from meshcore.rasterize import rasterize
 
+from .test_interpolate import _mesh, delaunay_mesh, grid_mesh, mixed
+
 
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20240612)
-
-
-def _mesh(vertices, faces) -> Mesh:
-    v = np.asarray(vertices, dtype=np.float64)
-    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
-
-
-def mixed() -> Mesh:
-    """Two quads and three triangles sharing edges."""
-    return _mesh(
-        [[0, 0], [2, 0], [4, 0], [0, 2], [2, 2.3], [4, 2], [1, 4], [3, 4.2]],
-        [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6, -1], [4, 7, 6, -1], [4, 5, 7, -1]],
-    )
-
-
-def grid_mesh(rng: np.random.Generator, nx: int, ny: int, jitter: float = 0.2) -> Mesh:
-    """A jittered nx x ny grid, each cell a quad or two triangles (boundary kept straight)."""
-    gx, gy = np.meshgrid(np.arange(nx + 1.0), np.arange(ny + 1.0))
-    interior = (gx > 0) & (gx < nx) & (gy > 0) & (gy < ny)
-    gx = gx + interior * rng.uniform(-jitter, jitter, gx.shape)
-    gy = gy + interior * rng.uniform(-jitter, jitter, gy.shape)
-    faces = []
-    for j in range(ny):
-        for i in range(nx):
-            a, b = j * (nx + 1) + i, j * (nx + 1) + i + 1
-            c, d = b + nx + 1, a + nx + 1
-            kind = rng.integers(3)
-            if kind == 0:
-                faces.append([a, b, c, d])
-            elif kind == 1:
-                faces += [[a, b, c, -1], [a, c, d, -1]]
-            else:
-                faces += [[a, b, d, -1], [b, c, d, -1]]
-    return _mesh(np.column_stack([gx.ravel(), gy.ravel()]), faces)
-
-
-def delaunay_mesh(points: np.ndarray) -> tuple[Mesh, Delaunay]:
-    """scipy's triangulation as a Mesh, every triangle turned counter-clockwise."""
-    tri = Delaunay(points)
-    s = tri.simplices.astype(np.int64)
-    a, b, c = points[s[:, 0]], points[s[:, 1]], points[s[:, 2]]
-    cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
-    s[cw, 1], s[cw, 2] = s[cw, 2], s[cw, 1]
-    return _mesh(points, np.column_stack([s, np.full(len(s), -1)])), tri
 
 
 def cell_centres(x0, y0, resolution, nx, ny):
