@@ -35,16 +35,51 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
 
 
 @njit
-def _faces_kernel(tri, he, partner, vertex_of) -> np.ndarray:
+def _centroid_coordinate(points, i, j, k, axis) -> float:
+    """Centroid coordinate of three input points, summed in lexicographic point order.
+
+    The order of the sum is fixed by the points themselves, so every run that
+    holds the same three points computes the same float, whatever its vertex
+    numbering: tiles decide ownership of a shared triangle identically.
+    """
+    if points[j, 0] < points[i, 0] or (points[j, 0] == points[i, 0] and points[j, 1] < points[i, 1]):
+        i, j = j, i
+    if points[k, 0] < points[j, 0] or (points[k, 0] == points[j, 0] and points[k, 1] < points[j, 1]):
+        j, k = k, j
+        if points[j, 0] < points[i, 0] or (points[j, 0] == points[i, 0] and points[j, 1] < points[i, 1]):
+            i, j = j, i
+    return ((points[i, axis] + points[j, axis]) + points[k, axis]) / 3.0
+
+
+@njit
+def _window_mask(points, order, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
+    """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
+    nt = tri.shape[0] // 3
+    active = np.zeros(nt, dtype=np.uint8)
+    for t in range(nt):
+        i = order[tri[3 * t]]
+        j = order[tri[3 * t + 1]]
+        k = order[tri[3 * t + 2]]
+        cx = _centroid_coordinate(points, i, j, k, 0)
+        cy = _centroid_coordinate(points, i, j, k, 1)
+        if x_lo <= cx < x_hi and y_lo <= cy < y_hi:
+            active[t] = 1
+    return active
+
+
+@njit
+def _faces_kernel(tri, he, partner, vertex_of, active) -> np.ndarray:
     nt = tri.shape[0] // 3
     count = 0
     for t in range(nt):
         e = partner[t]
-        if e == -1 or t < he[e] // 3:
+        if active[t] and (e == -1 or t < he[e] // 3):
             count += 1
     faces = np.empty((count, 4), dtype=np.int64)
     k = 0
     for t in range(nt):
+        if not active[t]:
+            continue
         e = partner[t]
         if e == -1:
             faces[k, 0] = vertex_of[tri[3 * t]]
@@ -98,11 +133,22 @@ def _vertex_numbering(order, rep):
     return vertex_of_sorted, vertex_input, input_to_vertex
 
 
+def _check_window(window: object) -> tuple[float, float, float, float]:
+    try:
+        x_lo, y_lo, x_hi, y_hi = (float(v) for v in window)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"window must be (x_min, y_min, x_max, y_max), got {window!r}") from None
+    if any(np.isnan((x_lo, y_lo, x_hi, y_hi))) or not (x_lo < x_hi and y_lo < y_hi):
+        raise InvalidInputError(f"window must have x_min < x_max and y_min < y_max, got {window!r}")
+    return x_lo, y_lo, x_hi, y_hi
+
+
 def build_mesh(
     xy: ArrayLike,
     triangle_measure: str = "s1",
     quad_measure: str | None = "s2",
     merge: str = "greedy",
+    window: tuple[float, float, float, float] | None = None,
 ) -> Mesh:
     """Build the combined triangle/quadrangle mesh of a planar point set.
 
@@ -116,6 +162,14 @@ def build_mesh(
     Parameters
     ----------
     xy : (n, 2) array of finite coordinates
+    window : (x_min, y_min, x_max, y_max), optional
+        Build only the piece of the mesh over the Delaunay triangles whose
+        centroid lies in the half-open box ``[x_min, x_max) x [y_min, y_max)``:
+        only they are flipped and merged (among themselves) and returned.
+        The Delaunay triangulation is unique (ties are broken by the points'
+        coordinates), so pieces built for adjacent windows from point sets that
+        cover every triangle's circumcircle fit together without gaps or
+        overlaps: this is how a tiled run stitches its tiles.
 
     Returns
     -------
@@ -131,22 +185,27 @@ def build_mesh(
     tm = parse_option(TriangleMeasure, triangle_measure, "triangle_measure")
     qm = None if quad_measure is None else parse_option(QuadMeasure, quad_measure, "quad_measure")
     mm = parse_option(MergeMethod, merge, "merge")
+    bounds = None if window is None else _check_window(window)
     points = as_points(xy)
 
     triangulation = delaunay(points)
-    if tm is not TriangleMeasure.DELAUNAY:
-        flip_edges(triangulation, tm.value)
     nt = triangulation.triangles.shape[0] // 3
+    if bounds is None:
+        active = np.ones(nt, dtype=np.uint8)
+    else:
+        active = _window_mask(points, triangulation.order, triangulation.triangles, *bounds)
+    if tm is not TriangleMeasure.DELAUNAY:
+        flip_edges(triangulation, tm.value, active)
     if qm is None:
         partner = np.full(nt, -1, dtype=np.int32)
     else:
-        partner = merge_triangles(triangulation, qm.value, mm.value)
+        partner = merge_triangles(triangulation, qm.value, mm.value, active)
 
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     tri, he = triangulation.triangles, triangulation.halfedges
     del triangulation  # release the sweep's coordinates before the faces are allocated
-    faces = _faces_kernel(tri, he, partner, vertex_of_sorted)
-    del tri, he, partner, vertex_of_sorted
+    faces = _faces_kernel(tri, he, partner, vertex_of_sorted, active)
+    del tri, he, partner, vertex_of_sorted, active
     return Mesh(
         vertices=points[vertex_input],
         faces=faces,
@@ -154,4 +213,5 @@ def build_mesh(
         triangle_measure=tm.value,
         quad_measure=None if qm is None else qm.value,
         merge=mm.value,
+        window=bounds,
     )

@@ -5,7 +5,11 @@ are sorted by distance from the circumcentre of a small seed triangle and added
 one by one outside an advancing convex hull, with Lawson flips legalising the
 new triangles.  What it adds:
 
-* every decision uses the exact predicates of :mod:`meshcore.predicates`;
+* every decision uses the exact predicates of :mod:`meshcore.predicates`, and
+  co-circular ties are broken by a symbolic perturbation that depends only on
+  the coordinates (:func:`~meshcore.predicates.incircle_sos`), so the
+  triangulation is unique: two runs over overlapping point sets (tiles) agree
+  on every triangle whose circumcircle is covered by both;
 * exact duplicates (same x and y) are detected in the sorted order (the sort
   key is distance, then x, then y) and mapped to one vertex;
 * a point that the sweep cannot place outside the hull (it happens when
@@ -31,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._jit import njit
-from .predicates import incircle, orient2d
+from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
 
@@ -214,7 +218,7 @@ def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack):
         pl = tri[al]
         p1 = tri[bl]
         # triangles are clockwise during the sweep: p1 inside <=> incircle < 0
-        if incircle(x[p0], y[p0], x[pr], y[pr], x[pl], y[pl], x[p1], y[p1]) < 0:
+        if incircle_sos(x[p0], y[p0], x[pr], y[pr], x[pl], y[pl], x[p1], y[p1]) < 0:
             tri[a] = p1
             tri[b] = p0
             hbl = he[bl]
@@ -302,7 +306,7 @@ def _legalize_around(tri, he, x, y, stack, n) -> np.ndarray:
         b = tri[_next(e)]
         p = tri[_prev(e)]
         d = tri[_prev(f)]
-        if incircle(x[a], y[a], x[b], y[b], x[p], y[p], x[d], y[d]) > 0:
+        if incircle_sos(x[a], y[a], x[b], y[b], x[p], y[p], x[d], y[d]) > 0:
             _flip(tri, he, e)
             # new triangles (a, d, p) at e and (b, p, d) at f: edges opposite p are e and prev(f)
             stack = _push(stack, n, e)

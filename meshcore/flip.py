@@ -59,14 +59,14 @@ def is_strictly_convex_pair(x, y, tri, he, e: int) -> bool:
 
 
 @njit
-def _flip_kernel(x, y, tri, he, measure: int, tolerance: float) -> int:
+def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
     q = triangle_scores(measure, x, y, tri)
     m = tri.shape[0]
     queued = np.zeros(m, dtype=np.uint8)
     stack = np.empty(m, dtype=np.int32)
     n = 0
     for e in range(m):
-        if he[e] > e:
+        if he[e] > e and active[e // 3] and active[he[e] // 3]:
             stack[n] = e
             n += 1
             queued[e] = 1
@@ -100,7 +100,7 @@ def _flip_kernel(x, y, tri, he, measure: int, tolerance: float) -> int:
         for j in range(4):
             g = e if j == 0 else (_prev(e) if j == 1 else (f if j == 2 else _prev(f)))
             h = he[g]
-            if h < 0:
+            if h < 0 or not (active[g // 3] and active[h // 3]):
                 continue
             k = min(g, h)
             if queued[k] == 0:
@@ -110,18 +110,28 @@ def _flip_kernel(x, y, tri, he, measure: int, tolerance: float) -> int:
     return flips
 
 
-def flip_edges(triangulation: Triangulation, measure: str, tolerance: float = FLIP_TOLERANCE) -> int:
+def flip_edges(
+    triangulation: Triangulation,
+    measure: str,
+    active: np.ndarray | None = None,
+    tolerance: float = FLIP_TOLERANCE,
+) -> int:
     """Flip diagonals in place until no flip improves ``measure`` ("s1" or "s3").
 
-    Returns the number of flips made.
+    With ``active`` (one flag per triangle), only diagonals between two active
+    triangles are considered, so the region the active triangles cover stays
+    the same.  Returns the number of flips made.
     """
     code = {"s1": _S1, "s3": _S3}[measure]
+    if active is None:
+        active = np.ones(triangulation.triangles.shape[0] // 3, dtype=np.uint8)
     return int(
         _flip_kernel(
             triangulation.x,
             triangulation.y,
             triangulation.triangles,
             triangulation.halfedges,
+            active,
             code,
             float(tolerance),
         )

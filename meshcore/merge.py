@@ -43,7 +43,7 @@ def _score_to_measure(measure: int, score: float) -> float:
 
 
 @njit
-def _candidates_kernel(x, y, tri, he, triangle_measure: int, quad_measure: int):
+def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measure: int):
     q = triangle_scores(triangle_measure, x, y, tri)
     m = tri.shape[0]
     capacity = m // 8 + 16
@@ -52,7 +52,7 @@ def _candidates_kernel(x, y, tri, he, triangle_measure: int, quad_measure: int):
     n = 0
     for e in range(m):
         f = he[e]
-        if f <= e:
+        if f <= e or not (active[e // 3] and active[f // 3]):
             continue
         a = tri[e]
         b = tri[_next(e)]
@@ -122,14 +122,21 @@ def _sort_ties(gains: np.ndarray, order: np.ndarray) -> None:
 
 
 def merge_candidates(
-    triangulation: Triangulation, quad_measure: str
+    triangulation: Triangulation, quad_measure: str, active: NDArray[np.uint8] | None = None
 ) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
-    """Half-edges (one per edge) whose elimination has a positive gain, and the gains."""
+    """Half-edges (one per edge) whose elimination has a positive gain, and the gains.
+
+    With ``active`` (one flag per triangle), only diagonals between two active
+    triangles are candidates.
+    """
+    if active is None:
+        active = np.ones(triangulation.triangles.shape[0] // 3, dtype=np.uint8)
     return _candidates_kernel(
         triangulation.x,
         triangulation.y,
         triangulation.triangles,
         triangulation.halfedges,
+        active,
         _PAIRED_TRIANGLE_MEASURE[quad_measure],
         _QUAD_CODE[quad_measure],
     )
@@ -150,11 +157,16 @@ def _optimal_partner(he: NDArray[np.int32], edges: NDArray[np.int32], gains, nt:
     return partner
 
 
-def merge_triangles(triangulation: Triangulation, quad_measure: str, merge: str = "greedy") -> NDArray[np.int32]:
+def merge_triangles(
+    triangulation: Triangulation,
+    quad_measure: str,
+    merge: str = "greedy",
+    active: NDArray[np.uint8] | None = None,
+) -> NDArray[np.int32]:
     """Choose the diagonals to delete; returns, per triangle, the half-edge of its
     deleted diagonal or -1 when it stays a triangle."""
     nt = triangulation.triangles.shape[0] // 3
-    edges, gains = merge_candidates(triangulation, quad_measure)
+    edges, gains = merge_candidates(triangulation, quad_measure, active)
     if merge == "optimal":
         return _optimal_partner(triangulation.halfedges, edges, gains, nt)
     order = _order_by_gain(gains)

@@ -27,6 +27,10 @@ class Mesh:
         The vertex of every input point: duplicates share one vertex.
     triangle_measure, quad_measure, merge : str or None
         The options the mesh was built with.
+    window : (x_min, y_min, x_max, y_max) or None
+        Set when the mesh is the piece of a larger mesh over a window (see
+        :func:`meshcore.build_mesh`); it then covers only part of the hull and
+        some vertices may be used by no face.
     """
 
     vertices: NDArray[np.float64]
@@ -35,6 +39,7 @@ class Mesh:
     triangle_measure: str = "delaunay"
     quad_measure: str | None = None
     merge: str = "greedy"
+    window: tuple[float, float, float, float] | None = None
 
     @property
     def is_quad(self) -> NDArray[np.bool_]:

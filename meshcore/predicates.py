@@ -32,7 +32,7 @@ import numpy as np
 
 from ._jit import njit
 
-__all__ = ["orient2d", "incircle"]
+__all__ = ["orient2d", "incircle", "incircle_sos"]
 
 _EPS = 2.0**-53
 _SPLITTER = 2.0**27 + 1.0
@@ -307,3 +307,56 @@ def incircle(
     if det > errbound or -det > errbound:
         return _sign(det)
     return _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
+
+
+@njit
+def _lex_before(ax: float, ay: float, bx: float, by: float) -> bool:
+    return ax < bx or (ax == bx and ay < by)
+
+
+@njit
+def incircle_sos(
+    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
+) -> int:
+    """:func:`incircle` with ties broken by a symbolic perturbation: never 0 for distinct
+    points of which no three are collinear.
+
+    The lifted height ``x^2 + y^2`` of every point is raised by ``eps^k``, ``k``
+    its rank in lexicographic ``(x, y)`` order (the smallest point is perturbed
+    most).  When the exact determinant is 0 its sign is that of the cofactor of
+    the first point, in that order, whose cofactor is not 0: ``+orient(b, c, d)``
+    for ``a``, ``-orient(a, c, d)`` for ``b``, ``+orient(a, b, d)`` for ``c``,
+    ``-orient(a, b, c)`` for ``d``.  The order depends only on coordinates, so
+    any two runs over overlapping point sets (tiles) break every tie the same
+    way and build the same, unique Delaunay triangulation where they overlap.
+
+    Examples
+    --------
+    >>> incircle(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
+    0
+    >>> incircle_sos(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
+    1
+    """
+    s = incircle(ax, ay, bx, by, cx, cy, dx, dy)
+    if s != 0:
+        return s
+    xs = np.array([ax, bx, cx, dx])
+    ys = np.array([ay, by, cy, dy])
+    done = np.zeros(4, dtype=np.bool_)
+    for _ in range(4):
+        k = -1
+        for j in range(4):
+            if not done[j] and (k < 0 or _lex_before(xs[j], ys[j], xs[k], ys[k])):
+                k = j
+        done[k] = True
+        if k == 0:
+            c = orient2d(bx, by, cx, cy, dx, dy)
+        elif k == 1:
+            c = -orient2d(ax, ay, cx, cy, dx, dy)
+        elif k == 2:
+            c = orient2d(ax, ay, bx, by, dx, dy)
+        else:
+            c = -orient2d(ax, ay, bx, by, cx, cy)
+        if c != 0:
+            return c
+    return 0

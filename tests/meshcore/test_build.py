@@ -236,3 +236,52 @@ def test_property_local_optimality(xy, measures):
         assert (left <= 1e-9).all()
     quads = mesh.faces[mesh.faces[:, 3] >= 0]
     assert (quad_gains(mesh, quad_measure, quads) > -1e-9).all()
+
+
+@pytest.mark.parametrize("triangle_measure, quad_measure", [("s1", "s2"), ("s3", "s4"), ("delaunay", None)])
+def test_window_pieces_stitch_into_one_conforming_mesh(rng, triangle_measure, quad_measure):
+    # four windows over a 2 x 2 split, each meshed from its own points plus a
+    # buffer: the union of the pieces is one conforming mesh over the hull.
+    # The boundary is sampled on the box itself, so no Delaunay triangle has a
+    # circumcircle reaching past the buffer (the certificate a tiled run checks)
+    side = np.arange(0.0, 100.0, 1.25)
+    boundary = np.vstack(
+        [np.c_[side, 0 * side], np.c_[side + 1.25, 0 * side + 100], np.c_[0 * side, side + 1.25], np.c_[0 * side + 100, side]]
+    )
+    inner = np.round(rng.random((6000, 2)) * 98.0 + 1.0, 2)
+    xy = np.unique(np.vstack([boundary, inner]), axis=0)
+    full = build_mesh(xy, triangle_measure, quad_measure)
+    buffer = 12.0
+    keys = {tuple(p): i for i, p in enumerate(map(tuple, xy))}
+    pieces = []
+    for x_lo, x_hi in ((-np.inf, 50.0), (50.0, np.inf)):
+        for y_lo, y_hi in ((-np.inf, 50.0), (50.0, np.inf)):
+            inside = (xy[:, 0] >= x_lo - buffer) & (xy[:, 0] < x_hi + buffer)
+            inside &= (xy[:, 1] >= y_lo - buffer) & (xy[:, 1] < y_hi + buffer)
+            piece = build_mesh(xy[inside], triangle_measure, quad_measure, window=(x_lo, y_lo, x_hi, y_hi))
+            validate(piece)
+            ids = np.array([keys[tuple(p)] for p in map(tuple, piece.vertices)])
+            f = piece.faces.copy()
+            f[f >= 0] = ids[f[f >= 0]]
+            pieces.append(f)
+    faces = np.vstack(pieces)
+    stitched = meshcore.Mesh(xy, faces, np.arange(len(xy)))
+    validate(stitched)
+
+    def as_set(fs):
+        out = set()
+        for row in fs.tolist():
+            row = [v for v in row if v >= 0]
+            k = row.index(min(row))
+            out.add(tuple(row[k:] + row[:k]))
+        return out
+
+    same = len(as_set(faces) & as_set(full.faces)) / len(full.faces)
+    assert same > 0.97
+
+
+def test_window_must_be_a_box():
+    with pytest.raises(InvalidInputError, match="x_min < x_max"):
+        build_mesh(np.zeros((3, 2)), window=(1.0, 0.0, 0.0, 1.0))
+    with pytest.raises(InvalidInputError, match="window must be"):
+        build_mesh(np.zeros((3, 2)), window=(1.0, 0.0))

@@ -147,3 +147,46 @@ def test_incremental_insertion_inside_and_on_edges(rng):
     assert np.unique(grown.triangles).size == x.size
     # a Delaunay triangulation has 2n - 2 - h triangles
     assert nt == 2 * x.size - 2 - np.count_nonzero(grown.halfedges < 0)
+
+
+def test_cocircular_ties_do_not_depend_on_input_order(rng):
+    # a grid is all ties; the symbolic perturbation makes the triangulation unique
+    g = np.stack(np.meshgrid(np.arange(12.0), np.arange(9.0)), -1).reshape(-1, 2)
+    ring = np.c_[np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8)] * 3 + 20
+    for pts in (g, np.vstack([g, np.round(ring, 0)])):
+        pts = np.unique(pts, axis=0)
+        reference = None
+        for _ in range(4):
+            perm = rng.permutation(len(pts))
+            t = delaunay(pts[perm])
+            check_structure(t)
+            triangles = {tuple(sorted(map(tuple, pts[perm][t.order[row]].tolist()))) for row in t.triangles.reshape(-1, 3)}
+            reference = reference or triangles
+            assert triangles == reference
+
+
+def test_overlapping_subsets_agree_where_circumcircles_are_covered(rng):
+    # two tiles with a shared overlap: triangles whose circumcircle lies inside
+    # both point sets' boxes are the same (the certificate a tiled run relies on)
+    pts = np.round(rng.random((4000, 2)) * 100, 1)
+    pts = np.unique(pts, axis=0)
+    left = pts[pts[:, 0] < 60]
+    right = pts[pts[:, 0] >= 40]
+
+    def certified(sub, lo, hi):
+        t = delaunay(sub)
+        p = sub[t.order]
+        out = set()
+        for a, b, c in t.triangles.reshape(-1, 3):
+            (ax, ay), (bx, by), (cx, cy) = p[a], p[b], p[c]
+            d = 2 * (ax * (by - cy) + bx * (cy - ay) + cx * (ay - by))
+            ux = ((ax**2 + ay**2) * (by - cy) + (bx**2 + by**2) * (cy - ay) + (cx**2 + cy**2) * (ay - by)) / d
+            r = np.hypot(ax - ux, ay - ((ax**2 + ay**2) * (cx - bx) + (bx**2 + by**2) * (ax - cx) + (cx**2 + cy**2) * (bx - ax)) / d)
+            if lo <= ux - r and ux + r <= hi:
+                out.add(tuple(sorted(map(tuple, (p[a], p[b], p[c])))))
+        return out
+
+    a = certified(left, 40, 60)
+    b = certified(right, 40, 60)
+    assert len(a) > 100
+    assert a == b
