@@ -180,7 +180,7 @@ def build_mesh(
     >>> import numpy as np
     >>> mesh = build_mesh(np.array([[0., 0.], [1., 0.], [1., 1.], [0., 1.]]))
     >>> mesh.faces.tolist()
-    [[2, 3, 0, 1]]
+    [[3, 0, 1, 2]]
     """
     tm = parse_option(TriangleMeasure, triangle_measure, "triangle_measure")
     qm = None if quad_measure is None else parse_option(QuadMeasure, quad_measure, "quad_measure")
