@@ -81,7 +81,8 @@ def test_measures_are_invariant_to_similarity(pts, scale, angle, shift):
         # transform decides whether a quadrangle is still strictly convex
         corners = p[:k]
         edges = np.roll(corners, -1, axis=0) - corners
-        turns = np.cross(edges, np.roll(edges, -1, axis=0))
+        nxt = np.roll(edges, -1, axis=0)
+        turns = edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]
         size = np.abs(edges).max()
         if min(a, b) > 1e-3 and np.abs(edges).max(axis=1).min() > 1e-6 * size and np.abs(turns).min() > 1e-6 * size**2:
             assert b == pytest.approx(a, rel=1e-6, abs=1e-9)
