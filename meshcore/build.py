@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -65,6 +67,42 @@ def _window_mask(points, order, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
         if x_lo <= cx < x_hi and y_lo <= cy < y_hi:
             active[t] = 1
     return active
+
+
+@njit
+def _escaping_circles(x, y, tri, active, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
+    """Circumcircles (cx, cy, r; input frame) of active triangles not inside the box."""
+    out = np.empty((16, 3))
+    n = 0
+    for t in range(tri.shape[0] // 3):
+        if not active[t]:
+            continue
+        a = tri[3 * t]
+        b = tri[3 * t + 1]
+        c = tri[3 * t + 2]
+        bx = x[b] - x[a]
+        by = y[b] - y[a]
+        cx = x[c] - x[a]
+        cy = y[c] - y[a]
+        d = 2.0 * (bx * cy - by * cx)
+        bl = bx * bx + by * by
+        cl = cx * cx + cy * cy
+        ux = (cy * bl - by * cl) / d
+        uy = (bx * cl - cx * bl) / d
+        r = math.sqrt(ux * ux + uy * uy) * (1.0 + 1e-9) + 1e-12
+        ux += x[a] + ox
+        uy += y[a] + oy
+        if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
+            continue
+        if n == out.shape[0]:
+            grown = np.empty((2 * n, 3))
+            grown[:n] = out
+            out = grown
+        out[n, 0] = ux
+        out[n, 1] = uy
+        out[n, 2] = r
+        n += 1
+    return out[:n].copy()
 
 
 @njit
@@ -149,6 +187,7 @@ def build_mesh(
     quad_measure: str | None = "s2",
     merge: str = "greedy",
     window: tuple[float, float, float, float] | None = None,
+    known: tuple[float, float, float, float] | None = None,
 ) -> Mesh:
     """Build the combined triangle/quadrangle mesh of a planar point set.
 
@@ -170,6 +209,13 @@ def build_mesh(
         coordinates), so pieces built for adjacent windows from point sets that
         cover every triangle's circumcircle fit together without gaps or
         overlaps: this is how a tiled run stitches its tiles.
+    known : (x_min, y_min, x_max, y_max), optional
+        With ``window``: the box in which ``xy`` holds every point of the
+        global set.  The circumcircles of the window's Delaunay triangles that
+        are not inside it are returned as ``mesh.window_escapes`` ``(k, 3)``
+        (centre x, centre y, radius): only those triangles could differ from
+        the global triangulation's, and only if a point the caller did not
+        pass lies inside such a circle.
 
     Returns
     -------
@@ -190,10 +236,16 @@ def build_mesh(
 
     triangulation = delaunay(points)
     nt = triangulation.triangles.shape[0] // 3
+    escapes = None
     if bounds is None:
         active = np.ones(nt, dtype=np.uint8)
     else:
         active = _window_mask(points, triangulation.order, triangulation.triangles, *bounds)
+        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
+        o = triangulation.origin
+        escapes = _escaping_circles(
+            triangulation.x, triangulation.y, triangulation.triangles, active, float(o[0]), float(o[1]), *box
+        )
     if tm is not TriangleMeasure.DELAUNAY:
         flip_edges(triangulation, tm.value, active)
     if qm is None:
@@ -214,4 +266,5 @@ def build_mesh(
         quad_measure=None if qm is None else qm.value,
         merge=mm.value,
         window=bounds,
+        window_escapes=escapes,
     )

@@ -31,6 +31,11 @@ class Mesh:
         Set when the mesh is the piece of a larger mesh over a window (see
         :func:`meshcore.build_mesh`); it then covers only part of the hull and
         some vertices may be used by no face.
+    window_escapes : (k, 3) float64 or None
+        For a window piece: the circumcircles (centre x, centre y, radius) of
+        its Delaunay triangles that leave the ``known`` box passed to
+        :func:`meshcore.build_mesh`.  The piece is exactly the global mesh's
+        piece when no point missing from the input lies in one of them.
     """
 
     vertices: NDArray[np.float64]
@@ -40,6 +45,7 @@ class Mesh:
     quad_measure: str | None = None
     merge: str = "greedy"
     window: tuple[float, float, float, float] | None = None
+    window_escapes: NDArray[np.float64] | None = None
 
     @property
     def is_quad(self) -> NDArray[np.bool_]:
