@@ -9,7 +9,7 @@ from pathlib import Path
 
 from meshcore import MeshError
 
-from .errors import PipelineError
+from .errors import PipelineError, UsageError
 
 __all__ = ["main"]
 
@@ -49,7 +49,108 @@ def _parser() -> argparse.ArgumentParser:
     exp.add_argument(
         "--merge", choices=("greedy", "optimal"), default="greedy", help="elimination strategy (default greedy)"
     )
+    run = sub.add_parser(
+        "run",
+        help="LAS/LAZ files -> one seamless DEM and combined mesh in a Zarr store",
+        description=(
+            "Stream LAS/LAZ inputs (files, folders, globs) through overlapping tiles on Dask and "
+            "write the DEM (dims y, x; north-up; CF grid mapping) and the combined triangle/quad mesh "
+            "(UGRID group 'mesh') to one Zarr store. Parameters may also come from a TOML job file."
+        ),
+    )
+    run.add_argument("inputs", nargs="*", metavar="INPUT", help="LAS/LAZ files, folders or glob patterns")
+    run.add_argument("-o", "--output", help="the Zarr store to write (e.g. dem.zarr)")
+    run.add_argument("--config", type=Path, help="a TOML job file; flags given here override it")
+    run.add_argument("--resolution", type=float, help="DEM cell size in CRS units")
+    run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~1.5M points a tile)")
+    run.add_argument("--buffer", type=float, help="overlap around each tile in CRS units (default: 12 point spacings)")
+    run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground)")
+    run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
+    run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
+    run.add_argument("--in-crs", help="CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
+    run.add_argument("--out-crs", help="reproject to this CRS (required for mixed or geographic inputs)")
+    run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest)")
+    run.add_argument("--triangle-measure", choices=("delaunay", "s1", "s3"), help="flip measure (default s3)")
+    run.add_argument("--quad-measure", choices=("s2", "s4", "none"), help="elimination measure (default s4; none: triangles only)")
+    run.add_argument("--merge", choices=("greedy", "optimal"), help="elimination strategy (default greedy)")
+    run.add_argument("--max-edge", type=float, help="leave cells of faces with a longer edge as nodata")
+    run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
+    run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")
+    run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
+    run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3; 2 for GDAL 3.6)")
+    run.add_argument("--scratch-dir", help="folder for the spill files (default: the system temp folder)")
+    run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
+    run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
+    info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
+    info.add_argument("--json", action="store_true", help="print JSON")
     return parser
+
+
+def _run_config(args: argparse.Namespace):
+    from .config import RunConfig
+
+    data: dict = {}
+    if args.config is not None:
+        data = RunConfig.from_toml(args.config).to_dict()
+    flags = {
+        "output": args.output,
+        "resolution": args.resolution,
+        "tile_size": args.tile_size,
+        "buffer": args.buffer,
+        "keep_withheld": args.keep_withheld,
+        "in_crs": args.in_crs,
+        "out_crs": args.out_crs,
+        "duplicates": args.duplicates,
+        "triangle_measure": args.triangle_measure,
+        "merge": args.merge,
+        "max_edge": args.max_edge,
+        "workers": args.workers,
+        "scheduler": args.scheduler,
+        "zarr_format": args.zarr_format,
+        "scratch_dir": args.scratch_dir,
+        "max_cells": args.max_cells,
+        "overwrite": args.overwrite,
+    }
+    data.update({k: v for k, v in flags.items() if v is not None})
+    if args.inputs:
+        data["inputs"] = tuple(args.inputs)
+    if args.quad_measure is not None:
+        data["quad_measure"] = None if args.quad_measure == "none" else args.quad_measure
+    if args.classes is not None:
+        data["classes"] = None if args.classes.strip().lower() == "all" else _int_list(args.classes, "--classes")
+    if args.bbox is not None:
+        data["bbox"] = tuple(_float_list(args.bbox, "--bbox", 4))
+    if args.layers is not None:
+        data["layers"] = tuple(name.strip() for name in args.layers.split(",") if name.strip())
+    for needed in ("inputs", "output", "resolution"):
+        if needed not in data:
+            flag = {"inputs": "INPUT", "output": "-o/--output", "resolution": "--resolution"}[needed]
+            raise UsageError(f"terrain run needs {flag} (on the command line or in --config)")
+    return RunConfig.from_dict(data)
+
+
+def _int_list(text: str, flag: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UsageError(f"{flag} takes integers separated by commas, got {text!r}") from None
+
+
+def _float_list(text: str, flag: str, count: int) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != count:
+        raise UsageError(f"{flag} takes {count} numbers separated by commas, got {text!r}")
+    return values
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -63,6 +164,27 @@ def main(argv: Sequence[str] | None = None) -> int:
             return experiment_command(
                 points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge
             )
+        if args.command == "run":
+            from .run import run
+
+            config = _run_config(args)
+            report = run(config, progress=None if not args.no_progress else False, log=_log)
+            print(report.table())
+            for note in report.notes:
+                print(f"note: {note}")
+            return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
+        if args.command == "info":
+            from .inspect import info_json, info_report
+            from .sources import discover_inputs
+
+            paths = discover_inputs(args.inputs)
+            if args.json:
+                import json
+
+                print(json.dumps(info_json(paths), indent=2, default=str))
+            else:
+                print(info_report(paths))
+            return EXIT_OK
     except (PipelineError, MeshError) as exc:
         print(f"terrain: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

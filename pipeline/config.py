@@ -1,0 +1,191 @@
+"""The parameters of a run: one frozen, validated object equal to the CLI flags.
+
+A :class:`RunConfig` is what ``terrain run`` builds from its flags, what
+``pipeline.run`` takes, and what a TOML job file holds, so a job is a file you
+can store and rerun.  Every field is checked when the object is built; an
+invalid value raises :class:`~pipeline.errors.UsageError` naming the field and
+the valid values.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from .errors import UsageError
+
+__all__ = ["RunConfig", "DuplicatePolicy", "LAYERS", "DEFAULT_CLASSES"]
+
+LAYERS = ("elevation", "slope", "face_kind", "point_count")
+"""The DEM layers a run can write; ``elevation`` is always written."""
+
+DEFAULT_CLASSES = (2,)
+"""ASPRS class 2: ground."""
+
+
+class DuplicatePolicy(str, Enum):
+    """The elevation kept for points that share x and y."""
+
+    LOWEST = "lowest"
+    HIGHEST = "highest"
+    MEAN = "mean"
+    FIRST = "first"
+
+
+def _choice(enum: type[Enum], value: object, name: str) -> str:
+    try:
+        return enum(value).value  # type: ignore[no-any-return]
+    except ValueError:
+        valid = ", ".join(repr(m.value) for m in enum)
+        raise UsageError(f"{name}={value!r} is not valid; expected one of {valid}") from None
+
+
+def _positive(name: str, value: object, allow_none: bool = False) -> float | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise UsageError(f"{name} must be a positive number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything a run needs; see ``terrain run --help`` for the meaning of each field.
+
+    Examples
+    --------
+    >>> cfg = RunConfig(inputs=("tiles/*.laz",), output="dem.zarr", resolution=1.0)
+    >>> cfg.classes, cfg.duplicates, cfg.quad_measure
+    ((2,), 'lowest', 's4')
+    >>> RunConfig.from_dict(cfg.to_dict()) == cfg
+    True
+    """
+
+    inputs: tuple[str, ...]
+    output: str
+    resolution: float
+    tile_size: float | None = None
+    buffer: float | None = None
+    classes: tuple[int, ...] | None = DEFAULT_CLASSES
+    keep_withheld: bool = False
+    bbox: tuple[float, float, float, float] | None = None
+    in_crs: str | None = None
+    out_crs: str | None = None
+    duplicates: str = DuplicatePolicy.LOWEST.value
+    triangle_measure: str = "s3"
+    quad_measure: str | None = "s4"
+    merge: str = "greedy"
+    max_edge: float | None = None
+    layers: tuple[str, ...] = ("elevation",)
+    workers: int | None = None
+    scheduler: str | None = None
+    zarr_format: int = 3
+    scratch_dir: str | None = None
+    overwrite: bool = False
+    max_cells: int = 4_000_000_000
+    extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        from meshcore import MergeMethod, QuadMeasure, TriangleMeasure
+
+        inputs = (self.inputs,) if isinstance(self.inputs, (str, Path)) else self.inputs
+        inputs = tuple(str(p) for p in inputs)
+        if not inputs:
+            raise UsageError("inputs: give at least one file, directory or glob")
+        object.__setattr__(self, "inputs", inputs)
+        if not str(self.output):
+            raise UsageError("output: give the path of the Zarr store to write")
+        object.__setattr__(self, "output", str(self.output))
+        object.__setattr__(self, "resolution", _positive("resolution", self.resolution))
+        tile = _positive("tile_size", self.tile_size, allow_none=True)
+        if tile is not None:
+            cells = tile / self.resolution
+            if abs(cells - round(cells)) > 1e-9 * cells or round(cells) < 1:
+                raise UsageError(
+                    f"tile_size={tile:g} must be a whole multiple of the resolution {self.resolution:g}"
+                )
+        object.__setattr__(self, "tile_size", tile)
+        object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True))
+        object.__setattr__(self, "max_edge", _positive("max_edge", self.max_edge, allow_none=True))
+        if self.classes is not None:
+            try:
+                classes = tuple(sorted({int(c) for c in self.classes}))
+            except (TypeError, ValueError):
+                raise UsageError(f"classes must be integers 0-255 or None (all), got {self.classes!r}") from None
+            if not classes or any(c < 0 or c > 255 for c in classes):
+                raise UsageError(f"classes must be integers 0-255 or None (all), got {self.classes!r}")
+            object.__setattr__(self, "classes", classes)
+        if self.bbox is not None:
+            try:
+                bbox = tuple(float(v) for v in self.bbox)
+            except (TypeError, ValueError):
+                raise UsageError(f"bbox must be (xmin, ymin, xmax, ymax), got {self.bbox!r}") from None
+            if len(bbox) != 4 or not (bbox[0] < bbox[2] and bbox[1] < bbox[3]):
+                raise UsageError(f"bbox must be (xmin, ymin, xmax, ymax) with min < max, got {self.bbox!r}")
+            object.__setattr__(self, "bbox", bbox)
+        object.__setattr__(self, "duplicates", _choice(DuplicatePolicy, self.duplicates, "duplicates"))
+        object.__setattr__(
+            self, "triangle_measure", _choice(TriangleMeasure, self.triangle_measure, "triangle_measure")
+        )
+        if self.quad_measure is not None and str(self.quad_measure).lower() != "none":
+            object.__setattr__(self, "quad_measure", _choice(QuadMeasure, self.quad_measure, "quad_measure"))
+        else:
+            object.__setattr__(self, "quad_measure", None)
+        object.__setattr__(self, "merge", _choice(MergeMethod, self.merge, "merge"))
+        layers = tuple(dict.fromkeys(("elevation", *self.layers)))
+        unknown = [name for name in layers if name not in LAYERS]
+        if unknown:
+            raise UsageError(f"unknown layer(s) {unknown}; expected some of {', '.join(LAYERS)}")
+        object.__setattr__(self, "layers", layers)
+        if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) < 1):
+            raise UsageError(f"workers must be a positive integer, got {self.workers!r}")
+        if self.zarr_format not in (2, 3):
+            raise UsageError(f"zarr_format must be 2 or 3, got {self.zarr_format!r}")
+        if isinstance(self.max_cells, bool) or int(self.max_cells) < 1:
+            raise UsageError(f"max_cells must be a positive integer, got {self.max_cells!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values (lists for tuples), JSON- and TOML-friendly; ``None`` fields omitted."""
+        out: dict[str, Any] = {}
+        for key, value in asdict(self).items():
+            if key == "extra" or value is None:
+                continue
+            out[key] = list(value) if isinstance(value, tuple) else value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunConfig:
+        """Build from plain values; unknown keys are an error naming them."""
+        known = {f.name for f in fields(cls)} - {"extra"}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise UsageError(f"unknown parameter(s) {unknown}; known: {', '.join(sorted(known))}")
+        values = dict(data)
+        for key in ("inputs", "classes", "bbox", "layers"):
+            if isinstance(values.get(key), list):
+                values[key] = tuple(values[key])
+        if values.get("classes") == "all":
+            values["classes"] = None
+        return cls(**values)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> RunConfig:
+        """Read a job file: the parameters at the top level or under ``[run]``."""
+        try:
+            with open(path, "rb") as f:
+                data = tomllib.load(f)
+        except OSError as exc:
+            raise UsageError(f"{path}: cannot read the job file ({exc.strerror})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise UsageError(f"{path}: not valid TOML ({exc})") from None
+        return cls.from_dict(data.get("run", data))
+
+    def differences(self, other: RunConfig) -> list[str]:
+        """Names of the parameters that change the result and differ from ``other``."""
+        ignore = {"workers", "scheduler", "overwrite", "scratch_dir", "inputs", "output", "extra"}
+        mine, theirs = asdict(self), asdict(other)
+        return sorted(k for k in mine if k not in ignore and mine[k] != theirs[k])

@@ -1,0 +1,416 @@
+"""``pipeline.run``: LAS/LAZ archives -> tiles on Dask -> one seamless DEM and mesh in Zarr.
+
+Stages (each timed in the run report):
+
+1. *scan*: headers of every input, CRS plan, grid and tiles;
+2. *route*: one streaming pass per input file (a Dask task each): filter,
+   reproject, and append every point to the spill files of the tiles whose
+   core plus buffer holds it;
+3. *mesh*: one task per tile: its piece of the combined mesh (certified
+   against its neighbours, see :mod:`pipeline.tiles`);
+4. *dem*: one task per tile: the DEM chunk from the stitched faces over it,
+   written straight into its own Zarr chunk (no locks);
+5. *write mesh*: the pieces, renumbered globally, into the store's UGRID group.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import RunConfig
+from .errors import PipelineError
+from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile
+from .tiling import TileGrid, TileSpiller, check_cells
+
+__all__ = ["run", "RunReport", "route_source"]
+
+POINTS_PER_TILE = 1_500_000
+"""Target number of points per tile when ``tile_size`` is not given."""
+
+
+@dataclass
+class RunReport:
+    """What a run did: counts of points by fate, tiles, mesh, time per stage."""
+
+    points_read: int = 0
+    points_kept: int = 0
+    filtered_class: int = 0
+    filtered_withheld: int = 0
+    outside_bbox: int = 0
+    duplicates: int = 0
+    vertices: int = 0
+    faces: int = 0
+    quads: int = 0
+    tiles: int = 0
+    tiles_uncertified: int = 0
+    tile_expansions: int = 0
+    files: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    stages: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def quad_share(self) -> float:
+        return self.quads / self.faces if self.faces else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["quad_share"] = self.quad_share
+        return out
+
+    def table(self) -> str:
+        rows = [
+            ("points read", f"{self.points_read:,}"),
+            ("  filtered by class", f"{self.filtered_class:,}"),
+            ("  withheld", f"{self.filtered_withheld:,}"),
+            ("  outside bbox", f"{self.outside_bbox:,}"),
+            ("  duplicates merged", f"{self.duplicates:,}"),
+            ("points kept (vertices)", f"{self.vertices:,}"),
+            ("tiles", f"{self.tiles:,}"),
+            ("faces", f"{self.faces:,}"),
+            ("share of quadrangles", f"{100 * self.quad_share:.1f} %"),
+        ]
+        if self.tiles_uncertified:
+            rows.append(("tiles not certified", f"{self.tiles_uncertified}"))
+        for stage, seconds in self.stages.items():
+            rows.append((f"time: {stage}", f"{seconds:.2f} s"))
+        width = max(len(r[0]) for r in rows)
+        return "\n".join(f"{name.ljust(width)}  {value}" for name, value in rows)
+
+
+class _Progress:
+    """A one-line progress bar on stderr (only when it is a terminal or forced)."""
+
+    def __init__(self, label: str, total: int, enabled: bool):
+        self.label = label
+        self.total = total
+        self.enabled = enabled
+        self.done = 0
+        self.points = 0
+        self.start = time.perf_counter()
+
+    def update(self, points: int = 0) -> None:
+        self.done += 1
+        self.points += points
+        if not self.enabled:
+            return
+        elapsed = max(time.perf_counter() - self.start, 1e-9)
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        rate = f", {self.points / elapsed / 1e6:.2f} M points/s" if self.points else ""
+        sys.stderr.write(
+            f"\r{self.label:<6} [{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total}{rate}"
+        )
+        if self.done == self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _client(config: RunConfig):
+    """A Dask client: the given scheduler, or an in-process cluster of threads."""
+    from distributed import Client, LocalCluster
+
+    address = config.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS")
+    if address:
+        try:
+            return Client(address, timeout="10s"), None
+        except OSError as exc:
+            raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
+    threads = config.workers or os.cpu_count() or 1
+    cluster = LocalCluster(
+        n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=None
+    )
+    return Client(cluster), cluster
+
+
+def _map(client, fn: Callable, items: list, progress: _Progress, points: Callable[[Any], int]) -> list:
+    from distributed import as_completed
+
+    futures = client.map(fn, items, pure=False)
+    index = {f.key: i for i, f in enumerate(futures)}
+    results: list[Any] = [None] * len(items)
+    for future in as_completed(futures):
+        result = future.result()
+        results[index[future.key]] = result
+        progress.update(points(result))
+    return results
+
+
+@dataclass(frozen=True)
+class _RouteJob:
+    index: int
+    path: str
+    scratch: str
+    grid: TileGrid
+    buffer: float
+    source_wkt: str
+    target_wkt: str
+    classes: tuple[int, ...] | None
+    keep_withheld: bool
+    bbox: tuple[float, float, float, float] | None
+
+
+def route_source(job: _RouteJob) -> dict[str, Any]:
+    """Stream one file into the tiles' spill files; returns its counts."""
+    from .crs import Reprojector
+    from .sources import PointFilter, iter_points
+
+    t0 = time.perf_counter()
+    spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
+    reproject = Reprojector(job.source_wkt, job.target_wkt)
+    point_filter = PointFilter(
+        classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
+    )
+    counts = {"path": job.path, "read": 0, "filtered_class": 0, "filtered_withheld": 0, "outside_bbox": 0, "kept": 0}
+    for chunk in iter_points(job.path, point_filter):
+        counts["read"] += chunk.read
+        counts["filtered_class"] += chunk.filtered_class
+        counts["filtered_withheld"] += chunk.filtered_withheld
+        x, y, z = reproject.transform(chunk.x, chunk.y, chunk.z)
+        if job.bbox is not None:
+            inside = (x >= job.bbox[0]) & (x <= job.bbox[2]) & (y >= job.bbox[1]) & (y <= job.bbox[3])
+            counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
+            x, y, z = x[inside], y[inside], z[inside]
+        counts["kept"] += int(x.size)
+        spill.add(x, y, z)
+    spill.flush()
+    counts["seconds"] = time.perf_counter() - t0
+    return counts
+
+
+def _target_bounds(infos, plan) -> tuple[float, float, float, float]:
+    """Union of the files' header bounds, in the target CRS."""
+    from pyproj import CRS, Transformer
+
+    xmin = ymin = math.inf
+    xmax = ymax = -math.inf
+    target = CRS.from_wkt(plan.target_wkt)
+    for info, src in zip(infos, plan.source_wkts):
+        b = info.bounds
+        if info.point_count == 0:
+            continue
+        x0, y0, x1, y1 = b[0], b[1], b[3], b[4]
+        if src != plan.target_wkt:
+            t = Transformer.from_crs(CRS.from_wkt(src), target, always_xy=True)
+            x0, y0, x1, y1 = t.transform_bounds(x0, y0, x1, y1, densify_pts=21)
+        xmin, ymin = min(xmin, x0), min(ymin, y0)
+        xmax, ymax = max(xmax, x1), max(ymax, y1)
+    return xmin, ymin, xmax, ymax
+
+
+def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
+    """Tile edge in cells and buffer (CRS units) from the point density."""
+    area = max((bounds[2] - bounds[0]) * (bounds[3] - bounds[1]), config.resolution**2)
+    density = max(n_points, 1) / area
+    spacing = 1.0 / math.sqrt(density)
+    if config.tile_size is not None:
+        tile_cells = int(round(config.tile_size / config.resolution))
+    else:
+        edge = math.sqrt(POINTS_PER_TILE / density)
+        tile_cells = max(16, int(round(edge / config.resolution / 16)) * 16)
+    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
+    return tile_cells, float(buffer)
+
+
+def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str], None] | None = None) -> RunReport:
+    """Run a job end to end and return its report (also stored in the store's attributes).
+
+    Examples
+    --------
+    >>> from pipeline import RunConfig, run          # doctest: +SKIP
+    >>> report = run(RunConfig(inputs=("survey/*.laz",), output="dem.zarr", resolution=1.0))  # doctest: +SKIP
+    """
+    from . import store
+    from .crs import resolve_crs
+    from .sources import discover_inputs, read_info
+
+    show = sys.stderr.isatty() if progress is None else progress
+    say = log or (lambda message: None)
+    report = RunReport()
+    t_start = time.perf_counter()
+
+    t0 = time.perf_counter()
+    paths = discover_inputs(config.inputs)
+    infos = [read_info(p) for p in paths]
+    plan = resolve_crs(infos, config.in_crs, config.out_crs)
+    report.notes.extend(plan.notes)
+    bounds = _target_bounds(infos, plan)
+    if config.bbox is not None:
+        b = config.bbox
+        bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
+    if not all(math.isfinite(v) for v in bounds) or bounds[0] > bounds[2] or bounds[1] > bounds[3]:
+        raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
+    tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
+    grid = TileGrid.covering(bounds, config.resolution, tile_cells)
+    check_cells(grid, config.max_cells)
+    report.tiles = grid.n_tiles
+    say(f"{len(paths)} file(s), grid {grid.nx} x {grid.ny} cells, {grid.n_rows} x {grid.n_cols} tiles")
+
+    provenance = {
+        "software": "terrain-pipeline",
+        "version": _version(),
+        "parameters": config.to_dict(),
+        "inputs": [{"path": str(i.path), "size": i.size_bytes, "points": i.point_count} for i in infos],
+        "crs_wkt": plan.target_wkt,
+        "grid": grid.to_dict(),
+        "buffer": buffer,
+    }
+    spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
+    store.create_store(
+        config.output,
+        spec,
+        plan.target_wkt,
+        layers=config.layers,
+        attrs={"provenance": provenance, "complete": False},
+        zarr_format=config.zarr_format,
+        overwrite=config.overwrite,
+    )
+    report.stages["scan"] = time.perf_counter() - t0
+
+    scratch_root = Path(config.scratch_dir) if config.scratch_dir else None
+    scratch = Path(tempfile.mkdtemp(prefix="terrain-", dir=scratch_root))
+    client, cluster = _client(config)
+    try:
+        t0 = time.perf_counter()
+        jobs = [
+            _RouteJob(
+                i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt,
+                config.classes, config.keep_withheld, config.bbox,
+            )
+            for i, p in enumerate(paths)
+        ]
+        counts = _map(client, route_source, jobs, _Progress("read", len(jobs), show), lambda c: c["read"])
+        for c in counts:
+            report.points_read += c["read"]
+            report.filtered_class += c["filtered_class"]
+            report.filtered_withheld += c["filtered_withheld"]
+            report.outside_bbox += c["outside_bbox"]
+            report.points_kept += c["kept"]
+            if c["kept"] == 0:
+                report.notes.append(f"{c['path']}: no points of the chosen classes")
+        report.files = counts
+        report.stages["route"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        extent = bounds
+        tile_jobs = [
+            TileJob(
+                r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
+                config.quad_measure, config.merge, config.max_edge, config.layers,
+            )
+            for r, c in grid.tiles()
+        ]
+        summaries: list[TileSummary] = _map(
+            client, mesh_tile, tile_jobs, _Progress("mesh", len(tile_jobs), show), lambda s: s.points_owned
+        )
+        for s in summaries:
+            report.duplicates += s.duplicates
+            report.vertices += s.vertices_owned
+            report.faces += s.faces
+            report.quads += s.quads
+            report.tile_expansions += s.expansions
+            report.tiles_uncertified += 0 if s.certified else 1
+        if report.tiles_uncertified:
+            report.notes.append(
+                f"{report.tiles_uncertified} tile(s) could not load every point their seams depend on; "
+                "a larger --buffer may help"
+            )
+        report.stages["mesh"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+
+        def dem_and_write(job: TileJob) -> int:
+            layers = dem_tile(job)
+            store.write_tile(config.output, spec, job.row, job.col, layers)
+            return 0
+
+        _map(client, dem_and_write, tile_jobs, _Progress("dem", len(tile_jobs), show), lambda _: 0)
+        report.stages["dem"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        _write_mesh(config, grid, scratch, summaries)
+        report.stages["write mesh"] = time.perf_counter() - t0
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+
+    report.stages["total"] = time.perf_counter() - t_start
+    store.finalize_store(config.output, {"report": report.to_dict(), "complete": True})
+    return report
+
+
+def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: list[TileSummary]) -> None:
+    """Renumber the pieces' vertices globally (owner tile, then lexicographic) and write them."""
+    from . import store
+
+    by_tile = {(s.row, s.col): s for s in summaries}
+    order = grid.tiles()
+    node_offsets = np.zeros(len(order) + 1, dtype=np.int64)
+    face_offsets = np.zeros(len(order) + 1, dtype=np.int64)
+    for k, key in enumerate(order):
+        node_offsets[k + 1] = node_offsets[k] + by_tile[key].vertices_owned
+        face_offsets[k + 1] = face_offsets[k] + by_tile[key].faces
+    writer = store.MeshWriter(config.output, int(node_offsets[-1]), int(face_offsets[-1]), config.zarr_format)
+    owned_keys: dict[tuple[int, int], np.ndarray] = {}
+
+    def keys_of(key: tuple[int, int]) -> np.ndarray:
+        if key not in owned_keys:
+            if len(owned_keys) > 16:
+                owned_keys.pop(next(iter(owned_keys)))
+            piece = load_piece(scratch, *key)
+            owned_keys[key] = piece["owned_xy"][:, 0] + 1j * piece["owned_xy"][:, 1]
+        return owned_keys[key]
+
+    tile_number = {key: k for k, key in enumerate(order)}
+    for k, key in enumerate(order):
+        piece = load_piece(scratch, *key)
+        owned = piece["owned_xy"]
+        writer.write_nodes(int(node_offsets[k]), owned[:, 0], owned[:, 1], piece["owned_z"])
+        v = piece["vertex_xyz"]
+        faces = piece["faces"]
+        if faces.shape[0] == 0:
+            continue
+        orow, ocol = grid.owner(v[:, 0], v[:, 1])
+        gid = np.empty(v.shape[0], dtype=np.int64)
+        vkey = v[:, 0] + 1j * v[:, 1]
+        for owner in set(zip(orow.tolist(), ocol.tolist())):
+            sel = (orow == owner[0]) & (ocol == owner[1])
+            table = keys_of(owner)
+            idx = np.searchsorted(table, vkey[sel])
+            if np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
+                raise PipelineError(f"tile {key}: a face vertex is not owned by tile {owner} (stitching bug)")
+            gid[sel] = node_offsets[tile_number[owner]] + idx
+        writer.write_faces(int(face_offsets[k]), np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
+    writer.set_tiles(
+        node_offsets=node_offsets,
+        face_offsets=face_offsets,
+        rows=np.array([r for r, _ in order]),
+        cols=np.array([c for _, c in order]),
+    )
+    writer.close()
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("terrain-pipeline")
+    except PackageNotFoundError:  # pragma: no cover
+        return "unknown"
+
+
+def report_json(report: RunReport) -> str:
+    return json.dumps(report.to_dict(), indent=2, default=str)

@@ -1,0 +1,303 @@
+"""Meshing one tile so that the tiles' pieces form one conforming mesh.
+
+Each tile meshes its core plus buffer and keeps the piece of the mesh over the
+Delaunay triangles whose centroid lies in its core (``build_mesh(window=...)``).
+The Delaunay triangulation is unique, so the pieces of neighbouring tiles fit
+exactly, provided each tile held every point inside the circumcircles of its
+piece's triangles.  meshcore reports the circumcircles that leave the box the
+tile holds; the tile then loads the points inside them (from the neighbours'
+spill files) and rebuilds, until none is left ("certified").  Flips and merges
+happen only between triangles of the same piece, so they never cross a seam.
+
+A tile's result is saved to the scratch folder: the points it owns (sorted, for
+the global vertex numbering) and its faces with their corner coordinates, which
+the DEM pass and the mesh writer read back.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+import meshcore
+
+from .tiling import TileGrid, load_tile_points, points_in_box, tile_dir
+
+__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "dedupe"]
+
+MAX_EXPANSIONS = 6
+"""Rounds of loading missing points before a tile is reported uncertified."""
+
+
+@dataclass(frozen=True)
+class TileJob:
+    """A small, picklable recipe for one tile's work (no open files)."""
+
+    row: int
+    col: int
+    scratch: str
+    grid: TileGrid
+    buffer: float
+    extent: tuple[float, float, float, float]
+    duplicates: str
+    triangle_measure: str
+    quad_measure: str | None
+    merge: str
+    max_edge: float | None = None
+    layers: tuple[str, ...] = ("elevation",)
+
+
+@dataclass(frozen=True)
+class TileSummary:
+    row: int
+    col: int
+    points_owned: int
+    vertices_owned: int
+    duplicates: int
+    faces: int
+    quads: int
+    expansions: int
+    certified: bool
+    seconds: float
+
+
+def dedupe(points: NDArray[np.float64], policy: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Distinct (x, y) sorted lexicographically, their z by ``policy``, and each point's group."""
+    if points.shape[0] == 0:
+        return np.empty((0, 2)), np.empty(0), np.empty(0, dtype=np.int64)
+    order = np.lexsort((points[:, 1], points[:, 0]))  # stable: "first" keeps reading order
+    p = points[order]
+    new = np.r_[True, (p[1:, 0] != p[:-1, 0]) | (p[1:, 1] != p[:-1, 1])]
+    starts = np.flatnonzero(new)
+    z = p[:, 2]
+    if policy == "lowest":
+        zu = np.minimum.reduceat(z, starts)
+    elif policy == "highest":
+        zu = np.maximum.reduceat(z, starts)
+    elif policy == "mean":
+        zu = np.add.reduceat(z, starts) / np.diff(np.r_[starts, z.size])
+    else:
+        zu = z[starts]
+    group = np.empty(points.shape[0], dtype=np.int64)
+    group[order] = np.cumsum(new) - 1
+    return p[starts, :2].copy(), zu, group
+
+
+def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float, float]):
+    """Bounding box of (disk ∩ box), or None when they do not meet."""
+    x0, y0, x1, y1 = box
+    yc = min(max(cy, y0), y1)
+    hx = r * r - (yc - cy) ** 2
+    xc = min(max(cx, x0), x1)
+    hy = r * r - (xc - cx) ** 2
+    if hx < 0 or hy < 0:
+        return None
+    hx = math.sqrt(hx)
+    hy = math.sqrt(hy)
+    out = (max(x0, cx - hx), max(y0, cy - hy), min(x1, cx + hx), min(y1, cy + hy))
+    if out[0] > out[2] or out[1] > out[3]:
+        return None
+    return out
+
+
+def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float, float, float]) -> bool:
+    return inner[0] >= outer[0] and inner[1] >= outer[1] and inner[2] <= outer[2] and inner[3] <= outer[3]
+
+
+def _load_box(job: TileJob, box, exclude: list) -> NDArray[np.float64]:
+    """Points inside ``box`` from the tiles that own them, minus the boxes already held."""
+    g = job.grid
+    r_lo = int(g.owner(np.array([box[0]]), np.array([box[1]]))[0][0])
+    r_hi = int(g.owner(np.array([box[2]]), np.array([box[3]]))[0][0])
+    c_lo = int(g.owner(np.array([box[0]]), np.array([box[1]]))[1][0])
+    c_hi = int(g.owner(np.array([box[2]]), np.array([box[3]]))[1][0])
+    out = []
+    for r in range(r_lo, r_hi + 1):
+        for c in range(c_lo, c_hi + 1):
+            pts = load_tile_points(Path(job.scratch), r, c)
+            if pts.shape[0] == 0:
+                continue
+            orow, ocol = g.owner(pts[:, 0], pts[:, 1])
+            keep = (orow == r) & (ocol == c) & points_in_box(pts, box)
+            for held in exclude:
+                keep &= ~points_in_box(pts, held)
+            out.append(pts[keep])
+    return np.concatenate(out) if out else np.empty((0, 3))
+
+
+def mesh_tile(job: TileJob) -> TileSummary:
+    """Mesh one tile's piece and save it to the scratch folder."""
+    t0 = time.perf_counter()
+    g = job.grid
+    window = g.window(job.row, job.col)
+    own = load_tile_points(Path(job.scratch), job.row, job.col)
+    bx = g.box(job.row, job.col)
+    # the tile holds every point of its core plus buffer; outside the data
+    # extent there are none (circles are clipped to it below)
+    held = [(bx[0] - job.buffer, bx[1] - job.buffer, bx[2] + job.buffer, bx[3] + job.buffer)]
+    points = own
+    expansions = 0
+    while True:
+        xy, z, group = dedupe(points, job.duplicates)
+        mesh = meshcore.build_mesh(
+            xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
+        )
+        missing = []
+        for cx, cy, r in mesh.window_escapes:
+            box = _disk_box_in(cx, cy, r, job.extent)
+            if box is None or any(_inside(box, h) for h in held):
+                continue
+            missing.append(box)
+        if not missing or expansions >= MAX_EXPANSIONS:
+            break
+        expansions += 1
+        merged = _merge_boxes(missing)
+        extra = [_load_box(job, b, held) for b in merged]
+        held.extend(merged)
+        points = np.concatenate([points, *extra])
+    certified = not missing
+
+    orow, ocol = g.owner(xy[:, 0], xy[:, 1])
+    owned = (orow == job.row) & (ocol == job.col)
+    porow, pocol = g.owner(points[:, 0], points[:, 1])
+    points_owned = int(np.count_nonzero((porow == job.row) & (pocol == job.col)))
+    vertices_owned = int(np.count_nonzero(owned))
+
+    used = np.unique(mesh.faces[mesh.faces >= 0])
+    remap = np.full(xy.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    faces = np.where(mesh.faces >= 0, remap[np.maximum(mesh.faces, 0)], -1)
+    folder = tile_dir(Path(job.scratch), job.row, job.col)
+    folder.mkdir(parents=True, exist_ok=True)
+    counts = None
+    if "point_count" in job.layers:
+        counts = _point_counts(job, own)
+    np.savez(
+        folder / "piece.npz",
+        owned_xy=xy[owned],
+        owned_z=z[owned],
+        vertex_xyz=np.column_stack([xy[used], z[used]]),
+        faces=faces,
+        point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
+    )
+    return TileSummary(
+        row=job.row,
+        col=job.col,
+        points_owned=points_owned,
+        vertices_owned=vertices_owned,
+        duplicates=points_owned - vertices_owned,
+        faces=int(faces.shape[0]),
+        quads=int(np.count_nonzero(faces[:, 3] >= 0)),
+        expansions=expansions,
+        certified=certified,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _merge_boxes(boxes: list) -> list:
+    """One box around all (fewer, larger reads beat many small ones here)."""
+    return [(min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))]
+
+
+def _point_counts(job: TileJob, own: NDArray[np.float64]) -> NDArray[np.int32]:
+    g = job.grid
+    r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
+    i = np.floor((own[:, 0] - g.x0) / g.resolution).astype(np.int64) - c0
+    j = np.floor((own[:, 1] - g.y0) / g.resolution).astype(np.int64) - r0
+    ok = (i >= 0) & (i < c1 - c0) & (j >= 0) & (j < r1 - r0)
+    counts = np.zeros((r1 - r0, c1 - c0), dtype=np.int32)
+    np.add.at(counts, (j[ok], i[ok]), 1)
+    return counts
+
+
+def load_piece(scratch: Path, row: int, col: int) -> dict[str, NDArray]:
+    with np.load(tile_dir(scratch, row, col) / "piece.npz") as data:
+        return {k: data[k] for k in data.files}
+
+
+def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8]]:
+    """The faces of this tile and its neighbours that overlap the tile's cells, as one mesh."""
+    g = job.grid
+    box = g.box(job.row, job.col)
+    verts, faces, kinds = [], [], []
+    offset = 0
+    for r in range(max(0, job.row - 1), min(g.n_rows, job.row + 2)):
+        for c in range(max(0, job.col - 1), min(g.n_cols, job.col + 2)):
+            piece = load_piece(Path(job.scratch), r, c)
+            v = piece["vertex_xyz"]
+            f = piece["faces"]
+            if f.shape[0] == 0:
+                continue
+            if (r, c) != (job.row, job.col):
+                fx = np.where(f >= 0, v[np.maximum(f, 0), 0], np.nan)
+                fy = np.where(f >= 0, v[np.maximum(f, 0), 1], np.nan)
+                hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
+                hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
+                f = f[hit]
+                used = np.unique(f[f >= 0])
+                remap = np.full(v.shape[0], -1, dtype=np.int64)
+                remap[used] = np.arange(used.size)
+                f = np.where(f >= 0, remap[np.maximum(f, 0)], -1)
+                v = v[used]
+            verts.append(v)
+            faces.append(np.where(f >= 0, f + offset, -1))
+            kinds.append(np.where(f[:, 3] >= 0, 2, 1).astype(np.int8))
+            offset += v.shape[0]
+    if not faces:
+        empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
+        return empty, np.empty(0), np.empty(0, dtype=np.int8)
+    v = np.concatenate(verts)
+    key = v[:, 0] + 1j * v[:, 1]
+    unique, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    f = np.concatenate(faces)
+    f = np.where(f >= 0, inverse[np.maximum(f, 0)], -1)
+    mesh = meshcore.Mesh(v[first, :2], f, np.arange(unique.size))
+    return mesh, v[first, 2], np.concatenate(kinds)
+
+
+def dem_tile(job: TileJob) -> dict[str, NDArray]:
+    """The DEM layers of one tile's cells (south-up), from the stitched faces around it."""
+    g = job.grid
+    r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
+    x0 = g.x0 + c0 * g.resolution
+    y0 = g.y0 + r0 * g.resolution
+    mesh, z, kinds = _local_mesh(job)
+    shape = (r1 - r0, c1 - c0)
+    layers: dict[str, NDArray] = {}
+    if mesh.faces.shape[0] == 0:
+        layers["elevation"] = np.full(shape, np.nan, dtype=np.float32)
+    else:
+        elev = meshcore.rasterize(mesh, z, x0, y0, g.resolution, shape[1], shape[0], max_edge=job.max_edge)
+        layers["elevation"] = elev.astype(np.float32)
+    if "slope" in job.layers:
+        slope = np.full(shape, np.nan, dtype=np.float32)
+        ok = np.isfinite(layers["elevation"])
+        if ok.any():
+            jj, ii = np.nonzero(ok)
+            gx, gy = meshcore.gradient(mesh, z, x0 + (ii + 0.5) * g.resolution, y0 + (jj + 0.5) * g.resolution)
+            slope[jj, ii] = np.degrees(np.arctan(np.hypot(gx, gy)))
+        layers["slope"] = slope
+    if "face_kind" in job.layers:
+        layers["face_kind"] = _face_kind(mesh, kinds, x0, y0, g.resolution, shape, job.max_edge)
+    if "point_count" in job.layers:
+        counts = load_piece(Path(job.scratch), job.row, job.col)["point_count"]
+        layers["point_count"] = counts if counts.size else np.zeros(shape, dtype=np.int32)
+    return layers
+
+
+def _face_kind(mesh, kinds, x0, y0, resolution, shape, max_edge) -> NDArray[np.int8]:
+    """1 where a triangle covers the cell centre, 2 for a quadrangle, 0 for none."""
+    if mesh.faces.shape[0] == 0:
+        return np.zeros(shape, dtype=np.int8)
+    f = mesh.faces
+    corners = np.where(f >= 0, np.arange(f.size).reshape(f.shape), -1)
+    vertices = mesh.vertices[np.maximum(f, 0)].reshape(-1, 2)
+    value = np.repeat(kinds.astype(np.float64), 4)
+    split = meshcore.Mesh(vertices, corners, np.arange(vertices.shape[0]))
+    out = meshcore.rasterize(split, value, x0, y0, resolution, shape[1], shape[0], max_edge=max_edge)
+    return np.nan_to_num(np.rint(out), nan=0.0).astype(np.int8)

@@ -1,0 +1,212 @@
+"""The global tile grid, and routing points to tiles in one streaming pass.
+
+One grid for the whole run: its south-west corner is snapped to a multiple of
+the resolution, tiles are ``tile_cells x tile_cells`` DEM cells.  A point is
+*owned* by the tile whose core holds it (half-open boxes; the outer tiles
+extend to infinity, so every point has exactly one owner).  Routing sends each
+point to every tile whose core grown by ``buffer`` holds it, appending to that
+tile's spill files on disk, so memory stays bounded whatever the archive size.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import UsageError
+
+__all__ = ["TileGrid", "TileSpiller", "load_tile_points", "points_in_box"]
+
+
+@dataclass(frozen=True)
+class TileGrid:
+    """The DEM grid and its tiles.
+
+    Attributes
+    ----------
+    x0, y0 : float
+        South-west outer corner of cell (0, 0), a multiple of ``resolution``.
+    resolution : float
+        Cell size (CRS units).
+    tile_cells : int
+        Tile edge in cells.
+    nx, ny : int
+        Cells in the grid.
+    """
+
+    x0: float
+    y0: float
+    resolution: float
+    tile_cells: int
+    nx: int
+    ny: int
+
+    @classmethod
+    def covering(cls, bounds: tuple[float, float, float, float], resolution: float, tile_cells: int) -> TileGrid:
+        """The grid whose cell centres cover ``bounds`` (xmin, ymin, xmax, ymax)."""
+        xmin, ymin, xmax, ymax = bounds
+        x0 = math.floor(xmin / resolution) * resolution
+        y0 = math.floor(ymin / resolution) * resolution
+        nx = max(1, int(math.floor((xmax - x0) / resolution)) + 1)
+        ny = max(1, int(math.floor((ymax - y0) / resolution)) + 1)
+        return cls(float(x0), float(y0), float(resolution), int(tile_cells), nx, ny)
+
+    @property
+    def tile_size(self) -> float:
+        return self.tile_cells * self.resolution
+
+    @property
+    def n_cols(self) -> int:
+        return -(-self.nx // self.tile_cells)
+
+    @property
+    def n_rows(self) -> int:
+        return -(-self.ny // self.tile_cells)
+
+    @property
+    def n_tiles(self) -> int:
+        return self.n_cols * self.n_rows
+
+    def _inner_edges(self, axis: int) -> NDArray[np.float64]:
+        origin, count = (self.x0, self.n_cols) if axis == 0 else (self.y0, self.n_rows)
+        return origin + np.arange(1, count) * self.tile_size
+
+    def window(self, row: int, col: int) -> tuple[float, float, float, float]:
+        """Half-open ownership box of a tile; outer tiles reach to infinity."""
+        ex = self._inner_edges(0)
+        ey = self._inner_edges(1)
+        x_lo = -math.inf if col == 0 else float(ex[col - 1])
+        x_hi = math.inf if col == self.n_cols - 1 else float(ex[col])
+        y_lo = -math.inf if row == 0 else float(ey[row - 1])
+        y_hi = math.inf if row == self.n_rows - 1 else float(ey[row])
+        return x_lo, y_lo, x_hi, y_hi
+
+    def box(self, row: int, col: int) -> tuple[float, float, float, float]:
+        """Finite box of the tile's cells (clipped to the grid)."""
+        r0, r1, c0, c1 = self.cell_slice(row, col)
+        return (
+            self.x0 + c0 * self.resolution,
+            self.y0 + r0 * self.resolution,
+            self.x0 + c1 * self.resolution,
+            self.y0 + r1 * self.resolution,
+        )
+
+    def cell_slice(self, row: int, col: int) -> tuple[int, int, int, int]:
+        """Rows ``r0:r1`` (from the south) and columns ``c0:c1`` of the tile's cells."""
+        r0 = row * self.tile_cells
+        c0 = col * self.tile_cells
+        return r0, min(r0 + self.tile_cells, self.ny), c0, min(c0 + self.tile_cells, self.nx)
+
+    def owner(self, x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(row, col) of the tile owning each point (the same edges as :meth:`window`)."""
+        col = np.searchsorted(self._inner_edges(0), x, side="right")
+        row = np.searchsorted(self._inner_edges(1), y, side="right")
+        return row.astype(np.int64), col.astype(np.int64)
+
+    def tiles(self) -> list[tuple[int, int]]:
+        return [(r, c) for r in range(self.n_rows) for c in range(self.n_cols)]
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TileGrid:
+        return cls(**data)
+
+
+def tile_dir(scratch: Path, row: int, col: int) -> Path:
+    return Path(scratch) / "tiles" / f"{row:05d}_{col:05d}"
+
+
+class TileSpiller:
+    """Routes points of one source to the tiles' spill files, holding at most
+    ``budget`` points in memory (bounded memory whatever the archive size)."""
+
+    def __init__(self, scratch: Path, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000):
+        self.scratch = Path(scratch)
+        self.grid = grid
+        self.buffer = float(buffer)
+        self.source = int(source)
+        self.budget = int(budget)
+        self._pending: dict[tuple[int, int], list[NDArray[np.float64]]] = {}
+        self._held = 0
+        self._parts: dict[tuple[int, int], int] = {}
+        self.owned_per_tile: dict[tuple[int, int], int] = {}
+
+    def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
+        if x.size == 0:
+            return
+        g = self.grid
+        ex = g._inner_edges(0)
+        ey = g._inner_edges(1)
+        c_lo = np.searchsorted(ex, x - self.buffer, side="right")
+        c_hi = np.searchsorted(ex, x + self.buffer, side="right")
+        r_lo = np.searchsorted(ey, y - self.buffer, side="right")
+        r_hi = np.searchsorted(ey, y + self.buffer, side="right")
+        orow, ocol = g.owner(x, y)
+        owned_keys, owned_counts = np.unique(orow * g.n_cols + ocol, return_counts=True)
+        for k, n in zip(owned_keys.tolist(), owned_counts.tolist()):
+            key = (k // g.n_cols, k % g.n_cols)
+            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + n
+        xyz = np.column_stack([x, y, z])
+        span_c = int((c_hi - c_lo).max()) + 1
+        span_r = int((r_hi - r_lo).max()) + 1
+        for dr in range(span_r):
+            for dc in range(span_c):
+                sel = (r_lo + dr <= r_hi) & (c_lo + dc <= c_hi)
+                if not sel.any():
+                    continue
+                keys = (r_lo[sel] + dr) * g.n_cols + (c_lo[sel] + dc)
+                pts = xyz[sel]
+                order = np.argsort(keys, kind="stable")
+                keys = keys[order]
+                pts = pts[order]
+                starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+                ends = np.r_[starts[1:], keys.size]
+                for s, e in zip(starts.tolist(), ends.tolist()):
+                    k = int(keys[s])
+                    self._pending.setdefault((k // g.n_cols, k % g.n_cols), []).append(pts[s:e])
+                    self._held += e - s
+        if self._held > self.budget:
+            self.flush()
+
+    def flush(self) -> None:
+        for key, chunks in self._pending.items():
+            part = self._parts.get(key, 0)
+            folder = tile_dir(self.scratch, *key)
+            folder.mkdir(parents=True, exist_ok=True)
+            np.save(folder / f"{self.source:06d}_{part:06d}.npy", np.concatenate(chunks))
+            self._parts[key] = part + 1
+        self._pending.clear()
+        self._held = 0
+
+
+def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:
+    """All points routed to a tile, ``(n, 3)``, in source then reading order."""
+    folder = tile_dir(scratch, row, col)
+    parts = sorted(folder.glob("*.npy")) if folder.exists() else []
+    if not parts:
+        return np.empty((0, 3))
+    return np.concatenate([np.load(p) for p in parts])
+
+
+def points_in_box(
+    points: NDArray[np.float64], box: tuple[float, float, float, float]
+) -> NDArray[np.bool_]:
+    """Mask of the points inside a closed box."""
+    x, y = points[:, 0], points[:, 1]
+    return (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+
+
+def check_cells(grid: TileGrid, max_cells: int) -> None:
+    """A DEM larger than ``max_cells`` needs an explicit, larger limit."""
+    cells = grid.nx * grid.ny
+    if cells > max_cells:
+        raise UsageError(
+            f"the DEM would have {grid.nx} x {grid.ny} = {cells:,} cells, above max_cells={max_cells:,}; "
+            "check the bounds and resolution, or raise --max-cells"
+        )

@@ -1,0 +1,51 @@
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.errors import UsageError
+from pipeline.tiling import TileGrid, TileSpiller, check_cells, load_tile_points
+
+
+def test_grid_is_snapped_and_covers_the_bounds():
+    g = TileGrid.covering((651000.37, 6861000.9, 651600.2, 6861400.0), 0.5, 100)
+    assert g.x0 == 651000.0 and g.y0 == 6861000.5
+    assert g.x0 + g.nx * g.resolution > 651600.2
+    assert g.y0 + g.ny * g.resolution > 6861400.0
+    assert (g.n_cols, g.n_rows) == (math.ceil(g.nx / 100), math.ceil(g.ny / 100))
+
+
+def test_every_point_has_one_owner_consistent_with_windows(rng):
+    g = TileGrid.covering((0.0, 0.0, 99.0, 77.0), 1.0, 16)
+    x = np.concatenate([rng.random(2000) * 120 - 10, g.x0 + np.arange(1, g.n_cols) * g.tile_size])
+    y = np.concatenate([rng.random(2000) * 100 - 10, np.full(g.n_cols - 1, 5.0)])
+    rows, cols = g.owner(x, y)
+    for xi, yi, r, c in zip(x, y, rows, cols):
+        x_lo, y_lo, x_hi, y_hi = g.window(int(r), int(c))
+        assert x_lo <= xi < x_hi and y_lo <= yi < y_hi
+
+
+def test_spilled_points_reach_every_tile_within_the_buffer(tmp_path, rng):
+    g = TileGrid.covering((0.0, 0.0, 100.0, 100.0), 1.0, 25)
+    pts = rng.random((5000, 3)) * 100
+    spill = TileSpiller(tmp_path, g, buffer=3.0, source=0, budget=500)
+    for chunk in np.array_split(pts, 7):
+        spill.add(chunk[:, 0], chunk[:, 1], chunk[:, 2])
+    spill.flush()
+    total_owned = 0
+    for r, c in g.tiles():
+        got = load_tile_points(tmp_path, r, c)
+        x0, y0, x1, y1 = g.box(r, c)
+        expect = (pts[:, 0] >= x0 - 3) & (pts[:, 0] < x1 + 3) & (pts[:, 1] >= y0 - 3) & (pts[:, 1] < y1 + 3)
+        # every point of core + buffer is there, once, in reading order
+        assert got.shape[0] >= expect.sum()
+        assert {tuple(p) for p in pts[expect]} <= {tuple(p) for p in got}
+        assert len({tuple(p) for p in got}) == got.shape[0]
+        total_owned += spill.owned_per_tile.get((r, c), 0)
+    assert total_owned == len(pts)
+
+
+def test_too_many_cells_need_an_explicit_limit():
+    g = TileGrid.covering((0.0, 0.0, 1e6, 1e6), 0.01, 1000)
+    with pytest.raises(UsageError, match="above max_cells"):
+        check_cells(g, 4_000_000_000)
