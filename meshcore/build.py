@@ -70,16 +70,23 @@ def _window_mask(points, order, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
 
 
 @njit
-def _escaping_circles(x, y, tri, active, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
-    """Circumcircles (cx, cy, r; input frame) of active triangles not inside the box."""
+def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
+    """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
+    that meet the window (the window's piece is exact once all of these are)."""
     out = np.empty((16, 3))
     n = 0
+    slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
     for t in range(tri.shape[0] // 3):
-        if not active[t]:
-            continue
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
+        if (
+            max(x[a], max(x[b], x[c])) + ox < window[0] - slack
+            or min(x[a], min(x[b], x[c])) + ox > window[2] + slack
+            or max(y[a], max(y[b], y[c])) + oy < window[1] - slack
+            or min(y[a], min(y[b], y[c])) + oy > window[3] + slack
+        ):
+            continue
         bx = x[b] - x[a]
         by = y[b] - y[a]
         cx = x[c] - x[a]
@@ -103,6 +110,39 @@ def _escaping_circles(x, y, tri, active, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.n
         out[n, 2] = r
         n += 1
     return out[:n].copy()
+
+
+@njit
+def _canonical_rotation(faces, points, vertex_input) -> None:
+    """Start every face at its lexicographically smallest vertex (by coordinates).
+
+    The rotation is then a property of the geometry, not of internal numbering,
+    so the same face gets bit-identical values in every run (tiled or not).
+    """
+    for k in range(faces.shape[0]):
+        nv = 4 if faces[k, 3] >= 0 else 3
+        best = 0
+        for j in range(1, nv):
+            a = vertex_input[faces[k, j]]
+            b = vertex_input[faces[k, best]]
+            if points[a, 0] < points[b, 0] or (points[a, 0] == points[b, 0] and points[a, 1] < points[b, 1]):
+                best = j
+        if best:
+            f0 = faces[k, 0]
+            f1 = faces[k, 1]
+            f2 = faces[k, 2]
+            f3 = faces[k, 3]
+            if nv == 3:
+                r = (f0, f1, f2)
+                faces[k, 0] = r[best % 3]
+                faces[k, 1] = r[(best + 1) % 3]
+                faces[k, 2] = r[(best + 2) % 3]
+            else:
+                r4 = (f0, f1, f2, f3)
+                faces[k, 0] = r4[best % 4]
+                faces[k, 1] = r4[(best + 1) % 4]
+                faces[k, 2] = r4[(best + 2) % 4]
+                faces[k, 3] = r4[(best + 3) % 4]
 
 
 @njit
@@ -213,9 +253,9 @@ def build_mesh(
         With ``window``: the box in which ``xy`` holds every point of the
         global set.  The circumcircles of the window's Delaunay triangles that
         are not inside it are returned as ``mesh.window_escapes`` ``(k, 3)``
-        (centre x, centre y, radius): only those triangles could differ from
-        the global triangulation's, and only if a point the caller did not
-        pass lies inside such a circle.
+        (centre x, centre y, radius), for every Delaunay triangle that meets
+        the window: the piece is the global mesh's piece unless a point the
+        caller did not pass lies inside one of these circles.
 
     Returns
     -------
@@ -226,7 +266,7 @@ def build_mesh(
     >>> import numpy as np
     >>> mesh = build_mesh(np.array([[0., 0.], [1., 0.], [1., 1.], [0., 1.]]))
     >>> mesh.faces.tolist()
-    [[3, 0, 1, 2]]
+    [[0, 1, 2, 3]]
     """
     tm = parse_option(TriangleMeasure, triangle_measure, "triangle_measure")
     qm = None if quad_measure is None else parse_option(QuadMeasure, quad_measure, "quad_measure")
@@ -244,7 +284,7 @@ def build_mesh(
         box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
         o = triangulation.origin
         escapes = _escaping_circles(
-            triangulation.x, triangulation.y, triangulation.triangles, active, float(o[0]), float(o[1]), *box
+            triangulation.x, triangulation.y, triangulation.triangles, np.array(bounds), float(o[0]), float(o[1]), *box
         )
     if tm is not TriangleMeasure.DELAUNAY:
         flip_edges(triangulation, tm.value, active)
@@ -257,6 +297,7 @@ def build_mesh(
     tri, he = triangulation.triangles, triangulation.halfedges
     del triangulation  # release the sweep's coordinates before the faces are allocated
     faces = _faces_kernel(tri, he, partner, vertex_of_sorted, active)
+    _canonical_rotation(faces, points, vertex_input)
     del tri, he, partner, vertex_of_sorted, active
     return Mesh(
         vertices=points[vertex_input],

@@ -50,12 +50,66 @@ def _hull_kernel(x, y, order) -> np.ndarray:
     return out[: k - 1]
 
 
+@njit
+def _hull_filter(x, y) -> np.ndarray:
+    """Indices of the points not strictly inside the polygon of the extreme points
+    in eight directions (Akl-Toussaint): a superset of the hull, found in one pass."""
+    n = x.shape[0]
+    ext = np.zeros(8, dtype=np.int64)
+    best = np.full(8, -np.inf)
+    for i in range(n):
+        for k in range(8):
+            if k == 0:
+                v = x[i]
+            elif k == 1:
+                v = x[i] + y[i]
+            elif k == 2:
+                v = y[i]
+            elif k == 3:
+                v = y[i] - x[i]
+            elif k == 4:
+                v = -x[i]
+            elif k == 5:
+                v = -x[i] - y[i]
+            elif k == 6:
+                v = -y[i]
+            else:
+                v = x[i] - y[i]
+            if v > best[k]:
+                best[k] = v
+                ext[k] = i
+    poly = np.empty(8, dtype=np.int64)
+    m = 0
+    for k in range(8):
+        if m == 0 or (ext[k] != poly[m - 1] and ext[k] != poly[0]):
+            poly[m] = ext[k]
+            m += 1
+    keep = np.empty(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        inside = m >= 3
+        if inside:
+            for k in range(m):
+                a = poly[k]
+                b = poly[(k + 1) % m]
+                if orient2d(x[a], y[a], x[b], y[b], x[i], y[i]) <= 0:
+                    inside = False
+                    break
+        if not inside:
+            keep[count] = i
+            count += 1
+    return keep[:count]
+
+
 def convex_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
     """Indices of the convex hull, counter-clockwise, with points on hull edges included."""
     if x.shape[0] < 3:
         return np.arange(x.shape[0], dtype=np.int64)
-    order = np.lexsort((y, x)).astype(np.int64)
-    return _hull_kernel(x, y, order)
+    candidates = _hull_filter(x, y) if x.shape[0] > 64 else np.arange(x.shape[0], dtype=np.int64)
+    cx = x[candidates]
+    cy = y[candidates]
+    order = np.lexsort((cy, cx)).astype(np.int64)
+    return candidates[_hull_kernel(cx, cy, order)]
 
 
 def _fail(message: str) -> None:

@@ -1,8 +1,13 @@
-"""The error hierarchy of the pipeline: every error raised on purpose is a ``PipelineError``."""
+"""The error hierarchy of the pipeline: every error raised on purpose is a ``PipelineError``.
+
+Each subclass also inherits the builtin that fits, so callers that only know
+the builtins (``except OSError``, ``except ValueError``) still catch them.
+Messages are one line; errors about a file start with the file's path.
+"""
 
 from __future__ import annotations
 
-__all__ = ["PipelineError", "UsageError"]
+__all__ = ["CrsError", "InputFileError", "PipelineError", "UsageError"]
 
 
 class PipelineError(Exception):
@@ -11,3 +16,26 @@ class PipelineError(Exception):
 
 class UsageError(PipelineError, ValueError):
     """A command-line argument or parameter is invalid."""
+
+
+class InputFileError(PipelineError, OSError):
+    """An input file is missing, unreadable, or not a valid LAS/LAZ file.
+
+    The message is one line, starting with the path, then the problem:
+    ``"data/a.las: not a LAS/LAZ file (bad signature b'PK\\x03\\x04')"``.
+
+    Examples
+    --------
+    >>> err = InputFileError("data/a.las: truncated header (100 bytes)")
+    >>> isinstance(err, OSError), str(err)
+    (True, 'data/a.las: truncated header (100 bytes)')
+    """
+
+    def __init__(self, message: str) -> None:
+        # OSError's constructor interprets 2-5 positional arguments as
+        # (errno, strerror, ...); with a single message it behaves like Exception.
+        super().__init__(message)
+
+
+class CrsError(PipelineError, ValueError):
+    """A coordinate reference system is missing, unparsable, inconsistent or unsuitable."""

@@ -32,7 +32,7 @@ import numpy as np
 from .config import RunConfig
 from .errors import PipelineError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile
-from .tiling import TileGrid, TileSpiller, check_cells
+from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
 __all__ = ["run", "RunReport", "route_source"]
 
@@ -172,7 +172,10 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
     point_filter = PointFilter(
         classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
     )
-    counts = {"path": job.path, "read": 0, "filtered_class": 0, "filtered_withheld": 0, "outside_bbox": 0, "kept": 0}
+    counts: dict[str, Any] = {
+        "path": job.path, "read": 0, "filtered_class": 0, "filtered_withheld": 0, "outside_bbox": 0, "kept": 0,
+    }
+    hull = np.empty((0, 3))
     for chunk in iter_points(job.path, point_filter):
         counts["read"] += chunk.read
         counts["filtered_class"] += chunk.filtered_class
@@ -184,7 +187,9 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
             x, y, z = x[inside], y[inside], z[inside]
         counts["kept"] += int(x.size)
         spill.add(x, y, z)
+        hull = hull_candidates(np.concatenate([hull, np.column_stack([x, y, z])]))
     spill.flush()
+    counts["hull"] = hull
     counts["seconds"] = time.perf_counter() - t0
     return counts
 
@@ -226,10 +231,8 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
 def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str], None] | None = None) -> RunReport:
     """Run a job end to end and return its report (also stored in the store's attributes).
 
-    Examples
-    --------
-    >>> from pipeline import RunConfig, run          # doctest: +SKIP
-    >>> report = run(RunConfig(inputs=("survey/*.laz",), output="dem.zarr", resolution=1.0))  # doctest: +SKIP
+    ``progress`` draws progress bars on stderr (default: when it is a terminal);
+    ``log`` receives one-line messages about the run.
     """
     from . import store
     from .crs import resolve_crs
@@ -299,7 +302,8 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
             report.points_kept += c["kept"]
             if c["kept"] == 0:
                 report.notes.append(f"{c['path']}: no points of the chosen classes")
-        report.files = counts
+        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts]
+        hull = _hull_points(np.concatenate([c["hull"] for c in counts]), grid, scratch, config.duplicates)
         report.stages["route"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -307,7 +311,7 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         tile_jobs = [
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
-                config.quad_measure, config.merge, config.max_edge, config.layers,
+                config.quad_measure, config.merge, config.max_edge, config.layers, hull,
             )
             for r, c in grid.tiles()
         ]
@@ -348,8 +352,35 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         shutil.rmtree(scratch, ignore_errors=True)
 
     report.stages["total"] = time.perf_counter() - t_start
-    store.finalize_store(config.output, {"report": report.to_dict(), "complete": True})
+    store.finalize_store(
+        config.output,
+        {"report": report.to_dict(), "complete": True},
+        history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
+    )
     return report
+
+
+def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: str) -> np.ndarray:
+    """The global convex hull's points, with the z their owner tile will give them.
+
+    Every tile meshes with these, so its own convex hull is the global one and
+    every region of its window is covered by its triangles.
+    """
+    from .tiles import dedupe
+
+    hull = hull_candidates(candidates)
+    if hull.shape[0] == 0:
+        return hull
+    xy = np.unique(hull[:, 0] + 1j * hull[:, 1])
+    rows, cols = grid.owner(xy.real, xy.imag)
+    out = []
+    for r, c in set(zip(rows.tolist(), cols.tolist())):
+        pts = load_tile_points(scratch, r, c)
+        mine = xy[(rows == r) & (cols == c)]
+        sel = np.isin(pts[:, 0] + 1j * pts[:, 1], mine)
+        uxy, uz, _ = dedupe(pts[sel], policy)
+        out.append(np.column_stack([uxy, uz]))
+    return np.concatenate(out)
 
 
 def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: list[TileSummary]) -> None:
@@ -395,10 +426,10 @@ def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: lis
             gid[sel] = node_offsets[tile_number[owner]] + idx
         writer.write_faces(int(face_offsets[k]), np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
     writer.set_tiles(
-        node_offsets=node_offsets,
-        face_offsets=face_offsets,
-        rows=np.array([r for r, _ in order]),
-        cols=np.array([c for _, c in order]),
+        np.array([r for r, _ in order]),
+        np.array([c for _, c in order]),
+        node_offsets,
+        face_offsets,
     )
     writer.close()
 

@@ -50,6 +50,8 @@ class TileJob:
     merge: str
     max_edge: float | None = None
     layers: tuple[str, ...] = ("elevation",)
+    hull: NDArray[np.float64] | None = None
+    """The global convex hull's points (x, y, z), added to every tile's points."""
 
 
 @dataclass(frozen=True)
@@ -141,6 +143,10 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # extent there are none (circles are clipped to it below)
     held = [(bx[0] - job.buffer, bx[1] - job.buffer, bx[2] + job.buffer, bx[3] + job.buffer)]
     points = own
+    if job.hull is not None and job.hull.shape[0]:
+        # the global hull's points make the tile's hull the global one, so no
+        # part of its window is left outside its triangulation
+        points = np.concatenate([own, job.hull[~points_in_box(job.hull, held[0])]])
     expansions = 0
     while True:
         xy, z, group = dedupe(points, job.duplicates)

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from .errors import UsageError
 
-__all__ = ["TileGrid", "TileSpiller", "load_tile_points", "points_in_box"]
+__all__ = ["TileGrid", "TileSpiller", "load_tile_points", "points_in_box", "hull_candidates"]
 
 
 @dataclass(frozen=True)
@@ -47,12 +47,15 @@ class TileGrid:
 
     @classmethod
     def covering(cls, bounds: tuple[float, float, float, float], resolution: float, tile_cells: int) -> TileGrid:
-        """The grid whose cell centres cover ``bounds`` (xmin, ymin, xmax, ymax)."""
+        """The grid whose cells cover ``bounds`` (xmin, ymin, xmax, ymax), in whole tile rows."""
         xmin, ymin, xmax, ymax = bounds
         x0 = math.floor(xmin / resolution) * resolution
         y0 = math.floor(ymin / resolution) * resolution
         nx = max(1, int(math.floor((xmax - x0) / resolution)) + 1)
         ny = max(1, int(math.floor((ymax - y0) / resolution)) + 1)
+        # whole tiles north-south: the store is north-up, so its chunk rows
+        # line up with tile rows only when the grid ends on a tile edge
+        ny = -(-ny // tile_cells) * tile_cells
         return cls(float(x0), float(y0), float(resolution), int(tile_cells), nx, ny)
 
     @property
@@ -210,3 +213,13 @@ def check_cells(grid: TileGrid, max_cells: int) -> None:
             f"the DEM would have {grid.nx} x {grid.ny} = {cells:,} cells, above max_cells={max_cells:,}; "
             "check the bounds and resolution, or raise --max-cells"
         )
+
+
+def hull_candidates(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The points of ``points`` (n, 3) on their convex hull (exact; collinear ones kept)."""
+    from meshcore.validate import convex_hull
+
+    if points.shape[0] == 0:
+        return points.copy()
+    hull = convex_hull(np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1]))
+    return points[hull]

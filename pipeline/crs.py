@@ -1,0 +1,504 @@
+"""Coordinate reference systems: decide each file's CRS and the target CRS, and reproject.
+
+:func:`resolve_crs` turns the files' CRS records plus the ``--in-crs`` and
+``--out-crs`` options into a :class:`CrsPlan`: one source CRS per file, one
+target CRS (projected: the mesh is built in linear units), its horizontal
+unit, and notes for the run report. CRSs travel as WKT strings so that the
+plan and its :class:`Reprojector` recipes pickle and store as plain text.
+
+A note on heights: pyproj transforms z only when both the source and the
+target CRS have a vertical component (compound or 3D CRSs). Between 2D CRSs
+z passes through unchanged, keeping the files' vertical datum and unit.
+
+Examples
+--------
+>>> r = Reprojector("EPSG:4326", "EPSG:32631")   # any pyproj input, stored as WKT
+>>> x, y, z = r.transform([3.0], [0.0], [10.0])
+>>> round(float(x[0]), 3), round(float(y[0]), 3), float(z[0])
+(500000.0, 0.0, 10.0)
+>>> Reprojector("EPSG:2154", "EPSG:2154").is_identity
+True
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pyproj
+from pyproj.exceptions import CRSError
+
+from .errors import CrsError, UsageError
+
+if TYPE_CHECKING:
+    from .sources import SourceInfo
+
+__all__ = ["CrsPlan", "Reprojector", "crs_label", "resolve_crs", "same_crs"]
+
+_MAX_LISTED = 5
+
+
+# --------------------------------------------------------------------------- small helpers
+
+
+def same_crs(a: pyproj.CRS, b: pyproj.CRS) -> bool:
+    """Whether two CRSs are equivalent (names and axis order aside).
+
+    Examples
+    --------
+    >>> same_crs(pyproj.CRS("EPSG:2154"), pyproj.CRS("EPSG:2154").to_wkt())
+    True
+    """
+    return bool(pyproj.CRS.from_user_input(a).equals(pyproj.CRS.from_user_input(b), ignore_axis_order=True))
+
+
+def crs_label(crs: pyproj.CRS) -> str:
+    """``"name (EPSG:code)"``, or just the name when no EPSG code matches.
+
+    Examples
+    --------
+    >>> crs_label(pyproj.CRS("EPSG:2154"))
+    'RGF93 v1 / Lambert-93 (EPSG:2154)'
+    """
+    epsg = crs.to_epsg()
+    return f"{crs.name} (EPSG:{epsg})" if epsg else crs.name
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _list_paths(paths: Sequence[Path | str]) -> str:
+    names = [str(p) for p in paths[:_MAX_LISTED]]
+    more = len(paths) - len(names)
+    return ", ".join(names) + (f" and {more} more" if more > 0 else "")
+
+
+def _unwrap(crs: pyproj.CRS) -> pyproj.CRS:
+    while crs.is_bound and crs.source_crs is not None:
+        crs = crs.source_crs
+    return crs
+
+
+def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
+    crs = _unwrap(crs)
+    if crs.is_compound and crs.sub_crs_list:
+        return _unwrap(crs.sub_crs_list[0])
+    return crs
+
+
+def _has_vertical(crs: pyproj.CRS) -> bool:
+    crs = _unwrap(crs)
+    return bool(crs.is_compound or len(crs.axis_info) >= 3)
+
+
+def _vertical_unit(crs: pyproj.CRS) -> str | None:
+    crs = _unwrap(crs)
+    if crs.is_compound and len(crs.sub_crs_list) > 1:
+        axes = _unwrap(crs.sub_crs_list[1]).axis_info
+        return axes[0].unit_name if axes else None
+    if len(crs.axis_info) >= 3:
+        return crs.axis_info[2].unit_name
+    return None
+
+
+def _horizontal_unit(crs: pyproj.CRS) -> str:
+    axes = _horizontal(crs).axis_info
+    return axes[0].unit_name if axes else "unknown"
+
+
+def _user_crs(text: str, option: str) -> pyproj.CRS:
+    if not isinstance(text, str) or not text.strip():
+        raise CrsError(f"{option} must be a CRS such as EPSG:2154, a WKT or a PROJ string, got {text!r}")
+    try:
+        return pyproj.CRS.from_user_input(text.strip())
+    except CRSError as exc:
+        raise CrsError(f"{option} {text!r} is not a CRS pyproj understands ({_one_line(exc)})") from exc
+
+
+class _CrsCache:
+    """Parse each distinct WKT once."""
+
+    def __init__(self) -> None:
+        self._by_wkt: dict[str, pyproj.CRS] = {}
+
+    def get(self, wkt: str) -> pyproj.CRS:
+        crs = self._by_wkt.get(wkt)
+        if crs is None:
+            crs = self._by_wkt[wkt] = pyproj.CRS.from_wkt(wkt)
+        return crs
+
+
+# --------------------------------------------------------------------------- reprojection
+
+_thread_state = threading.local()
+
+
+def _thread_transformer(source_wkt: str, target_wkt: str) -> pyproj.Transformer:
+    """The calling thread's Transformer for this pair (pyproj Transformers are not thread-safe)."""
+    cache: dict[tuple[str, str], pyproj.Transformer] | None = getattr(_thread_state, "transformers", None)
+    if cache is None:
+        cache = _thread_state.transformers = {}
+    key = (source_wkt, target_wkt)
+    transformer = cache.get(key)
+    if transformer is None:
+        with warnings.catch_warnings():
+            # "Best transformation is not available": resolve_crs already put it in the plan's notes.
+            warnings.filterwarnings("ignore", message="Best transformation is not available")
+            transformer = cache[key] = pyproj.Transformer.from_crs(
+                pyproj.CRS.from_wkt(source_wkt), pyproj.CRS.from_wkt(target_wkt), always_xy=True
+            )
+    return transformer
+
+
+@dataclass(frozen=True)
+class Reprojector:
+    """A picklable recipe for reprojecting points: source and target CRS as WKT.
+
+    The pyproj Transformer is built lazily, once per thread, on first use and
+    never pickled. When source and target are the same CRS no Transformer is
+    built at all and :meth:`transform` returns its inputs as float64 arrays.
+
+    Parameters
+    ----------
+    source_wkt, target_wkt
+        The CRSs. Anything :meth:`pyproj.CRS.from_user_input` accepts is
+        turned into WKT2 on construction.
+
+    Examples
+    --------
+    >>> import pickle
+    >>> r = pickle.loads(pickle.dumps(Reprojector("EPSG:2154", "EPSG:4326")))
+    >>> lon, lat, h = r.transform([700000.0], [6600000.0], [0.0])
+    >>> round(float(lon[0]), 6), round(float(lat[0]), 6)
+    (3.0, 46.5)
+    """
+
+    source_wkt: str
+    target_wkt: str
+    is_identity: bool = field(init=False, compare=False)
+
+    def __post_init__(self) -> None:
+        source = _user_crs(self.source_wkt, "source CRS")
+        target = _user_crs(self.target_wkt, "target CRS")
+        if not pyproj.crs.is_wkt(self.source_wkt):
+            object.__setattr__(self, "source_wkt", source.to_wkt())
+        if not pyproj.crs.is_wkt(self.target_wkt):
+            object.__setattr__(self, "target_wkt", target.to_wkt())
+        identity = self.source_wkt == self.target_wkt or same_crs(source, target)
+        object.__setattr__(self, "is_identity", identity)
+
+    def transform(
+        self, x: np.ndarray, y: np.ndarray, z: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Reproject coordinate arrays; returns new float64 arrays (x, y, z).
+
+        Raises
+        ------
+        CrsError
+            If some points cannot be transformed (PROJ returns inf for them).
+        """
+        xs = np.asarray(x, dtype=np.float64)
+        ys = np.asarray(y, dtype=np.float64)
+        zs = np.asarray(z, dtype=np.float64)
+        if not xs.shape == ys.shape == zs.shape:
+            raise UsageError(f"x, y, z must have the same shape, got {xs.shape}, {ys.shape}, {zs.shape}")
+        if self.is_identity:
+            return xs, ys, zs
+        tx, ty, tz = _thread_transformer(self.source_wkt, self.target_wkt).transform(xs, ys, zs)
+        tx, ty, tz = (np.asarray(a, dtype=np.float64) for a in (tx, ty, tz))
+        bad = ~(np.isfinite(tx) & np.isfinite(ty) & np.isfinite(tz))
+        if bad.any():
+            src, dst = pyproj.CRS.from_wkt(self.source_wkt), pyproj.CRS.from_wkt(self.target_wkt)
+            raise CrsError(
+                f"{int(bad.sum()):,} of {bad.size:,} points could not be transformed from "
+                f"{crs_label(src)} to {crs_label(dst)} (outside the area either CRS covers?)"
+            )
+        return tx, ty, tz
+
+    def to_dict(self) -> dict[str, str]:
+        """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
+        return {"source_wkt": self.source_wkt, "target_wkt": self.target_wkt}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Reprojector:
+        """Rebuild from :meth:`to_dict` output."""
+        return cls(source_wkt=data["source_wkt"], target_wkt=data["target_wkt"])
+
+
+# --------------------------------------------------------------------------- the plan
+
+
+@dataclass(frozen=True)
+class CrsPlan:
+    """The CRS decisions for one run.
+
+    Parameters
+    ----------
+    paths
+        The input files, in the order given to :func:`resolve_crs`.
+    source_wkts
+        Each file's source CRS (WKT2) after the ``--in-crs`` override.
+    target_wkt
+        The CRS of the outputs (WKT2); always projected (linear units).
+    target_name
+        Its name and EPSG code when one matches.
+    horizontal_unit
+        Unit of the target's x and y, e.g. ``"metre"``, ``"US survey foot"``.
+    vertical_unit
+        Unit of the target's vertical axis when it has one, else None.
+    notes
+        Lines for the run report: overrides, reprojections, what happens to z.
+    """
+
+    paths: tuple[Path, ...]
+    source_wkts: tuple[str, ...]
+    target_wkt: str
+    target_name: str
+    horizontal_unit: str
+    vertical_unit: str | None = None
+    notes: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.paths) != len(self.source_wkts):
+            raise UsageError(f"{len(self.paths)} paths but {len(self.source_wkts)} source CRSs")
+
+    def source_wkt(self, path: str | Path) -> str:
+        """The source CRS (WKT) of one input file."""
+        try:
+            return self.source_wkts[self.paths.index(Path(path))]
+        except ValueError:
+            raise UsageError(f"{path}: not one of the plan's input files") from None
+
+    def reprojector(self, path: str | Path) -> Reprojector:
+        """The recipe taking one file's points to the target CRS."""
+        return Reprojector(self.source_wkt(path), self.target_wkt)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
+        return {
+            "paths": [str(p) for p in self.paths],
+            "source_wkts": list(self.source_wkts),
+            "target_wkt": self.target_wkt,
+            "target_name": self.target_name,
+            "horizontal_unit": self.horizontal_unit,
+            "vertical_unit": self.vertical_unit,
+            "notes": list(self.notes),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> CrsPlan:
+        """Rebuild from :meth:`to_dict` output."""
+        return cls(
+            paths=tuple(Path(p) for p in data["paths"]),
+            source_wkts=tuple(data["source_wkts"]),
+            target_wkt=data["target_wkt"],
+            target_name=data["target_name"],
+            horizontal_unit=data["horizontal_unit"],
+            vertical_unit=data.get("vertical_unit"),
+            notes=tuple(data.get("notes", ())),
+        )
+
+
+def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs: str | None = None) -> CrsPlan:
+    """Decide the source CRS of every file and the target CRS.
+
+    Parameters
+    ----------
+    infos
+        Header information of the input files (:func:`pipeline.sources.read_info`).
+    in_crs
+        CRS of the inputs (anything ``pyproj.CRS.from_user_input`` accepts).
+        It replaces a missing or broken CRS, and also a valid one that
+        differs (recorded in the notes).
+    out_crs
+        CRS of the outputs. Default: the files' common CRS.
+
+    Returns
+    -------
+    CrsPlan
+
+    Raises
+    ------
+    CrsError
+        On a bad ``in_crs``/``out_crs`` string; when files without a usable
+        CRS are given no ``in_crs``; when files in different CRSs are given no
+        ``out_crs``; when the target CRS is not projected (e.g. geographic,
+        in degrees).
+    """
+    if len(infos) == 0:
+        raise UsageError("no input files to resolve a CRS for")
+    cache = _CrsCache()
+    user_in = _user_crs(in_crs, "--in-crs") if in_crs is not None else None
+    user_out = _user_crs(out_crs, "--out-crs") if out_crs is not None else None
+    notes: list[str] = []
+
+    sources: list[pyproj.CRS] = []
+    unusable: list[str] = []
+    defaulted: list[Path] = []
+    for info in infos:
+        file_crs: pyproj.CRS | None = None
+        problem = info.crs_problem
+        if info.crs_wkt is not None:
+            try:
+                file_crs = cache.get(info.crs_wkt)
+            except CRSError as exc:
+                problem = f"stored CRS unparsable ({_one_line(exc)})"
+        if user_in is not None:
+            if file_crs is not None and not same_crs(file_crs, user_in):
+                notes.append(
+                    f"{info.path}: --in-crs {crs_label(user_in)} overrides the file's CRS {crs_label(file_crs)}"
+                )
+            elif file_crs is None and problem:
+                notes.append(f"{info.path}: {problem}; using --in-crs {crs_label(user_in)}")
+            elif file_crs is None:
+                defaulted.append(info.path)
+            sources.append(user_in)
+        elif file_crs is None:
+            unusable.append(f"{info.path} ({problem or 'no CRS record'})")
+        else:
+            sources.append(file_crs)
+    if unusable:
+        shown = ", ".join(unusable[:_MAX_LISTED])
+        more = len(unusable) - _MAX_LISTED
+        raise CrsError(
+            f"no usable CRS for {len(unusable)} file(s): {shown}"
+            + (f" and {more} more" if more > 0 else "")
+            + "; pass --in-crs (e.g. --in-crs EPSG:2154) to say which CRS they are in"
+        )
+    if defaulted and user_in is not None:
+        notes.append(f"--in-crs {crs_label(user_in)} used for file(s) without a CRS: {_list_paths(defaulted)}")
+
+    groups: list[tuple[pyproj.CRS, list[int]]] = []
+    for i, crs in enumerate(sources):
+        for group_crs, members in groups:
+            if group_crs is crs or same_crs(group_crs, crs):
+                members.append(i)
+                break
+        else:
+            groups.append((crs, [i]))
+
+    if user_out is not None:
+        target = user_out
+    elif len(groups) == 1:
+        target = groups[0][0]
+    else:
+        listing = "; ".join(
+            f"{crs_label(crs)}: {_list_paths([infos[i].path for i in members])}" for crs, members in groups
+        )
+        raise CrsError(
+            f"input files are in {len(groups)} different CRSs and no --out-crs was given: {listing}; "
+            "pass --out-crs to reproject them all to one CRS"
+        )
+    _check_target(target, from_option=user_out is not None, infos=infos, sources=sources)
+
+    target_wkt = target.to_wkt()
+    horizontal_unit = _horizontal_unit(target)
+    for crs, members in groups:
+        if not same_crs(crs, target):
+            notes.extend(_reprojection_notes(crs, target, [infos[i] for i in members]))
+    if all(same_crs(crs, target) for crs, _ in groups):
+        notes.append(f"no reprojection: every file is already in {crs_label(target)}")
+    if horizontal_unit != "metre":
+        notes.append(f"horizontal unit is {horizontal_unit}: distances and cell sizes are in {horizontal_unit}")
+
+    return CrsPlan(
+        paths=tuple(info.path for info in infos),
+        source_wkts=tuple(target_wkt if same_crs(crs, target) else crs.to_wkt() for crs in sources),
+        target_wkt=target_wkt,
+        target_name=crs_label(target),
+        horizontal_unit=horizontal_unit,
+        vertical_unit=_vertical_unit(target),
+        notes=tuple(notes),
+    )
+
+
+def _check_target(
+    target: pyproj.CRS, *, from_option: bool, infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]
+) -> None:
+    """Refuse targets whose x, y are not linear coordinates."""
+    h = _horizontal(target)
+    what = f"--out-crs {crs_label(target)}" if from_option else f"the files' CRS {crs_label(target)}"
+    if h.is_projected or h.type_name == "Engineering CRS":
+        return
+    if h.is_geographic:
+        kind = "geographic (degrees)"
+    elif h.is_geocentric:
+        kind = "geocentric (earth-centred x, y, z)"
+    elif h.is_vertical:
+        kind = "vertical only (no x, y)"
+    else:
+        kind = f"not projected ({h.type_name})"
+    hint = _suggest_utm(infos, sources)
+    if hint:
+        suggestion = f"use --out-crs {hint} or a national grid"
+    else:
+        suggestion = "use --out-crs EPSG:xxxx (a UTM zone or national grid)"
+    raise CrsError(f"{what} is {kind}; meshes need a projected CRS in metres or feet: {suggestion}")
+
+
+def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> str | None:
+    """The WGS 84 UTM zone at the centre of the files' header bounds, as ``"EPSG:326zz (...)"``."""
+    wgs84 = pyproj.CRS.from_epsg(4326)
+    lons: list[float] = []
+    lats: list[float] = []
+    for info, crs in zip(infos, sources):
+        minx, miny, _, maxx, maxy, _ = info.bounds
+        try:
+            lon, lat = pyproj.Transformer.from_crs(crs, wgs84, always_xy=True).transform(
+                (minx + maxx) / 2, (miny + maxy) / 2
+            )
+        except (CRSError, pyproj.exceptions.ProjError):
+            continue
+        if math.isfinite(lon) and math.isfinite(lat) and -180 <= lon <= 180 and -90 <= lat <= 90:
+            lons.append(lon)
+            lats.append(lat)
+    if not lons:
+        return None
+    lon, lat = sum(lons) / len(lons), sum(lats) / len(lats)
+    zone = int((lon + 180) // 6) % 60 + 1
+    north = lat >= 0
+    code = (32600 if north else 32700) + zone
+    return f"EPSG:{code} (WGS 84 / UTM zone {zone}{'N' if north else 'S'})"
+
+
+def _reprojection_notes(source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInfo]) -> list[str]:
+    names = _list_paths([m.path for m in members])
+    notes = [f"{names}: reprojected from {crs_label(source)} to {crs_label(target)}"]
+    if _has_vertical(source) and _has_vertical(target):
+        notes.append(
+            f"{names}: z is transformed too, both CRSs having a vertical component "
+            f"({_vertical_unit(source)} -> {_vertical_unit(target)})"
+        )
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # pyproj warns about the missing grid: we say it below
+                group = pyproj.transformer.TransformerGroup(source, target, always_xy=True)
+            best_missing = not group.best_available
+        except (CRSError, pyproj.exceptions.ProjError):
+            best_missing = False
+        if best_missing:
+            notes.append(
+                f"{names}: PROJ lacks a grid for the most accurate transformation to {crs_label(target)} "
+                "(install proj-data or enable PROJ_NETWORK); a coarser one is used and heights may be left unchanged"
+            )
+        return notes
+    declared = {m.z_unit for m in members if m.z_unit}
+    z_unit = _vertical_unit(source) or (declared.pop() if len(declared) == 1 else None)
+    # Undeclared heights are conventionally in the horizontal unit, or in metres beside degrees.
+    presumed = z_unit or ("metre" if _horizontal(source).is_geographic else _horizontal_unit(source))
+    unit_text = z_unit or f"undeclared, presumably {presumed}"
+    notes.append(
+        f"{names}: z is not transformed (pyproj changes z only when both CRSs are compound/3D): "
+        f"heights keep the files' vertical datum and unit ({unit_text})"
+    )
+    target_unit = _horizontal_unit(target)
+    if presumed != target_unit:
+        notes.append(f"{names}: z stays in {presumed} while x and y become {target_unit}")
+    return notes

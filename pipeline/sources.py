@@ -1,0 +1,787 @@
+"""Input layer: find LAS/LAZ files, read their headers, stream their points.
+
+Every LAS version from 1.0 to 1.4 and every point format is read through
+laspy (LAZ through lazrs; COPC files are read as plain LAZ). Points are
+always streamed in chunks (``laspy.open(path).chunk_iterator(n)``); no
+function here loads a whole file.
+
+Anything wrong with a file (missing, unreadable, not LAS, truncated, corrupt
+LAZ, non-finite coordinates) raises :class:`~pipeline.errors.InputFileError`
+with a one-line message that starts with the file's path.
+
+Examples
+--------
+>>> flt = PointFilter(classes=[2, 9])
+>>> sorted(flt.classes), flt.keep_withheld
+([2, 9], False)
+>>> PointFilter.from_dict(flt.to_dict()) == flt
+True
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import struct
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import laspy
+import numpy as np
+import pyproj
+from laspy import DecompressionSelection
+from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
+from pyproj.exceptions import CRSError
+
+from .crs import crs_label, same_crs
+from .errors import InputFileError, UsageError
+
+__all__ = [
+    "LAS_SUFFIXES",
+    "PointChunk",
+    "PointFilter",
+    "SourceInfo",
+    "class_counts",
+    "discover_inputs",
+    "iter_points",
+    "read_info",
+]
+
+#: File name endings (compared case-insensitively) picked up from directories and globs.
+LAS_SUFFIXES = frozenset({".las", ".laz"})
+
+_SIGNATURE = b"LASF"
+_MIN_HEADER_BYTES = 227  # LAS 1.0-1.2 public header block
+_GLOB_CHARS = frozenset("*?[")
+_USER_DEFINED = 32767
+
+# GeoTIFF keys (OGC 19-008r4) used to describe a CRS in LAS files.
+_GT_MODEL_TYPE = 1024
+_GEOGRAPHIC_TYPE = 2048
+_PROJECTED_CS_TYPE = 3072
+_VERTICAL_CS_TYPE = 4096
+_VERTICAL_DATUM = 4098
+_VERTICAL_UNITS = 4099
+_WKT_RECORD_ID = 2112
+_GEOKEY_RECORD_ID = 34735
+
+
+# --------------------------------------------------------------------------- discovery
+
+
+def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> list[Path]:
+    """Expand files, directories and glob patterns into a sorted list of LAS/LAZ files.
+
+    Parameters
+    ----------
+    inputs
+        Each item is a file (kept whatever its extension), a directory (all
+        ``*.las``/``*.laz`` below it, any case, recursively) or a glob pattern
+        (``**`` allowed; matched directories are expanded, matched files are
+        kept when they end in .las/.laz). A single string is one input.
+
+    Returns
+    -------
+    list of Path
+        Unique files (duplicates, including the same file reached twice, are
+        dropped), sorted by their path.
+
+    Raises
+    ------
+    UsageError
+        If ``inputs`` is empty.
+    InputFileError
+        If a named file or directory does not exist, a directory holds no
+        LAS/LAZ file, or a pattern matches none.
+
+    Examples
+    --------
+    >>> discover_inputs(["no/such/dir/*.laz"])
+    Traceback (most recent call last):
+    ...
+    pipeline.errors.InputFileError: no/such/dir/*.laz: no .las/.laz file matches this pattern
+    """
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    if len(inputs) == 0:
+        raise UsageError("no input files given")
+    found: dict[str, Path] = {}
+    for item in inputs:
+        text = os.fspath(item)
+        for path in _expand_one(text):
+            found.setdefault(os.path.realpath(path), path)
+    return sorted(found.values(), key=lambda p: p.as_posix())
+
+
+def _expand_one(text: str) -> list[Path]:
+    path = Path(text)
+    if path.is_dir():
+        files = _scan_dir(path)
+        if not files:
+            raise InputFileError(f"{text}: directory holds no .las/.laz file")
+        return files
+    if path.exists():
+        return [path]
+    if _GLOB_CHARS.intersection(text):
+        files = []
+        for match in sorted(glob.glob(text, recursive=True)):
+            m = Path(match)
+            if m.is_dir():
+                files.extend(_scan_dir(m))
+            elif _is_las_name(m):
+                files.append(m)
+        if not files:
+            raise InputFileError(f"{text}: no .las/.laz file matches this pattern")
+        return files
+    raise InputFileError(f"{text}: no such file or directory")
+
+
+def _scan_dir(directory: Path) -> list[Path]:
+    files = []
+    for root, dirs, names in os.walk(directory):
+        dirs.sort()
+        files.extend(Path(root) / name for name in sorted(names) if _is_las_name(Path(name)))
+    return files
+
+
+def _is_las_name(path: Path) -> bool:
+    return path.suffix.lower() in LAS_SUFFIXES
+
+
+# --------------------------------------------------------------------------- opening and errors
+
+
+def _sniff(path: Path) -> int:
+    """Check that ``path`` is a readable file starting with ``LASF``; return its size."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(_SIGNATURE))
+            size = os.fstat(fh.fileno()).st_size
+    except OSError as exc:
+        raise InputFileError(f"{path}: {_os_reason(exc)}") from exc
+    if not head:
+        raise InputFileError(f"{path}: empty file (0 bytes)")
+    if head != _SIGNATURE:
+        raise InputFileError(f"{path}: not a LAS/LAZ file (bad signature {head!r})")
+    return size
+
+
+def _os_reason(exc: OSError) -> str:
+    if isinstance(exc, FileNotFoundError):
+        return "no such file"
+    if isinstance(exc, IsADirectoryError):
+        return "is a directory, not a LAS/LAZ file"
+    if isinstance(exc, PermissionError):
+        return "permission denied (cannot read the file)"
+    return f"cannot read the file ({exc.strerror or exc})"
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__
+
+
+def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
+    """Turn whatever laspy raised while reading the header and VLRs into one clear line."""
+    msg = _one_line(exc)
+    if isinstance(exc, OSError):
+        reason = _os_reason(exc)
+    elif isinstance(exc, laspy.errors.FileVersionNotSupported):
+        reason = f"unsupported LAS version ({msg})"
+    elif isinstance(exc, laspy.errors.PointFormatNotSupported):
+        reason = f"unsupported point format ({msg})"
+    elif isinstance(exc, laspy.errors.UnknownExtraType):
+        reason = f"invalid extra-bytes description ({msg})"
+    elif "too small" in msg.lower() or "to small" in msg.lower() or size < _MIN_HEADER_BYTES:
+        reason = f"truncated header ({size} bytes; a LAS header needs at least {_MIN_HEADER_BYTES})"
+    elif isinstance(exc, (ValueError, struct.error, EOFError)):
+        reason = f"truncated or corrupt header/VLRs ({size} bytes; {msg})"
+    elif isinstance(exc, laspy.errors.LaspyException):
+        reason = f"invalid LAS header ({msg})"
+    else:
+        reason = f"cannot read the header ({type(exc).__name__}: {msg})"
+    return InputFileError(f"{path}: {reason}")
+
+
+def _points_error(path: Path, compressed: bool, done: int, total: int, exc: Exception) -> InputFileError:
+    """Turn whatever laspy/lazrs raised while reading points into one clear line."""
+    msg = _one_line(exc)
+    where = f"after {done:,} of {total:,} points"
+    if isinstance(exc, OSError):
+        reason = _os_reason(exc)
+    elif compressed:
+        reason = f"corrupt or truncated LAZ data {where} ({msg})"
+    elif isinstance(exc, ValueError) and "buffer size" in msg:
+        reason = f"point data is truncated {where} (the file ends inside a point record)"
+    else:
+        reason = f"cannot read points {where} ({type(exc).__name__}: {msg})"
+    return InputFileError(f"{path}: {reason}")
+
+
+@contextmanager
+def _open(
+    path: Path, selection: DecompressionSelection | None = None
+) -> Iterator[tuple[laspy.LasReader, int]]:
+    """Open ``path`` with laspy, translating every failure into :class:`InputFileError`."""
+    size = _sniff(path)
+    try:
+        reader = laspy.open(os.fspath(path), decompression_selection=selection or DecompressionSelection.all())
+    except Exception as exc:
+        raise _header_error(path, size, exc) from exc
+    with reader:
+        start = int(reader.header.offset_to_point_data)
+        if size < start:
+            # laspy reads what it can of cut VLRs without complaint; the CRS or LAZ VLR may be lost.
+            raise InputFileError(
+                f"{path}: truncated header/VLRs (the file is {size:,} bytes but its point data "
+                f"should start at byte {start:,})"
+            )
+        yield reader, size
+
+
+def _records_available(header: laspy.LasHeader, size: int) -> int | None:
+    """Whole point records present in an uncompressed file; None for LAZ (unknowable up front)."""
+    if header.are_points_compressed:
+        return None
+    record = header.point_format.size
+    return max(0, size - header.offset_to_point_data) // record if record else None
+
+
+def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
+    """Yield laspy point records of at most ``chunk_size`` points, checking for short data."""
+    header = reader.header
+    total = int(header.point_count)
+    compressed = bool(header.are_points_compressed)
+    available = _records_available(header, size)
+    if available is not None and available < total:
+        raise InputFileError(
+            f"{path}: point data is truncated: the file holds {available:,} of the "
+            f"{total:,} points its header announces"
+        )
+    done = 0
+    iterator = reader.chunk_iterator(chunk_size)
+    while done < total:
+        expected = min(chunk_size, total - done)
+        try:
+            chunk = next(iterator, None)
+        except Exception as exc:
+            raise _points_error(path, compressed, done, total, exc) from exc
+        got = 0 if chunk is None else len(chunk)
+        if got < expected:
+            raise InputFileError(
+                f"{path}: point data ends after {done + got:,} of the {total:,} points "
+                "its header announces (truncated or corrupt file)"
+            )
+        done += got
+        yield chunk
+
+
+def _check_chunk_size(chunk_size: int) -> int:
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer)) or chunk_size <= 0:
+        raise UsageError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    return int(chunk_size)
+
+
+# --------------------------------------------------------------------------- header information
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """What the header and VLRs of one LAS/LAZ file say (no point is read).
+
+    Parameters
+    ----------
+    path
+        The file.
+    size_bytes
+        File size on disk.
+    version
+        LAS version, e.g. ``"1.4"``.
+    point_format
+        Point data record format, 0-10.
+    point_count
+        Number of points announced by the header.
+    bounds
+        ``(minx, miny, minz, maxx, maxy, maxz)`` from the header, in file units.
+    scales, offsets
+        Per-axis scale and offset turning stored integers into coordinates.
+    crs_wkt
+        The file's CRS as WKT2 (pyproj), or None when absent or unusable.
+    crs_problem
+        Why a CRS record present in the file could not be used
+        (e.g. ``"WKT record present but unparsable: \\"''\\""``), else None.
+    has_extra_bytes
+        Whether point records carry extra-bytes dimensions.
+    is_copc
+        Whether the file is a Cloud Optimized Point Cloud (read as plain LAZ).
+    compressed
+        Whether the points are LAZ-compressed.
+    z_unit
+        Unit of z when the file declares one (vertical CRS or GeoTIFF
+        VerticalUnitsGeoKey), else None.
+    extra_dims
+        ``(name, dtype)`` of each extra-bytes dimension, e.g. ``("Deviation", "uint16")``.
+    notes
+        Non-fatal oddities found in the header (unread VLRs, disagreeing CRS
+        records, short point data, ...).
+    """
+
+    path: Path
+    size_bytes: int
+    version: str
+    point_format: int
+    point_count: int
+    bounds: tuple[float, float, float, float, float, float]
+    scales: tuple[float, float, float]
+    offsets: tuple[float, float, float]
+    crs_wkt: str | None
+    crs_problem: str | None
+    has_extra_bytes: bool
+    is_copc: bool
+    compressed: bool = False
+    z_unit: str | None = None
+    extra_dims: tuple[tuple[str, str], ...] = ()
+    notes: tuple[str, ...] = ()
+
+    def crs(self) -> pyproj.CRS | None:
+        """The CRS as a pyproj object, or None."""
+        return None if self.crs_wkt is None else pyproj.CRS.from_wkt(self.crs_wkt)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
+        return {
+            "path": str(self.path),
+            "size_bytes": self.size_bytes,
+            "version": self.version,
+            "point_format": self.point_format,
+            "point_count": self.point_count,
+            "bounds": list(self.bounds),
+            "scales": list(self.scales),
+            "offsets": list(self.offsets),
+            "crs_wkt": self.crs_wkt,
+            "crs_problem": self.crs_problem,
+            "has_extra_bytes": self.has_extra_bytes,
+            "is_copc": self.is_copc,
+            "compressed": self.compressed,
+            "z_unit": self.z_unit,
+            "extra_dims": [{"name": n, "dtype": t} for n, t in self.extra_dims],
+            "notes": list(self.notes),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> SourceInfo:
+        """Rebuild from :meth:`to_dict` output."""
+        return cls(
+            path=Path(data["path"]),
+            size_bytes=int(data["size_bytes"]),
+            version=str(data["version"]),
+            point_format=int(data["point_format"]),
+            point_count=int(data["point_count"]),
+            bounds=tuple(float(v) for v in data["bounds"]),  # type: ignore[arg-type]
+            scales=tuple(float(v) for v in data["scales"]),  # type: ignore[arg-type]
+            offsets=tuple(float(v) for v in data["offsets"]),  # type: ignore[arg-type]
+            crs_wkt=data.get("crs_wkt"),
+            crs_problem=data.get("crs_problem"),
+            has_extra_bytes=bool(data["has_extra_bytes"]),
+            is_copc=bool(data["is_copc"]),
+            compressed=bool(data.get("compressed", False)),
+            z_unit=data.get("z_unit"),
+            extra_dims=tuple((d["name"], d["dtype"]) for d in data.get("extra_dims", ())),
+            notes=tuple(data.get("notes", ())),
+        )
+
+
+def read_info(path: str | os.PathLike[str]) -> SourceInfo:
+    """Read the header and VLRs of one LAS/LAZ file (fast: no point is decoded).
+
+    Raises
+    ------
+    InputFileError
+        If the file is missing, unreadable, not LAS/LAZ, or its header is truncated.
+    """
+    path = Path(path)
+    with _open(path) as (reader, size):
+        header = reader.header
+        try:
+            return _info_from_header(path, size, header)
+        except (laspy.errors.LaspyException, ValueError, struct.error) as exc:
+            raise _header_error(path, size, exc) from exc
+
+
+def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceInfo:
+    notes: list[str] = []
+    crs_wkt, crs_problem, z_unit, crs_notes = _parse_crs(header)
+    notes.extend(crs_notes)
+
+    pf = header.point_format
+    extra_dims = tuple((d.name, _dtype_name(d.dtype)) for d in pf.extra_dimensions)
+    n_eb_vlrs = sum(1 for v in _all_vlrs(header) if v.user_id == "LASF_Spec" and v.record_id == 4)
+    if n_eb_vlrs > 1:
+        notes.append(
+            f"{n_eb_vlrs} extra-bytes VLRs (the LAS spec allows one): only the first is "
+            "decoded, later dimensions appear as unnamed 'ExtraBytes'"
+        )
+
+    total = int(header.point_count)
+    available = _records_available(header, size)
+    if available is not None and available < total:
+        notes.append(f"point data is truncated: the file holds {available:,} of the {total:,} points announced")
+    scales = tuple(float(s) for s in header.scales)
+    if not all(np.isfinite(scales)) or any(s == 0 for s in scales):
+        notes.append(f"unusable scale factors {scales}")
+    if total == 0:
+        notes.append("the header announces no points")
+
+    is_copc = any(v.user_id == "copc" and v.record_id == 1 for v in header.vlrs)
+    return SourceInfo(
+        path=path,
+        size_bytes=size,
+        version=f"{header.version.major}.{header.version.minor}",
+        point_format=int(pf.id),
+        point_count=total,
+        bounds=tuple(float(v) for v in (*header.mins, *header.maxs)),  # type: ignore[arg-type]
+        scales=scales,  # type: ignore[arg-type]
+        offsets=tuple(float(o) for o in header.offsets),  # type: ignore[arg-type]
+        crs_wkt=crs_wkt,
+        crs_problem=crs_problem,
+        has_extra_bytes=bool(extra_dims),
+        is_copc=is_copc,
+        compressed=bool(header.are_points_compressed),
+        z_unit=z_unit,
+        extra_dims=extra_dims,
+        notes=tuple(notes),
+    )
+
+
+def _dtype_name(dtype: Any) -> str:
+    dt = np.dtype(dtype)
+    if dt.shape:
+        return f"{dt.base.name}[{','.join(map(str, dt.shape))}]"
+    return dt.name
+
+
+def _all_vlrs(header: laspy.LasHeader) -> list[Any]:
+    return [*header.vlrs, *(header.evlrs or [])]
+
+
+def _parse_crs(header: laspy.LasHeader) -> tuple[str | None, str | None, str | None, list[str]]:
+    """Return (WKT2, problem, z unit, notes) from the WKT and GeoTIFF records.
+
+    The WKT record is preferred (laspy's choice, and the only one LAS 1.4
+    point formats 6-10 allow); GeoTIFF keys are the fallback. Unlike laspy,
+    this tells "no CRS record" from "a record that cannot be used".
+    """
+    records = [v for v in _all_vlrs(header) if v.user_id == "LASF_Projection"]
+    problems: list[str] = []
+    notes: list[str] = []
+
+    wkt_crs: pyproj.CRS | None = None
+    for rec in records:
+        if rec.record_id != _WKT_RECORD_ID:
+            continue
+        if not isinstance(rec, WktCoordinateSystemVlr):
+            problems.append("WKT record present but could not be decoded")
+            continue
+        text = (rec.string or "").strip().strip("\x00").strip()
+        if not text:
+            problems.append("WKT record present but empty")
+            continue
+        try:
+            wkt_crs = pyproj.CRS.from_wkt(text)
+            break
+        except CRSError:
+            shown = text if len(text) <= 40 else text[:37] + "..."
+            problems.append(f'WKT record present but unparsable: "{shown}"')
+
+    geo_crs: pyproj.CRS | None = None
+    z_unit: str | None = None
+    for rec in records:
+        if rec.record_id != _GEOKEY_RECORD_ID:
+            continue
+        if not isinstance(rec, GeoKeyDirectoryVlr):
+            problems.append("GeoTIFF key directory present but could not be decoded")
+            continue
+        geo_crs, z_unit, problem, geo_notes = _crs_from_geokeys(rec)
+        notes.extend(geo_notes)
+        if problem:
+            problems.append(problem)
+        break
+
+    crs = wkt_crs or geo_crs
+    if wkt_crs is not None and geo_crs is not None and not same_crs(wkt_crs, geo_crs):
+        notes.append(
+            f"GeoTIFF keys ({crs_label(geo_crs)}) disagree with the WKT record ({crs_label(wkt_crs)}); using the WKT"
+        )
+    if crs is None:
+        return None, ("; ".join(problems) or None), z_unit, notes
+    if problems:
+        notes.extend(f"ignored: {p}" for p in problems)
+    if crs.is_compound and len(crs.sub_crs_list) > 1:
+        z_unit = crs.sub_crs_list[1].axis_info[0].unit_name
+    return crs.to_wkt(), None, z_unit, notes
+
+
+def _crs_from_geokeys(
+    rec: GeoKeyDirectoryVlr,
+) -> tuple[pyproj.CRS | None, str | None, str | None, list[str]]:
+    """(CRS, z unit, problem, notes) from a GeoTIFF key directory (EPSG codes only)."""
+    keys = {k.id: k.value_offset for k in rec.geo_keys if k.tiff_tag_location == 0 and k.id != 0}
+    notes: list[str] = []
+    horizontal: pyproj.CRS | None = None
+    problem: str | None = None
+    for key_id, kind in ((_PROJECTED_CS_TYPE, "projected"), (_GEOGRAPHIC_TYPE, "geographic")):
+        code = keys.get(key_id)
+        if code is None or code == 0:
+            continue
+        if code == _USER_DEFINED:
+            problem = f"GeoTIFF keys describe a user-defined {kind} CRS (code 32767), which cannot be read"
+            break
+        try:
+            horizontal = pyproj.CRS.from_epsg(code)
+            problem = None
+            break
+        except CRSError:
+            problem = f"GeoTIFF {kind} CRS code {code} is not a known EPSG code"
+            break
+    if horizontal is None and problem is None:
+        problem = "GeoTIFF key directory present but names no CRS"
+
+    z_unit = None
+    unit_code = keys.get(_VERTICAL_UNITS)
+    if unit_code:
+        z_unit = _epsg_unit_name(unit_code)
+    vertical: pyproj.CRS | None = None
+    v_code = keys.get(_VERTICAL_CS_TYPE)
+    if v_code and v_code != _USER_DEFINED:
+        try:
+            vertical = pyproj.CRS.from_epsg(v_code)
+        except CRSError:
+            vertical = None
+        if vertical is None or not vertical.is_vertical:
+            note = f"GeoTIFF VerticalCSTypeGeoKey {v_code} is not a vertical CRS code (ignored)"
+            datum_code = keys.get(_VERTICAL_DATUM)
+            if datum_code and _is_vertical_crs_code(datum_code):
+                note += f"; VerticalDatumGeoKey holds {datum_code}, a vertical CRS code: the two keys look swapped"
+            if z_unit:
+                note += f"; z unit per VerticalUnitsGeoKey: {z_unit}"
+            notes.append(note)
+            vertical = None
+    if horizontal is not None and vertical is not None and not horizontal.is_compound:
+        horizontal = pyproj.crs.CompoundCRS(
+            name=f"{horizontal.name} + {vertical.name}", components=[horizontal, vertical]
+        )
+    return horizontal, z_unit, problem, notes
+
+
+def _is_vertical_crs_code(code: int) -> bool:
+    try:
+        return bool(pyproj.CRS.from_epsg(code).is_vertical)
+    except CRSError:
+        return False
+
+
+def _epsg_unit_name(code: int) -> str:
+    from pyproj.database import get_units_map
+
+    for unit in get_units_map(auth_name="EPSG").values():
+        if unit.code == str(code):
+            return str(unit.name)
+    return f"EPSG unit {code}"
+
+
+# --------------------------------------------------------------------------- points
+
+
+_CLASS_SELECTION = DecompressionSelection.base().decompress_classification()
+_POINT_SELECTION = DecompressionSelection.base().decompress_z().decompress_classification().decompress_flags()
+
+
+def class_counts(path: str | os.PathLike[str], chunk_size: int = 2_000_000) -> dict[int, int]:
+    """Count the points of each classification code, streaming the file.
+
+    Returns
+    -------
+    dict
+        ``{class code: count}`` for the codes present, in increasing order.
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be read to its end.
+    """
+    path = Path(path)
+    chunk_size = _check_chunk_size(chunk_size)
+    counts = np.zeros(256, dtype=np.int64)
+    with _open(path, _CLASS_SELECTION) as (reader, size):
+        for chunk in _chunks(path, reader, size, chunk_size):
+            counts += np.bincount(np.asarray(chunk.classification, dtype=np.uint8), minlength=256)
+    return {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
+
+
+@dataclass(frozen=True)
+class PointFilter:
+    """Which points :func:`iter_points` keeps.
+
+    Parameters
+    ----------
+    classes
+        Classification codes to keep (0-255), or None for all classes.
+    keep_withheld
+        Keep points whose *withheld* flag is set (dropped by default).
+
+    Examples
+    --------
+    >>> PointFilter(classes={2}).to_dict()
+    {'classes': [2], 'keep_withheld': False}
+    >>> PointFilter(classes=[300])
+    Traceback (most recent call last):
+    ...
+    pipeline.errors.UsageError: classification codes must be in 0-255, got [300]
+    """
+
+    classes: frozenset[int] | None = None
+    keep_withheld: bool = False
+
+    def __post_init__(self) -> None:
+        if self.classes is not None:
+            if isinstance(self.classes, (str, bytes)) or not isinstance(self.classes, Iterable):
+                raise UsageError(f"classes must be a set of integers or None, got {self.classes!r}")
+            values = list(self.classes)
+            if not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) for c in values):
+                raise UsageError(f"classification codes must be integers, got {sorted(values, key=str)}")
+            bad = sorted(int(c) for c in values if not 0 <= c <= 255)
+            if bad:
+                raise UsageError(f"classification codes must be in 0-255, got {bad}")
+            object.__setattr__(self, "classes", frozenset(int(c) for c in values))
+        if not isinstance(self.keep_withheld, (bool, np.bool_)):
+            raise UsageError(f"keep_withheld must be True or False, got {self.keep_withheld!r}")
+        object.__setattr__(self, "keep_withheld", bool(self.keep_withheld))
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
+        return {
+            "classes": None if self.classes is None else sorted(self.classes),
+            "keep_withheld": self.keep_withheld,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PointFilter:
+        """Rebuild from :meth:`to_dict` output."""
+        unknown = set(data) - {"classes", "keep_withheld"}
+        if unknown:
+            raise UsageError(f"unknown PointFilter fields {sorted(unknown)}; valid: classes, keep_withheld")
+        classes = data.get("classes")
+        return cls(
+            classes=None if classes is None else frozenset(classes),
+            keep_withheld=data.get("keep_withheld", False),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PointChunk:
+    """The points kept from one chunk of a file, and how many were dropped.
+
+    ``read == kept + filtered_withheld + filtered_class``: withheld points
+    are counted in ``filtered_withheld`` whatever their class;
+    ``filtered_class`` counts the remaining points outside the kept classes.
+
+    Parameters
+    ----------
+    x, y, z
+        Scaled coordinates (float64) of the kept points, in file units.
+    read
+        Points read from the file for this chunk.
+    filtered_class
+        Points dropped for their classification.
+    filtered_withheld
+        Points dropped for their withheld flag.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    read: int
+    filtered_class: int
+    filtered_withheld: int
+
+    @property
+    def kept(self) -> int:
+        """Number of points kept."""
+        return int(self.x.shape[0])
+
+
+def iter_points(
+    path: str | os.PathLike[str],
+    point_filter: PointFilter | None = None,
+    chunk_size: int = 2_000_000,
+) -> Iterator[PointChunk]:
+    """Stream the filtered points of one file in chunks of at most ``chunk_size`` points.
+
+    Arguments are checked at once; the file is opened at the first ``next()``.
+    A chunk is yielded for every chunk read, even when all its points were
+    filtered out, so that the counts add up to the header's point count.
+
+    Parameters
+    ----------
+    path
+        LAS/LAZ file.
+    point_filter
+        Which points to keep; default: every class, withheld points dropped.
+    chunk_size
+        Points read per chunk.
+
+    Raises
+    ------
+    InputFileError
+        If the file cannot be opened, its point data ends before the header's
+        point count, a LAZ chunk is corrupt, or a coordinate is NaN/inf after
+        scaling.
+    UsageError
+        If ``chunk_size`` is not a positive integer.
+    """
+    point_filter = PointFilter() if point_filter is None else point_filter
+    if not isinstance(point_filter, PointFilter):
+        raise UsageError(f"point_filter must be a PointFilter, got {type(point_filter).__name__}")
+    return _iter_points(Path(path), point_filter, _check_chunk_size(chunk_size))
+
+
+def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iterator[PointChunk]:
+    keep_class: np.ndarray | None = None
+    if point_filter.classes is not None:
+        keep_class = np.zeros(256, dtype=bool)
+        keep_class[sorted(point_filter.classes)] = True
+    with _open(path, _POINT_SELECTION) as (reader, size):
+        for chunk in _chunks(path, reader, size, chunk_size):
+            n = len(chunk)
+            keep = np.ones(n, dtype=bool)
+            filtered_withheld = 0
+            if not point_filter.keep_withheld:
+                withheld = np.asarray(chunk.withheld).astype(bool)
+                filtered_withheld = int(np.count_nonzero(withheld))
+                keep &= ~withheld
+            filtered_class = 0
+            if keep_class is not None:
+                in_class = keep_class[np.asarray(chunk.classification, dtype=np.uint8)]
+                filtered_class = int(np.count_nonzero(keep & ~in_class))
+                keep &= in_class
+            xyz = []
+            for axis in "xyz":
+                values = np.asarray(getattr(chunk, axis), dtype=np.float64)[keep]
+                if not np.isfinite(values).all():
+                    raise InputFileError(
+                        f"{path}: non-finite {axis} coordinate after scaling "
+                        f"(scales {tuple(reader.header.scales)}, offsets {tuple(reader.header.offsets)})"
+                    )
+                xyz.append(values)
+            yield PointChunk(
+                x=xyz[0],
+                y=xyz[1],
+                z=xyz[2],
+                read=n,
+                filtered_class=filtered_class,
+                filtered_withheld=filtered_withheld,
+            )
+

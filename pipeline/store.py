@@ -1,0 +1,829 @@
+"""The output store: one Zarr group holding the DEM and the combined mesh.
+
+Layout
+------
+::
+
+    <store>/                      root group; attrs: provenance, ``Conventions``,
+                                  ``grid`` (GridSpec.to_dict()), ``run_history``
+        x          (x,)           cell-centre x, ascending        float64
+        y          (y,)           cell-centre y, DESCENDING       float64
+        spatial_ref ()            CF grid mapping: crs_wkt, spatial_ref (GDAL),
+                                  GeoTransform, CRS.to_cf() parameters
+        elevation  (y, x)         float32, NaN = no data
+        slope      (y, x)         float32 degrees, NaN = no data   (optional)
+        face_kind  (y, x)         int8: 0 none, 1 triangle, 2 quadrangle (optional)
+        point_count (y, x)        int32                            (optional)
+        mesh/                     UGRID-1.0 group
+            mesh2d      ()        topology (cf_role mesh_topology)
+            node_x, node_y (nNodes)           float64
+            node_z      (nNodes)              float64, on the nodes
+            face_nodes  (nFaces, nMaxFaceNodes=4) int64, -1 pads triangles
+            spatial_ref ()        the same grid mapping as the root
+            tile_row, tile_col (nTiles)       int64
+            tile_node_offset, tile_face_offset (nTileOffsets = nTiles + 1) int64
+
+The raster layers are north-up (row 0 is the northern-most row), chunked in
+``tile_cells x tile_cells`` tiles, so each tile of the pipeline writes exactly
+one chunk of each layer and tiles can be written in parallel without locks.
+The grid's tiles are counted from the south-west, so the store requires ``ny``
+to be a multiple of ``tile_cells`` (see :class:`GridSpec`): only then do the
+tiles' rows fall on the north-up chunk boundaries.
+
+Both Zarr formats are written: 3 (the default, dimensions in
+``dimension_names``) and 2 for older readers such as GDAL 3.6 (dimensions in
+``_ARRAY_DIMENSIONS``).  Arrays also carry GDAL's ``_CRS`` attribute, which is
+how GDAL before 3.9 reads a Zarr CRS.  Metadata is consolidated by
+:func:`create_store`, :meth:`MeshWriter.close` and :func:`finalize_store`.
+
+Examples
+--------
+>>> import tempfile, numpy as np, xarray as xr
+>>> grid = GridSpec(x0=0.0, y0=0.0, resolution=1.0, nx=3, ny=2, tile_cells=2)
+>>> with tempfile.TemporaryDirectory() as tmp:
+...     store = f"{tmp}/out.zarr"
+...     create_store(store, grid, "EPSG:2154", attrs={"run": 1})
+...     write_tile(store, grid, 0, 0, {"elevation": np.array([[1.0, 2.0], [3.0, 4.0]])})
+...     open_dem(store)["elevation"].values.tolist()
+[[3.0, 4.0, nan], [1.0, 2.0, nan]]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import numbers
+import os
+import shutil
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+import pyproj
+import xarray as xr
+import zarr
+import zarr.errors
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import CrsError, PipelineError, UsageError
+
+__all__ = [
+    "StoreError",
+    "Layer",
+    "GridSpec",
+    "create_store",
+    "write_tile",
+    "MeshWriter",
+    "finalize_store",
+    "open_dem",
+    "read_dem_window",
+    "read_mesh",
+    "read_tile_mesh",
+]
+
+StorePath = str | os.PathLike[str]
+
+CONVENTIONS = "CF-1.8 UGRID-1.0"
+GRID_MAPPING = "spatial_ref"
+MESH_GROUP = "mesh"
+TOPOLOGY = "mesh2d"
+HISTORY_ATTR = "run_history"
+
+_MESH_CHUNK = 1 << 18
+"""Nodes (and faces) per chunk of the mesh arrays: 2 MiB of float64."""
+
+
+class StoreError(PipelineError, OSError):
+    """The output store cannot be created, opened or completed.
+
+    The message is one line and starts with the store's path.
+    """
+
+    def __init__(self, message: str) -> None:
+        # One argument: OSError would read 2-5 as (errno, strerror, ...).
+        super().__init__(message)
+
+
+class Layer(StrEnum):
+    """The raster layers a store can hold."""
+
+    ELEVATION = "elevation"
+    SLOPE = "slope"
+    FACE_KIND = "face_kind"
+    POINT_COUNT = "point_count"
+
+    @classmethod
+    def parse(cls, value: object) -> Layer:
+        """The layer named ``value``; a :class:`UsageError` lists the valid names.
+
+        >>> Layer.parse("slope")
+        <Layer.SLOPE: 'slope'>
+        """
+        try:
+            return cls(value)
+        except ValueError:
+            valid = ", ".join(member.value for member in cls)
+            raise UsageError(f"unknown layer {value!r}; valid layers: {valid}") from None
+
+
+@dataclass(frozen=True)
+class _LayerSpec:
+    dtype: np.dtype
+    fill: float | int
+    masked: bool  # the fill value marks missing data (CF _FillValue)
+    attrs: dict[str, Any]
+
+
+_LAYERS: dict[Layer, _LayerSpec] = {
+    Layer.ELEVATION: _LayerSpec(np.dtype(np.float32), math.nan, True, {"long_name": "elevation"}),
+    Layer.SLOPE: _LayerSpec(
+        np.dtype(np.float32), math.nan, True, {"long_name": "slope of the surface", "units": "degree"}
+    ),
+    Layer.FACE_KIND: _LayerSpec(
+        np.dtype(np.int8),
+        0,
+        False,
+        {
+            "long_name": "kind of the mesh face under the cell centre",
+            "flag_values": [0, 1, 2],
+            "flag_meanings": "none triangle quadrangle",
+        },
+    ),
+    Layer.POINT_COUNT: _LayerSpec(
+        np.dtype(np.int32), 0, False, {"long_name": "number of input points in the cell", "units": "1"}
+    ),
+}
+
+
+# --------------------------------------------------------------------------
+# The grid
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """The DEM grid and its tiles.
+
+    Attributes
+    ----------
+    x0, y0 : float
+        South-west outer corner of the grid (CRS units).
+    resolution : float
+        Cell size, > 0.
+    nx, ny : int
+        Cells along x and y.  ``ny`` must be a multiple of ``tile_cells``.
+    tile_cells : int
+        Tile (and chunk) edge in cells.  Tile ``(0, 0)`` is the south-west
+        tile; tiles at the east edge may be narrower.
+
+    Why ``ny`` is a whole number of tiles: the store is north-up, so its chunk
+    rows are counted from the north, while tiles are counted from the south.
+    They line up only if ``ny`` is a multiple of ``tile_cells``; otherwise
+    every tile would straddle two chunks and parallel writes would need locks.
+    Round ``ny`` up (pad the north edge with no-data rows) when building the grid.
+
+    Examples
+    --------
+    >>> g = GridSpec(x0=100.0, y0=200.0, resolution=10.0, nx=3, ny=2, tile_cells=2)
+    >>> g.x.tolist(), g.y.tolist()
+    ([105.0, 115.0, 125.0], [215.0, 205.0])
+    >>> g.geotransform
+    (100.0, 10.0, 0.0, 220.0, 0.0, -10.0)
+    >>> GridSpec.from_dict(g.to_dict()) == g
+    True
+    """
+
+    x0: float
+    y0: float
+    resolution: float
+    nx: int
+    ny: int
+    tile_cells: int
+
+    def __post_init__(self) -> None:
+        for name in ("x0", "y0", "resolution"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise UsageError(f"GridSpec.{name} must be a finite number, got {value!r}")
+        if self.resolution <= 0:
+            raise UsageError(f"GridSpec.resolution must be > 0, got {self.resolution!r}")
+        for name in ("nx", "ny", "tile_cells"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
+                raise UsageError(f"GridSpec.{name} must be an integer >= 1, got {value!r}")
+        if self.ny % self.tile_cells:
+            padded = -(-self.ny // self.tile_cells) * self.tile_cells
+            raise UsageError(
+                f"GridSpec.ny={self.ny} is not a multiple of tile_cells={self.tile_cells}: tiles counted "
+                f"from the south would straddle the north-up store's chunks; use ny={padded} "
+                "(pad the north edge)"
+            )
+
+    @property
+    def x(self) -> NDArray[np.float64]:
+        """Cell-centre x coordinates, ascending (west to east)."""
+        return self.x0 + (np.arange(self.nx) + 0.5) * self.resolution
+
+    @property
+    def y(self) -> NDArray[np.float64]:
+        """Cell-centre y coordinates, descending (north to south: row 0 is the northern-most)."""
+        return self.y_top - (np.arange(self.ny) + 0.5) * self.resolution
+
+    @property
+    def y_top(self) -> float:
+        """The northern outer edge of the grid."""
+        return self.y0 + self.ny * self.resolution
+
+    @property
+    def geotransform(self) -> tuple[float, float, float, float, float, float]:
+        """GDAL's affine transform of the north-up grid: ``(x0, res, 0, y_top, 0, -res)``."""
+        r = float(self.resolution)
+        return (float(self.x0), r, 0.0, float(self.y_top), 0.0, -r)
+
+    @property
+    def n_tile_rows(self) -> int:
+        return self.ny // self.tile_cells
+
+    @property
+    def n_tile_cols(self) -> int:
+        return -(-self.nx // self.tile_cells)
+
+    def to_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> GridSpec:
+        try:
+            return cls(**data)
+        except TypeError as err:
+            raise UsageError(f"GridSpec.from_dict: {err}") from None
+
+
+def _tile_window(grid: GridSpec, tile_row: int, tile_col: int) -> tuple[slice, slice]:
+    """North-up (rows, cols) of a tile's cells in the store: exactly one chunk."""
+    if not (0 <= tile_row < grid.n_tile_rows and 0 <= tile_col < grid.n_tile_cols):
+        raise UsageError(
+            f"tile ({tile_row}, {tile_col}) is outside the grid's "
+            f"{grid.n_tile_rows} x {grid.n_tile_cols} tiles"
+        )
+    t = grid.tile_cells
+    top = (grid.n_tile_rows - 1 - tile_row) * t
+    left = tile_col * t
+    return slice(top, top + t), slice(left, min(left + t, grid.nx))
+
+
+# --------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------
+
+
+def create_store(
+    path: StorePath,
+    grid: GridSpec,
+    crs_wkt: str | None,
+    *,
+    layers: Sequence[str] = ("elevation",),
+    attrs: Mapping[str, Any],
+    zarr_format: int = 3,
+    overwrite: bool = False,
+) -> None:
+    """Create the store: the root group, its coordinates, grid mapping and empty layers.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A local directory.  If it exists it must be an empty directory or a
+        Zarr store (replaced only with ``overwrite=True``).
+    grid : GridSpec
+        The DEM grid; ``grid.tile_cells`` is the chunk edge.
+    crs_wkt : str or None
+        The CRS (any form pyproj reads; stored as WKT2).  None for data
+        without a CRS: the grid mapping then holds only the GeoTransform.
+    layers : sequence of str
+        Names from :class:`Layer`.
+    attrs : mapping
+        JSON-serialisable provenance, stored as the root's attributes.
+    zarr_format : {3, 2}
+    overwrite : bool
+        Replace an existing Zarr store at ``path``.
+
+    Raises
+    ------
+    StoreError
+        ``path`` exists and is not a Zarr store, or is one and ``overwrite`` is false.
+    UsageError, CrsError
+        Invalid layer names, format, attributes or CRS.
+    """
+    wanted = tuple(dict.fromkeys(Layer.parse(name) for name in layers))
+    if zarr_format not in (2, 3):
+        raise UsageError(f"zarr_format must be 2 or 3, got {zarr_format!r}")
+    root_attrs = _json_attrs(attrs, "attrs") | {"Conventions": CONVENTIONS, "grid": grid.to_dict()}
+    crs = _parse_crs(crs_wkt)
+    grid_mapping = _grid_mapping_attrs(crs, grid)
+    x_attrs, y_attrs, z_units = _axis_attrs(crs)
+
+    _make_room(path, overwrite)
+    root = zarr.create_group(store=os.fspath(path), zarr_format=zarr_format, attributes=root_attrs)
+    _create_array(root, "x", data=grid.x, dims=("x",), attrs=x_attrs)
+    _create_array(root, "y", data=grid.y, dims=("y",), attrs=y_attrs)
+    _create_array(root, GRID_MAPPING, data=np.int32(0), dims=(), attrs=grid_mapping)
+    gdal_crs = {} if crs is None else {"_CRS": {"wkt": grid_mapping["crs_wkt"]}}
+    for layer in wanted:
+        spec = _LAYERS[layer]
+        layer_attrs = dict(spec.attrs)
+        if layer is Layer.ELEVATION and z_units is not None:
+            layer_attrs["units"] = z_units
+        _create_array(
+            root,
+            layer,
+            shape=(grid.ny, grid.nx),
+            chunks=(grid.tile_cells, grid.tile_cells),
+            dtype=spec.dtype,
+            fill=spec.fill,
+            masked=spec.masked,
+            dims=("y", "x"),
+            attrs=layer_attrs | {"grid_mapping": GRID_MAPPING, "coordinates": GRID_MAPPING} | gdal_crs,
+        )
+    _consolidate(path)
+
+
+def write_tile(
+    path: StorePath, grid: GridSpec, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike]
+) -> None:
+    """Write one tile's layers, given south-up, into their north-up chunk.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A store made by :func:`create_store` with this ``grid``.
+    grid : GridSpec
+    tile_row, tile_col : int
+        The tile, counted from the south-west tile ``(0, 0)``.
+    layers : mapping of layer name to array
+        Each of shape ``(rows, cols)`` of the tile's cells, ``(tile_cells,
+        tile_cells)`` except at the east edge; row 0 is the southern-most.
+
+    Each call opens only the arrays it writes (one small metadata read each)
+    and writes whole chunks no other tile touches: safe from many threads or
+    processes at once, without locks.
+    """
+    rows, cols = _tile_window(grid, tile_row, tile_col)
+    shape = (rows.stop - rows.start, cols.stop - cols.start)
+    checked = []
+    for name, values in layers.items():
+        layer = Layer.parse(name)
+        values = np.asarray(values)
+        if values.shape != shape:
+            raise UsageError(
+                f"layer {layer.value!r} of tile ({tile_row}, {tile_col}): shape {values.shape}, expected {shape}"
+            )
+        dtype = _LAYERS[layer].dtype
+        if not np.can_cast(values.dtype, dtype, casting="same_kind"):
+            raise UsageError(f"layer {layer.value!r}: cannot store {values.dtype} values as {dtype}")
+        checked.append((layer, values[::-1].astype(dtype, copy=False)))
+    for layer, north_up in checked:
+        _open_array(path, layer)[rows, cols] = north_up
+
+
+class MeshWriter:
+    """Streams the combined mesh into the store's UGRID group ``mesh``.
+
+    Sizes are known up front; nodes and faces are written in slices, in any
+    order, then :meth:`set_tiles` records which tile owns which slice and
+    :meth:`close` checks that everything was written and consolidates the
+    metadata.  One writer per store; slices written from several threads
+    must not share a chunk (``2**18`` nodes or faces).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A store made by :func:`create_store`.  An existing mesh group is replaced.
+    n_nodes, n_faces : int
+    zarr_format : {2, 3}, optional
+        Checked against the store's format; by default the store's.
+
+    Examples
+    --------
+    >>> import tempfile, numpy as np
+    >>> grid = GridSpec(x0=0.0, y0=0.0, resolution=1.0, nx=2, ny=2, tile_cells=2)
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     create_store(tmp + "/s.zarr", grid, "EPSG:2154", attrs={})
+    ...     with MeshWriter(tmp + "/s.zarr", n_nodes=3, n_faces=1) as mesh:
+    ...         mesh.write_nodes(0, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [5.0, 6.0, 7.0])
+    ...         mesh.write_faces(0, [[0, 1, 2, -1]])
+    ...         mesh.set_tiles([0], [0], [0, 3], [0, 1])
+    ...     read_mesh(tmp + "/s.zarr")[2].tolist()
+    [[0, 1, 2, -1]]
+    """
+
+    def __init__(self, path: StorePath, n_nodes: int, n_faces: int, zarr_format: int | None = None) -> None:
+        for name, value in (("n_nodes", n_nodes), ("n_faces", n_faces)):
+            if not isinstance(value, numbers.Integral) or value < 0:
+                raise UsageError(f"MeshWriter.{name} must be an integer >= 0, got {value!r}")
+        self.path = path
+        self.n_nodes = int(n_nodes)
+        self.n_faces = int(n_faces)
+        root = _open_group(path, mode="r+")
+        if zarr_format is not None and zarr_format != root.metadata.zarr_format:
+            raise UsageError(
+                f"{os.fspath(path)}: store is Zarr format {root.metadata.zarr_format}, not {zarr_format}"
+            )
+        self._written: dict[str, list[tuple[int, int]]] = {"nodes": [], "faces": []}
+        self._tiles_set = False
+
+        x_attrs = _user_attrs(root["x"])
+        y_attrs = _user_attrs(root["y"])
+        elevation_attrs = _user_attrs(root[Layer.ELEVATION]) if Layer.ELEVATION in root else {}
+        group = root.create_group(MESH_GROUP, overwrite=True, attributes={"Conventions": CONVENTIONS})
+        _create_array(
+            group,
+            TOPOLOGY,
+            data=np.int32(0),
+            dims=(),
+            attrs={
+                "cf_role": "mesh_topology",
+                "long_name": "combined triangle/quadrangle terrain mesh",
+                "topology_dimension": 2,
+                "node_coordinates": "node_x node_y",
+                "face_node_connectivity": "face_nodes",
+                "node_dimension": "nNodes",
+                "face_dimension": "nFaces",
+                "max_face_nodes_dimension": "nMaxFaceNodes",
+            },
+        )
+        _create_array(group, GRID_MAPPING, data=np.int32(0), dims=(), attrs=_user_attrs(root[GRID_MAPPING]))
+        node = {"shape": (self.n_nodes,), "chunks": (_chunk(self.n_nodes),), "dims": ("nNodes",)}
+        for name, attrs in (("node_x", x_attrs), ("node_y", y_attrs)):
+            attrs = {k: v for k, v in attrs.items() if k in ("standard_name", "units")}
+            attrs |= {"long_name": f"{name[-1]} of the mesh nodes"}
+            _create_array(group, name, dtype=np.float64, attrs=attrs, **node)
+        z_attrs = {k: v for k, v in elevation_attrs.items() if k in ("long_name", "units")}
+        _create_array(
+            group,
+            "node_z",
+            dtype=np.float64,
+            attrs=z_attrs | {"mesh": TOPOLOGY, "location": "node", "grid_mapping": GRID_MAPPING},
+            **node,
+        )
+        _create_array(
+            group,
+            "face_nodes",
+            shape=(self.n_faces, 4),
+            chunks=(_chunk(self.n_faces), 4),
+            dtype=np.int64,
+            fill=-1,
+            masked=True,
+            dims=("nFaces", "nMaxFaceNodes"),
+            attrs={
+                "cf_role": "face_node_connectivity",
+                "long_name": "nodes of each face; -1 pads triangles",
+                "start_index": 0,
+            },
+        )
+        self._group = group
+
+    def write_nodes(self, start: int, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> None:
+        """Write nodes ``start, start + 1, ...`` (1-D x, y, z of equal length)."""
+        x, y, z = (np.asarray(a, dtype=np.float64) for a in (x, y, z))
+        if x.ndim != 1 or x.shape != y.shape or x.shape != z.shape:
+            raise UsageError(f"write_nodes: x, y, z must be 1-D of one length, got {x.shape} {y.shape} {z.shape}")
+        stop = self._claim("nodes", start, x.size, self.n_nodes)
+        for name, values in (("node_x", x), ("node_y", y), ("node_z", z)):
+            self._group[name][start:stop] = values
+
+    def write_faces(self, start: int, faces: ArrayLike) -> None:
+        """Write faces ``start, start + 1, ...``: ``(m, 4)`` global node ids, -1 fourth for triangles."""
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] != 4 or not np.issubdtype(faces.dtype, np.integer):
+            raise UsageError(f"write_faces: faces must be (m, 4) integers, got {faces.dtype} {faces.shape}")
+        if faces.size and ((faces[:, :3] < 0).any() or (faces[:, 3] < -1).any() or faces.max() >= self.n_nodes):
+            raise UsageError(f"write_faces: node ids must be in [0, {self.n_nodes}), -1 only in the 4th column")
+        stop = self._claim("faces", start, faces.shape[0], self.n_faces)
+        self._group["face_nodes"][start:stop] = faces
+
+    def set_tiles(
+        self,
+        tile_row: ArrayLike,
+        tile_col: ArrayLike,
+        node_offsets: ArrayLike,
+        face_offsets: ArrayLike,
+    ) -> None:
+        """Record the tiles: tile ``t`` owns nodes ``node_offsets[t]:node_offsets[t + 1]``
+        and faces ``face_offsets[t]:face_offsets[t + 1]`` (offsets: one per tile + 1)."""
+        row = np.asarray(tile_row, dtype=np.int64)
+        col = np.asarray(tile_col, dtype=np.int64)
+        if row.ndim != 1 or col.shape != row.shape:
+            raise UsageError(f"set_tiles: tile_row, tile_col must be 1-D of one length, got {row.shape} {col.shape}")
+        for name, values, dim, long_name in (
+            ("tile_row", row, "nTiles", "tile row, counted from the south"),
+            ("tile_col", col, "nTiles", "tile column, counted from the west"),
+            ("tile_node_offset", _offsets("node", node_offsets, row.size, self.n_nodes), "nTileOffsets",
+             "tile t owns nodes [off[t], off[t+1])"),
+            ("tile_face_offset", _offsets("face", face_offsets, row.size, self.n_faces), "nTileOffsets",
+             "tile t owns faces [off[t], off[t+1])"),
+        ):
+            attrs = {"long_name": long_name}
+            _create_array(self._group, name, data=values, dims=(dim,), attrs=attrs, overwrite=True)
+        self._tiles_set = True
+
+    def close(self) -> None:
+        """Check that every node, face and the tiles were written; consolidate the metadata."""
+        where = os.fspath(self.path)
+        for what, total in (("nodes", self.n_nodes), ("faces", self.n_faces)):
+            gap = _first_gap(self._written[what], total)
+            if gap is not None:
+                raise StoreError(f"{where}: mesh {what} [{gap[0]}, {gap[1]}) were never written")
+        if not self._tiles_set:
+            raise StoreError(f"{where}: mesh tiles were never recorded (call set_tiles)")
+        _consolidate(self.path)
+
+    def __enter__(self) -> MeshWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+
+    def _claim(self, what: str, start: int, count: int, total: int) -> int:
+        if not isinstance(start, numbers.Integral) or start < 0 or start + count > total:
+            raise UsageError(f"write_{what}: [{start}, {start + count}) is outside [0, {total})")
+        self._written[what].append((int(start), int(start) + count))
+        return int(start) + count
+
+
+def finalize_store(
+    path: StorePath, attrs_update: Mapping[str, Any] | None = None, *, history: Mapping[str, Any] | None = None
+) -> None:
+    """Update the root's attributes and consolidate the metadata.
+
+    ``attrs_update`` replaces or adds root attributes (e.g. the run report);
+    ``history`` (e.g. the run's parameters and time) is appended to the
+    ``run_history`` list attribute.  Both must be JSON-serialisable.
+    """
+    update = _json_attrs(attrs_update or {}, "attrs_update")
+    root = _open_group(path, mode="r+")
+    if history is not None:
+        entry = _json_attrs(history, "history")
+        update[HISTORY_ATTR] = [*root.attrs.get(HISTORY_ATTR, []), entry]
+    if update:
+        root.attrs.update(update)
+    _consolidate(path)
+
+
+# --------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------
+
+
+def open_dem(path: StorePath, **kwargs: Any) -> xr.Dataset:
+    """The DEM as a lazy (dask) dataset: ``xarray.open_zarr`` with the store's defaults.
+
+    ``spatial_ref`` is a coordinate (the data variables list it in
+    ``coordinates``), so rioxarray finds the CRS and GeoTransform.
+    """
+    return xr.open_zarr(os.fspath(path), **kwargs)
+
+
+def read_dem_window(path: StorePath, x0: float, y0: float, x1: float, y1: float) -> xr.Dataset:
+    """The layers' cells whose centres lie in the box ``[x0, x1] x [y0, y1]``, loaded."""
+    if not (x0 <= x1 and y0 <= y1):
+        raise UsageError(f"read_dem_window: empty box ({x0}, {y0}, {x1}, {y1})")
+    with open_dem(path) as ds:
+        return ds.sel(x=slice(x0, x1), y=slice(y1, y0)).load()  # y is descending
+
+
+def read_mesh(path: StorePath) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """The whole mesh: node ``(n, 2)`` xy, node z ``(n,)``, faces ``(m, 4)`` with -1 padding."""
+    mesh = _open_group(path, MESH_GROUP)
+    xy = np.column_stack([mesh["node_x"][:], mesh["node_y"][:]])
+    return xy, mesh["node_z"][:], mesh["face_nodes"][:]
+
+
+def read_tile_mesh(
+    path: StorePath, tile: int | tuple[int, int]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """One tile's faces with the nodes they need, numbered locally.
+
+    Parameters
+    ----------
+    tile : int or (row, col)
+        The tile's index in the mesh's tile arrays, or its (row, col).
+
+    Returns
+    -------
+    node_xy, node_z, faces
+        The nodes the tile owns plus those of neighbouring tiles its faces
+        use, in global order; faces index into them (-1 padding kept).
+    """
+    mesh = _open_group(path, MESH_GROUP)
+    t = _tile_index(mesh, tile, path)
+    node_off = mesh["tile_node_offset"][t : t + 2]
+    face_off = mesh["tile_face_offset"][t : t + 2]
+    faces = mesh["face_nodes"][face_off[0] : face_off[1]]
+    used = faces >= 0
+    ids = np.union1d(np.arange(node_off[0], node_off[1]), faces[used])
+    local = np.full_like(faces, -1)
+    local[used] = np.searchsorted(ids, faces[used])
+    selection = (ids,)
+    xy = np.column_stack(
+        [mesh["node_x"].get_orthogonal_selection(selection), mesh["node_y"].get_orthogonal_selection(selection)]
+    )
+    return xy, mesh["node_z"].get_orthogonal_selection(selection), local
+
+
+# --------------------------------------------------------------------------
+# Helpers
+# --------------------------------------------------------------------------
+
+
+def _is_zarr_store(path: StorePath) -> bool:
+    return os.path.isdir(path) and any(
+        os.path.exists(os.path.join(path, name)) for name in ("zarr.json", ".zgroup", ".zarray")
+    )
+
+
+def _make_room(path: StorePath, overwrite: bool) -> None:
+    """Clear the way for a new store at ``path``, never deleting anything but a Zarr store."""
+    where = os.fspath(path)
+    if not os.path.lexists(where):
+        return
+    if _is_zarr_store(where):
+        if not overwrite:
+            raise StoreError(f"{where}: a Zarr store already exists; pass --overwrite to replace it")
+        shutil.rmtree(where)
+    elif not (os.path.isdir(where) and not os.listdir(where)):
+        raise StoreError(f"{where}: exists and is not a Zarr store; refusing to replace it")
+
+
+def _open_group(path: StorePath, name: str = "", mode: str = "r") -> zarr.Group:
+    where = os.fspath(path)
+    try:
+        return zarr.open_group(where, path=name or None, mode=mode)
+    except (FileNotFoundError, zarr.errors.NodeTypeValidationError):
+        what = f"has no group {name!r}" if name and _is_zarr_store(where) else "is not a Zarr store"
+        raise StoreError(f"{where}: {what}") from None
+
+
+def _open_array(path: StorePath, name: str) -> zarr.Array:
+    try:
+        return zarr.open_array(store=os.fspath(path), path=name, mode="r+")
+    except FileNotFoundError:
+        where = os.fspath(path)
+        raise StoreError(f"{where}: no array '{name}' (was the store created with this layer?)") from None
+
+
+def _create_array(
+    group: zarr.Group,
+    name: str,
+    *,
+    dims: tuple[str, ...],
+    attrs: Mapping[str, Any],
+    data: ArrayLike | None = None,
+    shape: tuple[int, ...] | None = None,
+    chunks: tuple[int, ...] | None = None,
+    dtype: Any = None,
+    fill: float | int | None = None,
+    masked: bool = False,
+    overwrite: bool = False,
+) -> zarr.Array:
+    """An array readable by xarray and GDAL in either Zarr format.
+
+    ``fill`` is what unwritten chunks read as (NaN for floats by default);
+    ``masked`` says it also marks missing data (CF ``_FillValue``).  The two
+    formats say that differently: xarray takes a v2 array's ``fill_value`` as
+    ``_FillValue``, so an unmasked v2 array stores a null fill value (reading
+    back as 0); in v3 xarray ignores ``fill_value`` and reads the
+    ``_FillValue`` attribute (integers only: it wants floats base64-encoded,
+    and NaN needs no mask anyway).
+    """
+    attrs = dict(attrs)
+    if data is not None:
+        data = np.asarray(data)
+        shape, dtype = data.shape, data.dtype
+    dtype = np.dtype(dtype)
+    if fill is None and dtype.kind == "f":
+        fill, masked = math.nan, True
+    if chunks is None:
+        chunks = shape
+    kwargs: dict[str, Any] = {}
+    if group.metadata.zarr_format == 2:
+        attrs["_ARRAY_DIMENSIONS"] = list(dims)
+        fill_value = fill if masked else None
+    else:
+        kwargs["dimension_names"] = dims
+        fill_value = 0 if fill is None else fill
+        if masked and dtype.kind in "iu":
+            attrs["_FillValue"] = int(fill)
+    array = group.create_array(
+        name,
+        shape=shape,
+        chunks=chunks,
+        dtype=dtype,
+        fill_value=fill_value,
+        attributes=attrs,
+        overwrite=overwrite,
+        **kwargs,
+    )
+    if data is not None:
+        array[...] = data
+    return array
+
+
+def _user_attrs(array: zarr.Array) -> dict[str, Any]:
+    """An array's attributes without the format's own keys, to copy onto another array."""
+    return {k: v for k, v in array.attrs.asdict().items() if k not in ("_ARRAY_DIMENSIONS", "_FillValue")}
+
+
+def _consolidate(path: StorePath) -> None:
+    with warnings.catch_warnings():
+        # zarr-python warns that v3 consolidated metadata is not in the v3 spec
+        # yet; xarray and zarr-python read it, and other readers ignore it.
+        warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
+        zarr.consolidate_metadata(os.fspath(path))
+
+
+def _json_attrs(attrs: Mapping[str, Any], what: str) -> dict[str, Any]:
+    """A JSON round trip of ``attrs``: tuples become lists, anything else non-JSON is an error."""
+    try:
+        return json.loads(json.dumps(dict(attrs), allow_nan=False))
+    except (TypeError, ValueError) as err:
+        raise UsageError(f"{what} must be JSON-serialisable: {err}") from None
+
+
+def _parse_crs(crs_wkt: str | None) -> pyproj.CRS | None:
+    if crs_wkt is None:
+        return None
+    try:
+        return pyproj.CRS.from_user_input(crs_wkt)
+    except pyproj.exceptions.CRSError as err:
+        raise CrsError(f"cannot parse the CRS {str(crs_wkt)[:60]!r}: {err}") from None
+
+
+def _grid_mapping_attrs(crs: pyproj.CRS | None, grid: GridSpec) -> dict[str, Any]:
+    """The CF grid mapping variable's attributes, with what GDAL and rioxarray read."""
+    attrs: dict[str, Any] = {}
+    if crs is not None:
+        wkt = crs.to_wkt()
+        attrs |= _json_attrs(crs.to_cf(), "CRS.to_cf()")
+        attrs |= {"crs_wkt": wkt, "spatial_ref": wkt}
+    attrs["GeoTransform"] = " ".join(repr(v) for v in grid.geotransform)
+    return attrs
+
+
+def _axis_attrs(crs: pyproj.CRS | None) -> tuple[dict[str, Any], dict[str, Any], str | None]:
+    """CF attributes of the x and y coordinates, and the vertical unit if the CRS has one."""
+    x = {"standard_name": "projection_x_coordinate", "long_name": "x of the cell centres", "axis": "X"}
+    y = {"standard_name": "projection_y_coordinate", "long_name": "y of the cell centres", "axis": "Y"}
+    z_units = None
+    if crs is not None:
+        for axis in crs.cs_to_cf():
+            keys = {k: axis[k] for k in ("standard_name", "units") if k in axis}
+            match axis.get("axis"):
+                case "X":
+                    x |= keys
+                case "Y":
+                    y |= keys
+                case "Z":
+                    z_units = axis.get("units")
+    return x, y, z_units
+
+
+def _offsets(what: str, values: ArrayLike, n_tiles: int, total: int) -> NDArray[np.int64]:
+    values = np.asarray(values, dtype=np.int64)
+    if values.shape != (n_tiles + 1,) or values[0] != 0 or values[-1] != total or (np.diff(values) < 0).any():
+        raise UsageError(
+            f"set_tiles: {what}_offsets must be {n_tiles + 1} non-decreasing offsets from 0 to {total}"
+        )
+    return values
+
+
+def _chunk(n: int) -> int:
+    return max(1, min(n, _MESH_CHUNK))
+
+
+def _first_gap(intervals: list[tuple[int, int]], total: int) -> tuple[int, int] | None:
+    """The first part of ``[0, total)`` no interval covers, or None."""
+    reached = 0
+    for start, stop in sorted(intervals):
+        if start > reached:
+            return reached, start
+        reached = max(reached, stop)
+    return (reached, total) if reached < total else None
+
+
+def _tile_index(mesh: zarr.Group, tile: int | tuple[int, int], path: StorePath) -> int:
+    where = os.fspath(path)
+    if "tile_row" not in mesh:
+        raise StoreError(f"{where}: the mesh has no tiles")
+    if isinstance(tile, tuple):
+        hits = np.flatnonzero((mesh["tile_row"][:] == tile[0]) & (mesh["tile_col"][:] == tile[1]))
+        if hits.size == 0:
+            raise UsageError(f"{where}: the mesh has no tile {tile}")
+        return int(hits[0])
+    n_tiles = mesh["tile_row"].shape[0]
+    if not 0 <= tile < n_tiles:
+        raise UsageError(f"{where}: tile index {tile} is outside [0, {n_tiles})")
+    return int(tile)

@@ -1,0 +1,257 @@
+"""Tests of pipeline.crs: resolving source/target CRSs and reprojecting points."""
+
+from __future__ import annotations
+
+import pickle
+import threading
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import pytest
+from numpy.testing import assert_allclose
+
+from pipeline import crs as crs_module
+from pipeline.crs import CrsPlan, Reprojector, resolve_crs
+from pipeline.errors import CrsError, UsageError
+from pipeline.sources import SourceInfo, read_info
+
+from .test_sources import sample, write_las
+
+LAMBERT93 = "EPSG:2154"
+
+
+def info_for(tmp_path: Path, name: str, crs: str | None, **kwargs: object) -> SourceInfo:
+    """Header info of a small synthetic file in ``crs``."""
+    return read_info(write_las(tmp_path / name, crs=crs, n=20, **kwargs).path)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- resolve_crs
+
+
+def test_single_crs_needs_no_reprojection(tmp_path: Path) -> None:
+    a = info_for(tmp_path, "a.las", LAMBERT93, origin=(700_000.0, 6_600_000.0))
+    b = info_for(tmp_path, "b.laz", LAMBERT93, point_format=6, version="1.4", origin=(700_000.0, 6_600_000.0))
+    plan = resolve_crs([a, b], None, None)
+    assert plan.paths == (a.path, b.path)
+    assert pyproj.CRS.from_wkt(plan.target_wkt).to_epsg() == 2154
+    assert plan.horizontal_unit == "metre"
+    assert plan.vertical_unit is None
+    assert all(plan.reprojector(p).is_identity for p in plan.paths)
+    assert any("no reprojection" in note for note in plan.notes)
+    assert CrsPlan.from_dict(plan.to_dict()) == plan
+
+
+def test_missing_crs_without_in_crs_lists_the_files(tmp_path: Path) -> None:
+    a = info_for(tmp_path, "a.las", LAMBERT93)
+    b = info_for(tmp_path, "nocrs1.las", None)
+    c = info_for(tmp_path, "nocrs2.las", None)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([a, b, c], None, None)
+    message = str(exc.value)
+    assert str(b.path) in message and str(c.path) in message and str(a.path) not in message
+    assert "--in-crs" in message and "\n" not in message
+
+
+def test_in_crs_fills_missing_and_overrides_different(tmp_path: Path) -> None:
+    a = info_for(tmp_path, "utm.las", "EPSG:32631")
+    b = info_for(tmp_path, "nocrs.las", None)
+    c = info_for(tmp_path, "l93.las", LAMBERT93)
+    plan = resolve_crs([a, b, c], LAMBERT93, None)
+    assert all(pyproj.CRS.from_wkt(w).to_epsg() == 2154 for w in plan.source_wkts)
+    assert all(plan.reprojector(p).is_identity for p in plan.paths)
+    overrides = [n for n in plan.notes if "overrides" in n]
+    assert len(overrides) == 1 and str(a.path) in overrides[0] and "UTM zone 31N" in overrides[0]
+    assert any(str(b.path) in n and "without a CRS" in n for n in plan.notes)
+
+
+def test_mixed_crs_without_out_crs_groups_the_files(tmp_path: Path) -> None:
+    a = info_for(tmp_path, "a.las", LAMBERT93)
+    b = info_for(tmp_path, "b.las", "EPSG:32631")
+    c = info_for(tmp_path, "c.las", LAMBERT93)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([a, b, c], None, None)
+    message = str(exc.value)
+    assert "2 different CRSs" in message and "--out-crs" in message
+    assert f"Lambert-93 (EPSG:2154): {a.path}, {c.path}" in message
+    assert f"UTM zone 31N (EPSG:32631): {b.path}" in message
+
+
+def test_mixed_crs_with_out_crs_reprojects_and_explains_z(tmp_path: Path) -> None:
+    a = info_for(tmp_path, "a.las", LAMBERT93, origin=(700_000.0, 6_600_000.0))
+    b = info_for(tmp_path, "b.las", "EPSG:32631", origin=(500_000.0, 5_000_000.0))
+    plan = resolve_crs([a, b], None, "EPSG:32631")
+    assert plan.reprojector(b.path).is_identity
+    assert not plan.reprojector(a.path).is_identity
+    z_notes = [n for n in plan.notes if "z is not transformed" in n]
+    assert len(z_notes) == 1 and str(a.path) in z_notes[0] and "compound/3D" in z_notes[0]
+
+
+def test_geographic_target_suggests_the_utm_zone(tmp_path: Path) -> None:
+    info = info_for(tmp_path, "geo.las", "EPSG:4326", origin=(3.0, 45.0), spread=0.5)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], None, None)
+    message = str(exc.value)
+    assert "geographic" in message and "--out-crs EPSG:32631" in message
+    with pytest.raises(CrsError, match="--out-crs WGS 84 .*EPSG:32631"):
+        resolve_crs([info], None, "EPSG:4326")
+    plan = resolve_crs([info], None, "EPSG:32631")
+    assert plan.horizontal_unit == "metre"
+
+
+@pytest.mark.parametrize("target", ["EPSG:4978", "EPSG:5703", "EPSG:4979"])
+def test_non_projected_targets_are_refused(tmp_path: Path, target: str) -> None:
+    info = info_for(tmp_path, "a.las", LAMBERT93, origin=(700_000.0, 6_600_000.0))
+    with pytest.raises(CrsError, match="projected CRS"):
+        resolve_crs([info], None, target)
+
+
+@pytest.mark.parametrize("option", ["in_crs", "out_crs"])
+def test_bad_crs_strings_are_named(tmp_path: Path, option: str) -> None:
+    info = info_for(tmp_path, "a.las", LAMBERT93)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], **{option: "EPSG:99999999"})
+    message = str(exc.value)
+    assert message.startswith(f"--{option.replace('_', '-')} 'EPSG:99999999'") and "\n" not in message
+
+
+def test_user_crs_accepts_proj_strings_and_wkt(tmp_path: Path) -> None:
+    info = info_for(tmp_path, "a.las", None)
+    plan = resolve_crs([info], "+proj=utm +zone=31 +datum=WGS84 +units=m +no_defs", pyproj.CRS(LAMBERT93).to_wkt())
+    assert pyproj.CRS.from_wkt(plan.target_wkt).to_epsg() == 2154
+    assert not plan.reprojector(info.path).is_identity
+
+
+def test_no_infos() -> None:
+    with pytest.raises(UsageError):
+        resolve_crs([], None, None)
+
+
+def test_us_feet_target_and_compound_z_conversion(tmp_path: Path) -> None:
+    info = info_for(tmp_path, "ft.las", None)
+    plan = resolve_crs([info], "EPSG:2903+6360", "EPSG:32613+5703")  # NAVD88 height in ftUS -> metres
+    assert plan.horizontal_unit == "metre" and plan.vertical_unit == "metre"
+    assert any("z is transformed too" in n for n in plan.notes)
+    _, _, z = plan.reprojector(info.path).transform(np.array([1_639_600.0]), np.array([1_454_500.0]), [7000.0])
+    assert_allclose(z, [7000.0 * 1200 / 3937], rtol=1e-9)
+
+
+# --------------------------------------------------------------------------- Reprojector
+
+
+def test_reprojector_matches_pyproj(rng: np.random.Generator) -> None:
+    r = Reprojector(pyproj.CRS(LAMBERT93).to_wkt(), pyproj.CRS("EPSG:32631").to_wkt())
+    x = rng.uniform(600_000, 800_000, 100)
+    y = rng.uniform(6_500_000, 6_700_000, 100)
+    z = rng.uniform(0, 100, 100)
+    expected = pyproj.Transformer.from_crs(LAMBERT93, "EPSG:32631", always_xy=True).transform(x, y, z)
+    got = r.transform(x, y, z)
+    for g, e in zip(got, expected):
+        assert_allclose(g, e, rtol=0, atol=1e-6)
+    assert_allclose(got[2], z)
+
+
+def test_reprojector_pickles_as_a_recipe() -> None:
+    r = Reprojector(LAMBERT93, "EPSG:32631")
+    r.transform([700_000.0], [6_600_000.0], [0.0])  # builds this thread's transformer
+    blob = pickle.dumps(r)
+    assert b"Transformer" not in blob
+    copy = pickle.loads(blob)
+    assert copy == r and copy.source_wkt.startswith("PROJCRS") and not copy.is_identity
+    assert Reprojector.from_dict(r.to_dict()) == r
+
+
+def test_reprojector_builds_one_transformer_per_thread() -> None:
+    r = Reprojector(LAMBERT93, "EPSG:32631")
+    seen: list[pyproj.Transformer] = []  # keeps them alive, so identities stay distinct
+
+    def work() -> None:
+        first = crs_module._thread_transformer(r.source_wkt, r.target_wkt)
+        r.transform([700_000.0], [6_600_000.0], [0.0])
+        assert crs_module._thread_transformer(r.source_wkt, r.target_wkt) is first
+        seen.append(first)
+
+    threads = [threading.Thread(target=work) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(seen) == 3 and len({id(t) for t in seen}) == 3
+
+
+def test_identity_builds_no_transformer(monkeypatch: pytest.MonkeyPatch) -> None:
+    r = Reprojector(pyproj.CRS(LAMBERT93).to_wkt(), LAMBERT93)  # same CRS spelled differently
+    assert r.is_identity
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a Transformer was built for an identity reprojection")
+
+    monkeypatch.setattr(pyproj.Transformer, "from_crs", refuse)
+    x, y, z = r.transform([1.0, 2.0], [3.0, 4.0], [5.0, 6.0])
+    assert x.dtype == np.float64 and list(y) == [3.0, 4.0]
+
+
+def test_reprojector_reports_untransformable_points() -> None:
+    r = Reprojector("EPSG:4326", "EPSG:32631")
+    with pytest.raises(CrsError, match="1 of 2 points"):
+        r.transform([3.0, 3.0], [45.0, 95.0], [0.0, 0.0])
+
+
+def test_reprojector_bad_input() -> None:
+    with pytest.raises(CrsError, match="not a CRS"):
+        Reprojector("nonsense", LAMBERT93)
+    with pytest.raises(UsageError):
+        Reprojector(LAMBERT93, "EPSG:32631").transform([1.0], [1.0, 2.0], [1.0])
+
+
+# --------------------------------------------------------------------------- real samples (../shared/data)
+
+
+def test_real_geographic_needs_a_projected_target() -> None:
+    info = read_info(sample("geographic_epsg4326.las"))
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], None, None)
+    assert "geographic" in str(exc.value) and "--out-crs EPSG:32615" in str(exc.value)
+
+
+def test_real_us_survey_feet() -> None:
+    info = read_info(sample("4_6_crop_us_feet.las"))
+    plan = resolve_crs([info], None, None)
+    assert plan.horizontal_unit == "US survey foot"
+    assert pyproj.CRS.from_wkt(plan.target_wkt).to_epsg() == 2903
+    assert info.z_unit == "US survey foot"
+    plan = resolve_crs([info], None, "EPSG:32613")
+    assert any("z stays in US survey foot" in n for n in plan.notes)
+
+
+def test_real_compound_crs_parses() -> None:
+    info = read_info(sample("startinpy_small_extrabytes.laz"))
+    crs = pyproj.CRS.from_wkt(info.crs_wkt or "")
+    assert crs.is_compound and crs.to_epsg() == 7415
+    plan = resolve_crs([info], None, None)
+    assert (plan.horizontal_unit, plan.vertical_unit) == ("metre", "metre")
+
+
+def test_real_broken_crs() -> None:
+    info = read_info(sample("warsaw_small_broken_crs.las"))
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], None, None)
+    assert str(info.path) in str(exc.value) and "WKT" in str(exc.value)
+    plan = resolve_crs([info], "EPSG:2180", None)
+    assert any("using --in-crs" in n for n in plan.notes)
+
+
+def test_real_single_point() -> None:
+    info = read_info(sample("single_point.laz"))
+    plan = resolve_crs([info], LAMBERT93, None)
+    assert plan.reprojector(info.path).is_identity
+
+
+def test_real_mixed_crs_lists_both() -> None:
+    autzen = read_info(sample("autzen_trim.las"))
+    ign = read_info(sample("ign_semis_lambert93.laz"))
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([autzen, ign], None, None)
+    message = str(exc.value)
+    assert str(autzen.path) in message and str(ign.path) in message
+    assert "NAD_1983_HARN_Lambert_Conformal_Conic" in message and "EPSG:2154" in message

@@ -1,0 +1,126 @@
+"""End-to-end runs on synthetic LAZ surveys (analytic terrain, so errors are known)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import meshcore
+from pipeline import store
+from pipeline.cli import main
+from pipeline.config import RunConfig
+from pipeline.run import run
+from pipeline.synthetic import SurveySpec, terrain_height, write_survey
+
+SPEC = SurveySpec(points=60_000, files=3, width=300.0, height=200.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("survey")
+    write_survey(folder, SPEC)
+    return folder
+
+
+def _run(survey, out, **kw):
+    values = dict(inputs=(str(survey),), output=str(out), resolution=2.0, workers=2)
+    values.update(kw)
+    return run(RunConfig(**values), progress=False)
+
+
+def _face_set(node_xy, faces):
+    out = set()
+    for row in faces.tolist():
+        ids = [v for v in row if v >= 0]
+        pts = [tuple(node_xy[v]) for v in ids]
+        k = pts.index(min(pts))
+        out.add(tuple(pts[k:] + pts[:k]))
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiled(survey, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiled") / "dem.zarr"
+    report = _run(survey, out, tile_size=64.0, layers=("slope", "face_kind", "point_count"))
+    return out, report
+
+
+@pytest.fixture(scope="module")
+def untiled(survey, tmp_path_factory):
+    out = tmp_path_factory.mktemp("untiled") / "dem.zarr"
+    report = _run(survey, out, tile_size=1024.0)
+    return out, report
+
+
+def test_report_accounts_for_every_point(tiled):
+    _, report = tiled
+    assert report.points_read == SPEC.points
+    assert report.tiles > 4
+    assert report.points_kept + report.filtered_class + report.filtered_withheld + report.outside_bbox == report.points_read
+    assert report.vertices + report.duplicates == report.points_kept
+    assert report.duplicates > 0
+    assert report.tiles_uncertified == 0
+    assert 0.2 < report.quad_share < 0.6
+
+
+def test_dem_opens_with_xarray_and_matches_the_terrain(tiled):
+    out, _ = tiled
+    ds = xr.open_zarr(out)
+    elev = ds["elevation"]
+    assert elev.dims == ("y", "x") and elev.dtype == np.float32
+    assert np.all(np.diff(ds["y"].values) < 0)
+    assert "crs_wkt" in ds["spatial_ref"].attrs
+    from pyproj import CRS
+
+    assert CRS.from_wkt(ds["spatial_ref"].attrs["crs_wkt"]).to_epsg() == 2154
+    gx, gy = np.meshgrid(ds["x"].values, ds["y"].values)
+    truth = terrain_height(gx, gy, SPEC.origin)
+    inside = (gx > SPEC.origin[0] + 2) & (gx < SPEC.origin[0] + SPEC.width - 2)
+    inside &= (gy > SPEC.origin[1] + 2) & (gy < SPEC.origin[1] + SPEC.height - 2)
+    ok = np.isfinite(elev.values)
+    assert ok[inside].mean() > 0.999
+    assert not ok[(gy > SPEC.origin[1] + SPEC.height + 2)].any()
+    err = np.abs(elev.values[ok] - truth[ok])
+    assert np.median(err) < 0.05
+    assert set(np.unique(ds["face_kind"].values)) <= {0, 1, 2}
+    assert int(ds["point_count"].values.sum()) > 0.9 * SPEC.points * SPEC.ground_share
+    assert np.nanmax(ds["slope"].values) < 60
+
+
+def test_stitched_mesh_is_one_conforming_mesh(tiled, untiled):
+    out, report = tiled
+    node_xy, node_z, faces = store.read_mesh(out)
+    mesh = meshcore.Mesh(np.asarray(node_xy), np.asarray(faces), np.arange(len(node_xy)))
+    meshcore.validate(mesh)  # conforming, CCW, convex quads, covers the hull, every vertex used
+    assert len(node_xy) == report.vertices
+    assert len(np.unique(node_xy[:, 0] + 1j * node_xy[:, 1])) == len(node_xy)
+    ref_xy, _, ref_faces = store.read_mesh(untiled[0])
+    assert len(ref_xy) == len(node_xy)
+    same = len(_face_set(node_xy, faces) & _face_set(ref_xy, ref_faces)) / len(ref_faces)
+    print(f"faces identical to the untiled run: {same:.4%}")
+    assert same >= 0.99
+    a = xr.open_zarr(out)["elevation"].values
+    b = xr.open_zarr(untiled[0])["elevation"].values
+    rows = min(a.shape[0], b.shape[0])
+    a, b = a[-rows:], b[-rows:]  # both grids start at the same south-west corner
+    both = np.isfinite(a) & np.isfinite(b)
+    assert (np.isfinite(a) == np.isfinite(b)).mean() > 0.999
+    print(f"DEM cells identical: {(a[both] == b[both]).mean():.4%}")
+    assert (a[both] == b[both]).mean() > 0.98
+
+
+def test_mesh_group_opens_with_xugrid(tiled):
+    xugrid = pytest.importorskip("xugrid")
+    out, report = tiled
+    uds = xugrid.UgridDataset(xr.open_zarr(out, group="mesh"))
+    assert uds.ugrid.grid.n_face == report.faces
+
+
+def test_cli_run(survey, tmp_path):
+    out = tmp_path / "cli.zarr"
+    code = main(["run", str(survey), "-o", str(out), "--resolution", "4", "--tile-size", "128", "--no-progress"])
+    assert code == 0
+    assert xr.open_zarr(out)["elevation"].shape[1] > 0
+    # a second run into the same store needs --overwrite
+    assert main(["run", str(survey), "-o", str(out), "--resolution", "4", "--no-progress"]) == 2

@@ -1,0 +1,315 @@
+"""Tests of pipeline.store: the DEM layers, the UGRID mesh group, and the store's errors."""
+
+from __future__ import annotations
+
+import json
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+import xugrid
+from numpy.testing import assert_allclose, assert_array_equal
+from pyproj import CRS
+
+from pipeline.errors import UsageError
+from pipeline.store import (
+    GridSpec,
+    MeshWriter,
+    StoreError,
+    create_store,
+    finalize_store,
+    open_dem,
+    read_dem_window,
+    read_mesh,
+    read_tile_mesh,
+    write_tile,
+)
+
+CRS_WKT = CRS.from_epsg(2154).to_wkt()
+LAYERS = ("elevation", "slope", "face_kind", "point_count")
+FORMATS = pytest.mark.parametrize("zarr_format", [3, 2])
+
+
+@pytest.fixture
+def grid() -> GridSpec:
+    """2 tile rows x 3 tile columns of 8 cells; the east column is 4 cells wide."""
+    return GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
+
+
+def south_up(grid: GridSpec) -> dict[str, np.ndarray]:
+    """Known layers over the whole grid, south-up, with a few no-data cells."""
+    row, col = np.mgrid[0 : grid.ny, 0 : grid.nx]
+    elevation = (100.0 * row + col).astype(np.float32)
+    elevation[0, 0] = np.nan  # south-west corner
+    elevation[grid.ny - 1, grid.nx - 1] = np.nan  # north-east corner
+    return {
+        "elevation": elevation,
+        "slope": (row + col / 100.0).astype(np.float32),
+        "face_kind": ((row + col) % 3).astype(np.int8),
+        "point_count": (row * col).astype(np.int32),
+    }
+
+
+def tile_of(layers: dict[str, np.ndarray], grid: GridSpec, row: int, col: int) -> dict[str, np.ndarray]:
+    t = grid.tile_cells
+    return {name: a[row * t : (row + 1) * t, col * t : (col + 1) * t] for name, a in layers.items()}
+
+
+def new_store(path: Path, grid: GridSpec, zarr_format: int, layers=LAYERS) -> Path:
+    attrs = {"software": "test", "inputs": ["a.laz"]}
+    create_store(path, grid, CRS_WKT, layers=layers, attrs=attrs, zarr_format=zarr_format)
+    return path
+
+
+# --------------------------------------------------------------------------
+# GridSpec
+# --------------------------------------------------------------------------
+
+
+def test_gridspec_coordinates_are_cell_centres_north_up(grid):
+    assert_allclose(grid.x, 700_001.0 + 2.0 * np.arange(20))
+    assert_allclose(grid.y, 6_600_031.0 - 2.0 * np.arange(16))
+    assert grid.geotransform == (700_000.0, 2.0, 0.0, 6_600_032.0, 0.0, -2.0)
+    assert (grid.n_tile_rows, grid.n_tile_cols) == (2, 3)
+    assert GridSpec.from_dict(json.loads(json.dumps(grid.to_dict()))) == grid
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"resolution": 0.0}, "resolution must be > 0"),
+        ({"nx": 0}, "nx must be an integer >= 1"),
+        ({"tile_cells": 2.5}, "tile_cells must be an integer"),
+        ({"ny": 20}, "use ny=24"),
+    ],
+)
+def test_gridspec_rejects_invalid_values(grid, change, message):
+    with pytest.raises(UsageError, match=message):
+        GridSpec(**(grid.to_dict() | change))
+
+
+# --------------------------------------------------------------------------
+# The DEM
+# --------------------------------------------------------------------------
+
+
+@FORMATS
+def test_tiles_written_concurrently_read_back_north_up(tmp_path, grid, zarr_format):
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
+    layers = south_up(grid)
+    tiles = [(r, c) for r in range(grid.n_tile_rows) for c in range(grid.n_tile_cols) if (r, c) != (1, 0)]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        list(pool.map(lambda rc: write_tile(path, grid, *rc, tile_of(layers, grid, *rc)), tiles))
+    for name, values in south_up(grid).items():
+        assert_array_equal(layers[name], values)  # the input is not flipped in place
+
+    ds = open_dem(path)
+    expected = {name: a[::-1].copy() for name, a in layers.items()}
+    unwritten = (slice(0, 8), slice(0, 8))  # tile (1, 0) is the north-west chunk
+    expected["elevation"][unwritten] = np.nan
+    expected["slope"][unwritten] = np.nan
+    expected["face_kind"][unwritten] = 0
+    expected["point_count"][unwritten] = 0
+    for name, values in expected.items():
+        assert ds[name].dims == ("y", "x")
+        assert ds[name].dtype == values.dtype, name  # integers stay integers: no masking
+        assert ds[name].encoding["chunks"] == (8, 8)
+        assert ds[name].chunks == ((8, 8), (8, 8, 4))
+        assert_array_equal(ds[name].values, values, err_msg=name)
+    assert np.isnan(ds["elevation"].values[-1, 0]) and np.isnan(ds["elevation"].values[0, -1])
+    assert_allclose(ds["x"].values, grid.x)
+    assert_allclose(ds["y"].values, grid.y)
+    assert (np.diff(ds["y"].values) < 0).all()
+    assert float(ds["elevation"].sel(x=700_005.0, y=6_600_001.0)) == 2.0  # south row, third column
+
+
+@FORMATS
+def test_georeferencing_attributes_for_cf_gdal_and_rioxarray(tmp_path, grid, zarr_format):
+    ds = open_dem(new_store(tmp_path / "dem.zarr", grid, zarr_format))
+    assert "spatial_ref" in ds.coords  # rioxarray reads the grid mapping from the coordinates
+    gm = ds["spatial_ref"].attrs
+    assert CRS.from_wkt(gm["crs_wkt"]) == CRS.from_epsg(2154)
+    assert gm["spatial_ref"] == gm["crs_wkt"]
+    assert gm["grid_mapping_name"] == "lambert_conformal_conic"
+    assert CRS.from_cf(gm) == CRS.from_epsg(2154)
+    assert tuple(float(v) for v in gm["GeoTransform"].split()) == grid.geotransform
+    for name in LAYERS:
+        var = ds[name]
+        assert (var.attrs.get("grid_mapping") or var.encoding.get("grid_mapping")) == "spatial_ref"
+        assert CRS.from_wkt(var.attrs["_CRS"]["wkt"]) == CRS.from_epsg(2154)  # GDAL < 3.9
+    assert ds["x"].attrs["standard_name"] == "projection_x_coordinate"
+    assert ds["y"].attrs["standard_name"] == "projection_y_coordinate"
+    assert ds["x"].attrs["units"] == ds["y"].attrs["units"] == "metre"
+    assert ds.attrs["Conventions"] == "CF-1.8 UGRID-1.0"
+    assert ds.attrs["software"] == "test" and ds.attrs["inputs"] == ["a.laz"]
+    assert GridSpec.from_dict(ds.attrs["grid"]) == grid
+    if zarr_format == 3:
+        assert "consolidated_metadata" in json.loads((tmp_path / "dem.zarr" / "zarr.json").read_text())
+    else:
+        assert (tmp_path / "dem.zarr" / ".zmetadata").exists()
+
+
+def test_store_without_crs_keeps_the_geotransform(tmp_path, grid):
+    create_store(tmp_path / "dem.zarr", grid, None, attrs={})
+    ds = open_dem(tmp_path / "dem.zarr")
+    assert "crs_wkt" not in ds["spatial_ref"].attrs
+    assert tuple(float(v) for v in ds["spatial_ref"].attrs["GeoTransform"].split()) == grid.geotransform
+    assert "units" not in ds["x"].attrs
+
+
+def test_read_dem_window_selects_cell_centres_in_the_box(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
+    layers = south_up(grid)
+    write_tile(path, grid, 0, 1, tile_of({"elevation": layers["elevation"]}, grid, 0, 1))
+    window = read_dem_window(path, 700_016.0, 6_600_000.0, 700_020.5, 6_600_004.0)
+    assert_allclose(window["x"].values, [700_017.0, 700_019.0])
+    assert_allclose(window["y"].values, [6_600_003.0, 6_600_001.0])
+    assert_array_equal(window["elevation"].values, [[108.0, 109.0], [8.0, 9.0]])
+
+
+def test_write_tile_checks_shape_layer_and_dtype(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation", "face_kind"))
+    with pytest.raises(UsageError, match=r"expected \(8, 4\)"):
+        write_tile(path, grid, 0, 2, {"elevation": np.zeros((8, 8))})
+    with pytest.raises(UsageError, match="valid layers: elevation, slope, face_kind, point_count"):
+        write_tile(path, grid, 0, 0, {"height": np.zeros((8, 8))})
+    with pytest.raises(UsageError, match="cannot store float64 values as int8"):
+        write_tile(path, grid, 0, 0, {"face_kind": np.zeros((8, 8))})
+    with pytest.raises(UsageError, match="outside the grid"):
+        write_tile(path, grid, 2, 0, {"elevation": np.zeros((8, 8))})
+    with pytest.raises(StoreError, match="no array 'slope'"):
+        write_tile(path, grid, 0, 0, {"slope": np.zeros((8, 8))})
+
+
+# --------------------------------------------------------------------------
+# Errors on creation
+# --------------------------------------------------------------------------
+
+
+def test_existing_path_that_is_not_a_store_is_refused(tmp_path, grid):
+    path = tmp_path / "report.txt"
+    path.write_text("keep me")
+    with pytest.raises(StoreError, match="report.txt: exists and is not a Zarr store") as info:
+        create_store(path, grid, CRS_WKT, attrs={}, overwrite=True)
+    assert isinstance(info.value, OSError)
+    assert path.read_text() == "keep me"
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    (folder / "data.bin").write_bytes(b"\0")
+    with pytest.raises(StoreError, match="exists and is not a Zarr store"):
+        create_store(folder, grid, CRS_WKT, attrs={}, overwrite=True)
+    assert (folder / "data.bin").exists()
+
+
+@FORMATS
+def test_existing_store_needs_overwrite(tmp_path, grid, zarr_format):
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
+    with pytest.raises(StoreError, match="--overwrite"):
+        create_store(path, grid, CRS_WKT, attrs={}, zarr_format=zarr_format)
+    create_store(path, grid, CRS_WKT, attrs={"second": True}, zarr_format=5 - zarr_format, overwrite=True)
+    ds = open_dem(path)
+    assert ds.attrs["second"] is True and "software" not in ds.attrs
+    assert list(ds.data_vars) == ["elevation"]
+
+
+def test_create_store_checks_its_arguments(tmp_path, grid):
+    with pytest.raises(UsageError, match="JSON-serialisable"):
+        create_store(tmp_path / "a.zarr", grid, CRS_WKT, attrs={"when": object()})
+    with pytest.raises(UsageError, match="unknown layer 'height'"):
+        create_store(tmp_path / "a.zarr", grid, CRS_WKT, layers=("height",), attrs={})
+    assert not (tmp_path / "a.zarr").exists()
+
+
+# --------------------------------------------------------------------------
+# The mesh
+# --------------------------------------------------------------------------
+
+# Two tiles: tile 0 owns nodes 0-4 (a quad and a triangle), tile 1 owns nodes
+# 5-6 and its faces use nodes 2 and 4 of tile 0.
+NODE_X = np.array([0.0, 1.0, 2.0, 0.0, 1.5, 3.0, 3.0]) + 700_000.0
+NODE_Y = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 1.0]) + 6_600_000.0
+NODE_Z = np.array([10.0, 11.0, 12.0, 13.0, 14.0, 15.0, 16.0])
+FACES = np.array([[0, 1, 4, 3], [1, 2, 4, -1], [2, 5, 6, 4], [4, 6, 3, -1]])
+NODE_OFFSETS = [0, 5, 7]
+FACE_OFFSETS = [0, 2, 4]
+
+
+def write_two_piece_mesh(path: Path) -> None:
+    with MeshWriter(path, n_nodes=7, n_faces=4) as mesh:
+        for t in (1, 0):  # any order
+            n0, n1 = NODE_OFFSETS[t : t + 2]
+            f0, f1 = FACE_OFFSETS[t : t + 2]
+            mesh.write_nodes(n0, NODE_X[n0:n1], NODE_Y[n0:n1], NODE_Z[n0:n1])
+            mesh.write_faces(f0, FACES[f0:f1])
+        mesh.set_tiles([0, 0], [0, 1], NODE_OFFSETS, FACE_OFFSETS)
+
+
+@FORMATS
+def test_mesh_opens_with_xugrid(tmp_path, grid, zarr_format):
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format, layers=("elevation",))
+    write_two_piece_mesh(path)
+    uds = xugrid.UgridDataset(xr.open_zarr(path, group="mesh"))
+    mesh = uds.ugrid.grid
+    assert (mesh.n_node, mesh.n_face) == (7, 4)
+    assert_array_equal(mesh.face_node_connectivity, FACES)
+    assert mesh.fill_value == -1
+    assert_allclose(mesh.node_x, NODE_X)
+    assert_allclose(mesh.node_y, NODE_Y)
+    assert mesh.crs == CRS.from_epsg(2154)
+    z = uds["node_z"]
+    assert z.dims == (mesh.node_dimension,)
+    assert_allclose(z.values, NODE_Z)
+    assert z.ugrid.grid is mesh
+    assert float(z.mean()) == pytest.approx(NODE_Z.mean())
+    assert_array_equal(uds["tile_node_offset"].values, NODE_OFFSETS)
+
+
+@FORMATS
+def test_read_mesh_and_tile_mesh(tmp_path, grid, zarr_format):
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format, layers=("elevation",))
+    write_two_piece_mesh(path)
+    xy, z, faces = read_mesh(path)
+    assert_allclose(xy, np.column_stack([NODE_X, NODE_Y]))
+    assert_allclose(z, NODE_Z)
+    assert_array_equal(faces, FACES)
+
+    for tile in (1, (0, 1)):
+        xy, z, faces = read_tile_mesh(path, tile)
+        ids = np.array([2, 3, 4, 5, 6])  # owned 5, 6 plus 2, 3, 4 of tile 0
+        assert_allclose(xy, np.column_stack([NODE_X[ids], NODE_Y[ids]]))
+        assert_allclose(z, NODE_Z[ids])
+        assert_array_equal(np.where(faces >= 0, ids[faces], -1), FACES[2:])
+    xy, z, faces = read_tile_mesh(path, 0)
+    assert_array_equal(faces, FACES[:2])
+    assert_allclose(z, NODE_Z[:5])
+
+
+def test_mesh_writer_refuses_an_incomplete_mesh(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
+    mesh = MeshWriter(path, n_nodes=7, n_faces=4)
+    mesh.write_nodes(0, NODE_X[:5], NODE_Y[:5], NODE_Z[:5])
+    mesh.write_faces(0, FACES)
+    with pytest.raises(UsageError, match="outside"):
+        mesh.write_nodes(5, NODE_X, NODE_Y, NODE_Z)
+    with pytest.raises(UsageError, match="-1 only in the 4th column"):
+        mesh.write_faces(0, [[0, -1, 2, 3]])
+    with pytest.raises(UsageError, match="non-decreasing offsets from 0 to 7"):
+        mesh.set_tiles([0, 0], [0, 1], [0, 5, 6], FACE_OFFSETS)
+    mesh.set_tiles([0, 0], [0, 1], NODE_OFFSETS, FACE_OFFSETS)
+    with pytest.raises(StoreError, match=r"mesh nodes \[5, 7\) were never written"):
+        mesh.close()
+
+
+def test_finalize_updates_attrs_appends_history_and_consolidates(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
+    write_two_piece_mesh(path)
+    finalize_store(path, {"report": {"tiles": 6}}, history={"run": 1})
+    finalize_store(path, {"software": "test 2"}, history={"run": 2})
+    attrs = open_dem(path).attrs
+    assert attrs["report"] == {"tiles": 6} and attrs["software"] == "test 2"
+    assert attrs["run_history"] == [{"run": 1}, {"run": 2}]
+    metadata = json.loads((path / "zarr.json").read_text())["consolidated_metadata"]["metadata"]
+    assert {"elevation", "mesh", "mesh/face_nodes"} <= set(metadata)
+    assert json.loads((path / "zarr.json").read_text())["attributes"]["run_history"][-1] == {"run": 2}
