@@ -124,3 +124,19 @@ def test_cli_run(survey, tmp_path):
     assert xr.open_zarr(out)["elevation"].shape[1] > 0
     # a second run into the same store needs --overwrite
     assert main(["run", str(survey), "-o", str(out), "--resolution", "4", "--no-progress"]) == 2
+
+
+def test_python_api_over_tiles(tiled):
+    import pipeline
+
+    out, report = tiled
+    ts = pipeline.open(out)
+    tiles = ts.tiles()
+    assert len(tiles) == report.tiles
+    counts = ts.map_tiles(lambda tile, mesh, z: int(mesh.faces.shape[0]))
+    assert sum(counts) == report.faces
+    busy = tiles[int(np.argmax(counts))]
+    mesh, z = ts.tile_mesh(busy)
+    assert mesh.faces.max() < len(mesh.vertices) and z.shape == (len(mesh.vertices),)
+    window = ts.tile_dem(busy)
+    assert window["elevation"].shape == (ts.grid.tile_cells, min(ts.grid.tile_cells, ts.grid.nx - busy.col * ts.grid.tile_cells))

@@ -1,0 +1,95 @@
+"""The Python API over a finished store: its tiles, their meshes and DEM windows.
+
+``pipeline.open("dem.zarr")`` gives a :class:`TiledStore`; ``tiles()`` lists
+the tiles, ``tile_mesh(tile)`` returns a tile's faces as a
+:class:`meshcore.Mesh` with its node elevations, ``tile_dem(tile)`` and
+``dem_window(x0, y0, x1, y1)`` return DEM windows as xarray datasets, and
+``map_tiles(fn)`` runs ``fn(tile, mesh, z)`` over every tile with dask.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+import meshcore
+
+from . import store
+from .errors import UsageError
+from .tiling import TileGrid
+
+__all__ = ["TiledStore", "Tile", "open_store"]
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile of a store: its grid position and the box of its DEM cells."""
+
+    row: int
+    col: int
+    box: tuple[float, float, float, float]
+
+
+class TiledStore:
+    """A finished store, opened read-only."""
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = os.fspath(path)
+        ds = store.open_dem(self.path)
+        attrs = dict(ds.attrs)
+        ds.close()
+        if not attrs.get("complete", False):
+            raise UsageError(f"{self.path}: the store is not complete (its run did not finish)")
+        self.attrs = attrs
+        self.grid = TileGrid.from_dict(attrs["provenance"]["grid"])
+
+    def tiles(self) -> list[Tile]:
+        return [Tile(r, c, self.grid.box(r, c)) for r, c in self.grid.tiles()]
+
+    def dem(self) -> xr.Dataset:
+        """The whole DEM, lazily (dask arrays chunked by tile)."""
+        return store.open_dem(self.path)
+
+    def dem_window(self, x0: float, y0: float, x1: float, y1: float) -> xr.Dataset:
+        return store.read_dem_window(self.path, x0, y0, x1, y1)
+
+    def tile_dem(self, tile: Tile) -> xr.Dataset:
+        r = self.grid.resolution / 2
+        x0, y0, x1, y1 = tile.box
+        return self.dem_window(x0 + r, y0 + r, x1 - r, y1 - r)
+
+    def tile_mesh(self, tile: Tile) -> tuple[meshcore.Mesh, np.ndarray]:
+        """The tile's faces as a :class:`meshcore.Mesh` (nodes numbered locally) and node z."""
+        xy, z, faces = store.read_tile_mesh(self.path, (tile.row, tile.col))
+        return meshcore.Mesh(np.asarray(xy), np.asarray(faces), np.arange(len(xy))), np.asarray(z)
+
+    def mesh(self) -> tuple[meshcore.Mesh, np.ndarray]:
+        """The whole stitched mesh (loads it all)."""
+        xy, z, faces = store.read_mesh(self.path)
+        return meshcore.Mesh(np.asarray(xy), np.asarray(faces), np.arange(len(xy))), np.asarray(z)
+
+    def map_tiles(self, fn: Callable[[Tile, meshcore.Mesh, np.ndarray], Any], scheduler: str | None = None) -> list:
+        """``fn(tile, mesh, z)`` for every tile, run with dask; results in tile order."""
+        import dask
+
+        def one(tile: Tile) -> Any:
+            mesh, z = self.tile_mesh(tile)
+            return fn(tile, mesh, z)
+
+        tasks = [dask.delayed(one)(t) for t in self.tiles()]
+        if scheduler:
+            from distributed import Client
+
+            with Client(scheduler):
+                return list(dask.compute(*tasks))
+        return list(dask.compute(*tasks, scheduler="threads"))
+
+
+def open_store(path: str | os.PathLike[str]) -> TiledStore:
+    """Open a store written by :func:`pipeline.run`."""
+    return TiledStore(path)

@@ -1,0 +1,82 @@
+"""The distributed path: a real `dask scheduler` and two `dask worker` processes on loopback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from pipeline import store
+from pipeline.config import RunConfig
+from pipeline.run import run
+from pipeline.synthetic import SurveySpec, write_survey
+
+
+DASK = Path(sys.executable).with_name("dask")
+
+
+def _dask_command() -> list[str]:
+    return [str(DASK)]
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    assert DASK.exists(), "the dask command line comes with dask[distributed]"
+    scheduler_file = tmp_path / "scheduler.json"
+    env = dict(os.environ, DASK_DISTRIBUTED__WORKER__DAEMON="False")
+    procs = [
+        subprocess.Popen(
+            [*_dask_command(), "scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--dashboard-address", ":0", "--scheduler-file", str(scheduler_file)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+        )
+    ]
+    deadline = time.time() + 60
+    while not scheduler_file.exists() and time.time() < deadline:
+        time.sleep(0.2)
+    for _ in range(2):
+        procs.append(
+            subprocess.Popen(
+                [*_dask_command(), "worker", "--scheduler-file", str(scheduler_file), "--nthreads", "1",
+                 "--host", "127.0.0.1", "--no-dashboard"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+            )
+        )
+    import json
+
+    from distributed import Client
+
+    address = json.loads(scheduler_file.read_text())["address"]
+    with Client(address, timeout="30s") as client:
+        client.wait_for_workers(2, timeout=60)
+    try:
+        yield address
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def test_distributed_run_equals_local_run(cluster, tmp_path):
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=30_000, files=2, width=200.0, height=150.0, seed=7))
+    common = dict(inputs=(str(folder),), resolution=2.0, tile_size=64.0, scratch_dir=str(tmp_path))
+    local = run(RunConfig(output=str(tmp_path / "local.zarr"), workers=2, **common), progress=False)
+    remote = run(RunConfig(output=str(tmp_path / "remote.zarr"), scheduler=cluster, **common), progress=False)
+    assert remote.tiles == local.tiles > 4
+    assert remote.faces == local.faces and remote.vertices == local.vertices
+    a = xr.open_zarr(tmp_path / "local.zarr")["elevation"].values
+    b = xr.open_zarr(tmp_path / "remote.zarr")["elevation"].values
+    np.testing.assert_array_equal(a, b)
+    for x, y in zip(store.read_mesh(tmp_path / "local.zarr"), store.read_mesh(tmp_path / "remote.zarr")):
+        np.testing.assert_array_equal(x, y)
