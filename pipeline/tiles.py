@@ -148,24 +148,34 @@ def mesh_tile(job: TileJob) -> TileSummary:
         # part of its window is left outside its triangulation
         points = np.concatenate([own, job.hull[~points_in_box(job.hull, held[0])]])
     expansions = 0
+    xy, z, group = dedupe(points, job.duplicates)
+    mesh = meshcore.build_mesh(xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0])
     while True:
-        xy, z, group = dedupe(points, job.duplicates)
-        mesh = meshcore.build_mesh(
-            xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
-        )
         missing = []
+        circles = []
         for cx, cy, r in mesh.window_escapes:
             box = _disk_box_in(cx, cy, r, job.extent)
             if box is None or any(_inside(box, h) for h in held):
                 continue
             missing.append(box)
+            circles.append((cx, cy, r))
         if not missing or expansions >= MAX_EXPANSIONS:
             break
         expansions += 1
         merged = _merge_boxes(missing)
-        extra = [_load_box(job, b, held) for b in merged]
+        extra = np.concatenate([_load_box(job, b, held) for b in merged])
         held.extend(merged)
-        points = np.concatenate([points, *extra])
+        if extra.shape[0] == 0:
+            continue
+        points = np.concatenate([points, extra])
+        c = np.array(circles)
+        d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
+        if np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
+            # a missing point lies in a circle: the piece changes, build again
+            xy, z, group = dedupe(points, job.duplicates)
+            mesh = meshcore.build_mesh(
+                xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
+            )
     certified = not missing
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])

@@ -1,0 +1,104 @@
+"""Runs on the real LAS/LAZ samples beside the project (skipped when they are absent)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import meshcore
+from pipeline import store
+from pipeline.cli import main
+from pipeline.config import RunConfig
+from pipeline.errors import CrsError
+from pipeline.run import run
+
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+
+
+def sample(name: str) -> Path:
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f"{path} is not available")
+    return path
+
+
+def _check_store(out: Path, report) -> None:
+    xy, z, faces = store.read_mesh(out)
+    meshcore.validate(meshcore.Mesh(np.asarray(xy), np.asarray(faces), np.arange(len(xy))))
+    assert len(xy) == report.vertices
+    assert report.tiles_uncertified == 0
+    elev = xr.open_zarr(out)["elevation"]
+    assert np.isfinite(elev.values).any()
+
+
+def test_lambert93_laz_14(tmp_path):
+    path = sample("ign_semis_lambert93.laz")
+    out = tmp_path / "ign.zarr"
+    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=2.0, tile_size=256.0, workers=2), progress=False)
+    assert report.points_read == 289_055
+    assert report.points_kept == 152_678
+    assert report.tiles >= 4
+    _check_store(out, report)
+
+
+def test_us_feet_and_info(tmp_path, capsys):
+    path = sample("4_6_crop_us_feet.las")
+    assert main(["info", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "23,875" in text or "23875" in text
+    out = tmp_path / "feet.zarr"
+    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=5.0, workers=2), progress=False)
+    assert report.points_kept == 9_003
+    _check_store(out, report)
+    from pyproj import CRS
+
+    crs = CRS.from_wkt(xr.open_zarr(out)["spatial_ref"].attrs["crs_wkt"])
+    assert "foot" in crs.axis_info[0].unit_name.lower()
+
+
+def test_geographic_input_needs_a_projected_crs(tmp_path, capsys):
+    path = sample("geographic_epsg4326.las")
+    code = main(["run", str(path), "-o", str(tmp_path / "g.zarr"), "--resolution", "1", "--classes", "all", "--no-progress"])
+    assert code == 2
+    assert "projected" in capsys.readouterr().err
+    with pytest.raises(CrsError):
+        run(RunConfig(inputs=(str(path),), output=str(tmp_path / "g2.zarr"), resolution=1.0, classes=None), progress=False)
+
+
+def test_broken_crs_needs_in_crs(tmp_path, capsys):
+    path = sample("warsaw_small_broken_crs.las")
+    code = main(["run", str(path), "-o", str(tmp_path / "w.zarr"), "--resolution", "1", "--no-progress"])
+    assert code == 2
+    assert "warsaw_small_broken_crs.las" in capsys.readouterr().err
+    out = tmp_path / "w2.zarr"
+    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, in_crs="EPSG:2180"), progress=False)
+    assert report.points_kept == 1_381
+    _check_store(out, report)
+
+
+def test_duplicates_are_counted(tmp_path):
+    path = sample("plane_many_duplicates.laz")
+    out = tmp_path / "plane.zarr"
+    report = run(
+        RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, classes=None, in_crs="EPSG:3945"),
+        progress=False,
+    )
+    assert report.points_read == 28_185
+    assert report.duplicates == 12_495
+    assert report.vertices == 28_185 - 12_495
+    _check_store(out, report)
+
+
+def test_single_point(tmp_path):
+    path = sample("single_point.laz")
+    out = tmp_path / "one.zarr"
+    report = run(
+        RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, classes=None, in_crs="EPSG:2154"),
+        progress=False,
+    )
+    assert report.points_kept == 1 and report.vertices == 1 and report.faces == 0
+    xy, z, faces = store.read_mesh(out)
+    assert len(xy) == 1 and len(faces) == 0
