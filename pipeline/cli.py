@@ -83,6 +83,15 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    demo = sub.add_parser(
+        "demo",
+        help="write a synthetic survey (LAZ, EPSG:2154) and run the whole job on it",
+        description="Writes a synthetic LiDAR survey with analytic terrain into DIR/survey and runs "
+        "'terrain run' on it into DIR/dem.zarr, printing the run report.",
+    )
+    demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
+    demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
+
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
     info.add_argument("--json", action="store_true", help="print JSON")
@@ -149,6 +158,24 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
     return values
 
 
+def _demo(out: Path, points: int) -> int:
+    from .config import RunConfig
+    from .run import run
+    from .synthetic import SurveySpec, write_survey
+
+    survey = out / "survey"
+    paths = write_survey(survey, SurveySpec(points=points, files=4, width=800.0, height=600.0))
+    print(f"wrote {len(paths)} LAZ files ({points:,} points, EPSG:2154) to {survey}")
+    config = RunConfig(
+        inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
+        layers=("slope", "face_kind", "point_count"), max_edge=15.0, overwrite=True,
+    )
+    report = run(config, log=_log)
+    print(report.table())
+    print(f"store: {config.output}  (xarray.open_zarr; the mesh is the group 'mesh')")
+    return EXIT_OK
+
+
 def _log(message: str) -> None:
     print(message, file=sys.stderr)
 
@@ -173,6 +200,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for note in report.notes:
                 print(f"note: {note}")
             return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
+        if args.command == "demo":
+            return _demo(args.out, args.points)
         if args.command == "info":
             from .inspect import info_json, info_report
             from .sources import discover_inputs

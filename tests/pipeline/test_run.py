@@ -140,3 +140,14 @@ def test_python_api_over_tiles(tiled):
     assert mesh.faces.max() < len(mesh.vertices) and z.shape == (len(mesh.vertices),)
     window = ts.tile_dem(busy)
     assert window["elevation"].shape == (ts.grid.tile_cells, min(ts.grid.tile_cells, ts.grid.nx - busy.col * ts.grid.tile_cells))
+
+
+def test_cli_demo_and_zarr_format_2(tmp_path):
+    assert main(["demo", "--out", str(tmp_path), "--points", "20000"]) == 0
+    ds = xr.open_zarr(tmp_path / "dem.zarr")
+    assert {"elevation", "slope", "face_kind", "point_count"} <= set(ds.data_vars)
+    out = tmp_path / "v2.zarr"
+    code = main(["run", str(tmp_path / "survey"), "-o", str(out), "--resolution", "4", "--zarr-format", "2", "--no-progress"])
+    assert code == 0
+    assert (out / ".zgroup").exists()
+    assert np.isfinite(xr.open_zarr(out)["elevation"].values).any()
