@@ -401,13 +401,13 @@ def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: lis
         if key not in owned_keys:
             if len(owned_keys) > 16:
                 owned_keys.pop(next(iter(owned_keys)))
-            piece = load_piece(scratch, *key)
-            owned_keys[key] = piece["owned_xy"][:, 0] + 1j * piece["owned_xy"][:, 1]
+            owned = load_piece(scratch, *key, ("owned_xy",))["owned_xy"]
+            owned_keys[key] = owned[:, 0] + 1j * owned[:, 1]
         return owned_keys[key]
 
     tile_number = {key: k for k, key in enumerate(order)}
     for k, key in enumerate(order):
-        piece = load_piece(scratch, *key)
+        piece = load_piece(scratch, *key, ("owned_xy", "owned_z", "vertex_xyz", "faces"))
         owned = piece["owned_xy"]
         writer.write_nodes(int(node_offsets[k]), owned[:, 0], owned[:, 1], piece["owned_z"])
         v = piece["vertex_xyz"]

@@ -111,24 +111,30 @@ def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float,
     return inner[0] >= outer[0] and inner[1] >= outer[1] and inner[2] <= outer[2] and inner[3] <= outer[3]
 
 
-def _load_box(job: TileJob, box, exclude: list) -> NDArray[np.float64]:
-    """Points inside ``box`` from the tiles that own them, minus the boxes already held."""
+def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]:
+    """Points inside any of ``boxes``, read once from each tile that owns some,
+    minus the points inside the boxes already held."""
     g = job.grid
-    r_lo = int(g.owner(np.array([box[0]]), np.array([box[1]]))[0][0])
-    r_hi = int(g.owner(np.array([box[2]]), np.array([box[3]]))[0][0])
-    c_lo = int(g.owner(np.array([box[0]]), np.array([box[1]]))[1][0])
-    c_hi = int(g.owner(np.array([box[2]]), np.array([box[3]]))[1][0])
+    tiles = set()
+    for box in boxes:
+        r_lo, c_lo = (int(v[0]) for v in g.owner(np.array([box[0]]), np.array([box[1]])))
+        r_hi, c_hi = (int(v[0]) for v in g.owner(np.array([box[2]]), np.array([box[3]])))
+        tiles.update((r, c) for r in range(r_lo, r_hi + 1) for c in range(c_lo, c_hi + 1))
     out = []
-    for r in range(r_lo, r_hi + 1):
-        for c in range(c_lo, c_hi + 1):
-            pts = load_tile_points(Path(job.scratch), r, c)
-            if pts.shape[0] == 0:
-                continue
-            orow, ocol = g.owner(pts[:, 0], pts[:, 1])
-            keep = (orow == r) & (ocol == c) & points_in_box(pts, box)
-            for held in exclude:
-                keep &= ~points_in_box(pts, held)
-            out.append(pts[keep])
+    for r, c in sorted(tiles):
+        pts = load_tile_points(Path(job.scratch), r, c)
+        if pts.shape[0] == 0:
+            continue
+        keep = np.zeros(pts.shape[0], dtype=bool)
+        for box in boxes:
+            keep |= points_in_box(pts, box)
+        for held in exclude:
+            keep &= ~points_in_box(pts, held)
+        if not keep.any():
+            continue
+        pts = pts[keep]
+        orow, ocol = g.owner(pts[:, 0], pts[:, 1])
+        out.append(pts[(orow == r) & (ocol == c)])
     return np.concatenate(out) if out else np.empty((0, 3))
 
 
@@ -162,9 +168,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         if not missing or expansions >= MAX_EXPANSIONS:
             break
         expansions += 1
-        merged = _merge_boxes(missing)
-        extra = np.concatenate([_load_box(job, b, held) for b in merged])
-        held.extend(merged)
+        extra = _load_boxes(job, missing, held)
+        held.extend(missing)
         if extra.shape[0] == 0:
             continue
         points = np.concatenate([points, extra])
@@ -193,14 +198,17 @@ def mesh_tile(job: TileJob) -> TileSummary:
     counts = None
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
+    vertex_xyz = np.column_stack([xy[used], z[used]])
     np.savez(
         folder / "piece.npz",
         owned_xy=xy[owned],
         owned_z=z[owned],
-        vertex_xyz=np.column_stack([xy[used], z[used]]),
+        vertex_xyz=vertex_xyz,
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
     )
+    border_v, border_f = _border(vertex_xyz, faces, bx)
+    np.savez(folder / "border.npz", vertex_xyz=border_v, faces=border_f)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -215,11 +223,6 @@ def mesh_tile(job: TileJob) -> TileSummary:
     )
 
 
-def _merge_boxes(boxes: list) -> list:
-    """One box around all (fewer, larger reads beat many small ones here)."""
-    return [(min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))]
-
-
 def _point_counts(job: TileJob, own: NDArray[np.float64]) -> NDArray[np.int32]:
     g = job.grid
     r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
@@ -231,9 +234,25 @@ def _point_counts(job: TileJob, own: NDArray[np.float64]) -> NDArray[np.int32]:
     return counts
 
 
-def load_piece(scratch: Path, row: int, col: int) -> dict[str, NDArray]:
-    with np.load(tile_dir(scratch, row, col) / "piece.npz") as data:
-        return {k: data[k] for k in data.files}
+def _border(vertex_xyz, faces, box):
+    """The faces that reach outside the tile's box (its neighbours' DEM needs them)."""
+    if faces.shape[0] == 0:
+        return vertex_xyz[:0], faces
+    fx = np.where(faces >= 0, vertex_xyz[np.maximum(faces, 0), 0], np.nan)
+    fy = np.where(faces >= 0, vertex_xyz[np.maximum(faces, 0), 1], np.nan)
+    out = (np.nanmin(fx, 1) < box[0]) | (np.nanmax(fx, 1) > box[2])
+    out |= (np.nanmin(fy, 1) < box[1]) | (np.nanmax(fy, 1) > box[3])
+    f = faces[out]
+    used = np.unique(f[f >= 0])
+    remap = np.full(vertex_xyz.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    return vertex_xyz[used], np.where(f >= 0, remap[np.maximum(f, 0)], -1)
+
+
+def load_piece(scratch: Path, row: int, col: int, keys=None, name: str = "piece") -> dict[str, NDArray]:
+    """Arrays saved by :func:`mesh_tile` (only ``keys`` when given)."""
+    with np.load(tile_dir(scratch, row, col) / f"{name}.npz") as data:
+        return {k: data[k] for k in (keys or data.files)}
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8]]:
@@ -244,12 +263,13 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     offset = 0
     for r in range(max(0, job.row - 1), min(g.n_rows, job.row + 2)):
         for c in range(max(0, job.col - 1), min(g.n_cols, job.col + 2)):
-            piece = load_piece(Path(job.scratch), r, c)
+            own = (r, c) == (job.row, job.col)
+            piece = load_piece(Path(job.scratch), r, c, ("vertex_xyz", "faces"), "piece" if own else "border")
             v = piece["vertex_xyz"]
             f = piece["faces"]
             if f.shape[0] == 0:
                 continue
-            if (r, c) != (job.row, job.col):
+            if not own:
                 fx = np.where(f >= 0, v[np.maximum(f, 0), 0], np.nan)
                 fy = np.where(f >= 0, v[np.maximum(f, 0), 1], np.nan)
                 hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
@@ -301,7 +321,7 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     if "face_kind" in job.layers:
         layers["face_kind"] = _face_kind(mesh, kinds, x0, y0, g.resolution, shape, job.max_edge)
     if "point_count" in job.layers:
-        counts = load_piece(Path(job.scratch), job.row, job.col)["point_count"]
+        counts = load_piece(Path(job.scratch), job.row, job.col, ("point_count",))["point_count"]
         layers["point_count"] = counts if counts.size else np.zeros(shape, dtype=np.int32)
     return layers
 
