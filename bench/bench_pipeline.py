@@ -2,9 +2,11 @@
 
     python bench/bench_pipeline.py throughput [--points 20000000] [--files 10]
     python bench/bench_pipeline.py memory [--small 5000000] [--large 50000000]
+    python bench/bench_pipeline.py seams [--points 2000000] [--tile-size 256]
 
 throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage.
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
+seams: the same archive tiled and untiled: share of identical faces and DEM cells.
 Archives are generated once into --cache (default /tmp/terrain-bench).
 """
 
@@ -58,9 +60,43 @@ def run_once(folder: Path, out: Path) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def seams(folder: Path, cache: Path, tile_size: float) -> None:
+    import numpy as np
+    import xarray as xr
+
+    from pipeline import RunConfig, run, store
+
+    stores = {}
+    for name, size in (("tiled", tile_size), ("untiled", 65536.0)):
+        out = cache / f"seams_{name}.zarr"
+        rep = run(RunConfig(inputs=(str(folder),), output=str(out), resolution=1.0, tile_size=size, overwrite=True), progress=False)
+        stores[name] = (out, rep)
+
+    def face_keys(path):
+        xy, _, faces = store.read_mesh(path)
+        pts = np.where(faces[..., None] >= 0, xy[np.maximum(faces, 0)], np.nan)
+        keys = set()
+        for row in pts.reshape(len(faces), -1).round(6).tolist():
+            corners = [tuple(row[i : i + 2]) for i in range(0, 8, 2) if row[i] == row[i]]
+            k = corners.index(min(corners))
+            keys.add(tuple(corners[k:] + corners[:k]))
+        return keys
+
+    a, b = face_keys(stores["tiled"][0]), face_keys(stores["untiled"][0])
+    ea = xr.open_zarr(stores["tiled"][0])["elevation"].values
+    eb = xr.open_zarr(stores["untiled"][0])["elevation"].values
+    rows = min(ea.shape[0], eb.shape[0])
+    ea, eb = ea[-rows:], eb[-rows:]
+    both = np.isfinite(ea) & np.isfinite(eb)
+    print(f"\n{stores['tiled'][1].tiles} tiles of {tile_size:g} m vs one tile")
+    print(f"faces identical      {len(a & b) / len(b):.4%}  ({len(b):,} faces)")
+    print(f"DEM cells identical  {(ea[both] == eb[both]).mean():.4%}  ({both.sum():,} cells)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["throughput", "memory"])
+    parser.add_argument("what", choices=["throughput", "memory", "seams"])
+    parser.add_argument("--tile-size", type=float, default=256.0)
     parser.add_argument("--points", type=int, default=20_000_000)
     parser.add_argument("--files", type=int, default=10)
     parser.add_argument("--small", type=int, default=5_000_000)
@@ -68,6 +104,9 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path("/tmp/terrain-bench"))
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
+    if args.what == "seams":
+        seams(archive(args.cache, args.points, max(1, args.points // 2_000_000)), args.cache, args.tile_size)
+        return
     if args.what == "throughput":
         folder = archive(args.cache, args.points, args.files)
         res = run_once(folder, args.cache / "out.zarr")

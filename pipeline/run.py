@@ -371,16 +371,19 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
     hull = hull_candidates(candidates)
     if hull.shape[0] == 0:
         return hull
-    xy = np.unique(hull[:, 0] + 1j * hull[:, 1])
-    rows, cols = grid.owner(xy.real, xy.imag)
-    out = []
+    key = hull[:, 0] + 1j * hull[:, 1]
+    _, first = np.unique(key, return_index=True)
+    hull = hull[np.sort(first)]  # distinct points, still in counter-clockwise order
+    key = hull[:, 0] + 1j * hull[:, 1]
+    rows, cols = grid.owner(hull[:, 0], hull[:, 1])
     for r, c in set(zip(rows.tolist(), cols.tolist())):
         pts = load_tile_points(scratch, r, c)
-        mine = xy[(rows == r) & (cols == c)]
-        sel = np.isin(pts[:, 0] + 1j * pts[:, 1], mine)
+        sel = np.isin(pts[:, 0] + 1j * pts[:, 1], key[(rows == r) & (cols == c)])
         uxy, uz, _ = dedupe(pts[sel], policy)
-        out.append(np.column_stack([uxy, uz]))
-    return np.concatenate(out)
+        at = np.searchsorted(np.sort(key), uxy[:, 0] + 1j * uxy[:, 1])
+        order = np.argsort(key)
+        hull[order[at], 2] = uz
+    return hull
 
 
 def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: list[TileSummary]) -> None:

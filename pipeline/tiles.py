@@ -90,6 +90,33 @@ def dedupe(points: NDArray[np.float64], policy: str) -> tuple[NDArray[np.float64
     return p[starts, :2].copy(), zu, group
 
 
+def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
+    """z of every vertex from the z of the input points it merges, by ``policy``."""
+    if policy == "lowest":
+        out = np.full(n_vertices, np.inf)
+        np.minimum.at(out, input_to_vertex, z)
+    elif policy == "highest":
+        out = np.full(n_vertices, -np.inf)
+        np.maximum.at(out, input_to_vertex, z)
+    elif policy == "mean":
+        out = np.bincount(input_to_vertex, weights=z, minlength=n_vertices)
+        out /= np.bincount(input_to_vertex, minlength=n_vertices)
+    else:
+        first = np.full(n_vertices, np.iinfo(np.int64).max)
+        np.minimum.at(first, input_to_vertex, np.arange(z.size))
+        out = z[first]
+    return out
+
+
+def _hull_near(hull: NDArray[np.float64], box) -> NDArray[np.float64]:
+    """The hull points (in order) that end a hull edge whose bounding box meets ``box``."""
+    nxt = np.roll(hull, -1, axis=0)
+    meets = (np.maximum(hull[:, 0], nxt[:, 0]) >= box[0]) & (np.minimum(hull[:, 0], nxt[:, 0]) <= box[2])
+    meets &= (np.maximum(hull[:, 1], nxt[:, 1]) >= box[1]) & (np.minimum(hull[:, 1], nxt[:, 1]) <= box[3])
+    keep = meets | np.roll(meets, 1)
+    return hull[keep]
+
+
 def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float, float]):
     """Bounding box of (disk ∩ box), or None when they do not meet."""
     x0, y0, x1, y1 = box
@@ -125,6 +152,8 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
         pts = load_tile_points(Path(job.scratch), r, c)
         if pts.shape[0] == 0:
             continue
+        union = (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
+        pts = pts[points_in_box(pts, union)]
         keep = np.zeros(pts.shape[0], dtype=bool)
         for box in boxes:
             keep |= points_in_box(pts, box)
@@ -150,12 +179,19 @@ def mesh_tile(job: TileJob) -> TileSummary:
     held = [(bx[0] - job.buffer, bx[1] - job.buffer, bx[2] + job.buffer, bx[3] + job.buffer)]
     points = own
     if job.hull is not None and job.hull.shape[0]:
-        # the global hull's points make the tile's hull the global one, so no
-        # part of its window is left outside its triangulation
-        points = np.concatenate([own, job.hull[~points_in_box(job.hull, held[0])]])
+        # the ends of the global hull's edges that pass the tile make the tile's
+        # hull the global one where it matters, so no part of its window is
+        # left outside its triangulation
+        hull = _hull_near(job.hull, held[0])
+        points = np.concatenate([own, hull[~points_in_box(hull, held[0])]])
     expansions = 0
-    xy, z, group = dedupe(points, job.duplicates)
-    mesh = meshcore.build_mesh(xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0])
+
+    def build(points):
+        return meshcore.build_mesh(
+            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
+        )
+
+    mesh = build(points)
     while True:
         missing = []
         circles = []
@@ -172,15 +208,14 @@ def mesh_tile(job: TileJob) -> TileSummary:
         held.extend(missing)
         if extra.shape[0] == 0:
             continue
-        points = np.concatenate([points, extra])
         c = np.array(circles)
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
         if np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
             # a missing point lies in a circle: the piece changes, build again
-            xy, z, group = dedupe(points, job.duplicates)
-            mesh = meshcore.build_mesh(
-                xy, job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
-            )
+            points = np.concatenate([points, extra])
+            mesh = build(points)
+    xy = mesh.vertices
+    z = vertex_z(mesh.input_to_vertex, xy.shape[0], points[:, 2], job.duplicates)
     certified = not missing
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
@@ -189,10 +224,14 @@ def mesh_tile(job: TileJob) -> TileSummary:
     points_owned = int(np.count_nonzero((porow == job.row) & (pocol == job.col)))
     vertices_owned = int(np.count_nonzero(owned))
 
-    used = np.unique(mesh.faces[mesh.faces >= 0])
+    used_mask = np.zeros(xy.shape[0], dtype=bool)
+    used_mask[mesh.faces[mesh.faces >= 0]] = True
+    used = np.flatnonzero(used_mask)
     remap = np.full(xy.shape[0], -1, dtype=np.int64)
     remap[used] = np.arange(used.size)
     faces = np.where(mesh.faces >= 0, remap[np.maximum(mesh.faces, 0)], -1)
+    owned_order = np.flatnonzero(owned)
+    owned_order = owned_order[np.argsort(xy[owned_order, 0] + 1j * xy[owned_order, 1])]
     folder = tile_dir(Path(job.scratch), job.row, job.col)
     folder.mkdir(parents=True, exist_ok=True)
     counts = None
@@ -201,8 +240,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
     vertex_xyz = np.column_stack([xy[used], z[used]])
     np.savez(
         folder / "piece.npz",
-        owned_xy=xy[owned],
-        owned_z=z[owned],
+        owned_xy=xy[owned_order],
+        owned_z=z[owned_order],
         vertex_xyz=vertex_xyz,
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
@@ -243,7 +282,9 @@ def _border(vertex_xyz, faces, box):
     out = (np.nanmin(fx, 1) < box[0]) | (np.nanmax(fx, 1) > box[2])
     out |= (np.nanmin(fy, 1) < box[1]) | (np.nanmax(fy, 1) > box[3])
     f = faces[out]
-    used = np.unique(f[f >= 0])
+    mask = np.zeros(vertex_xyz.shape[0], dtype=bool)
+    mask[f[f >= 0]] = True
+    used = np.flatnonzero(mask)
     remap = np.full(vertex_xyz.shape[0], -1, dtype=np.int64)
     remap[used] = np.arange(used.size)
     return vertex_xyz[used], np.where(f >= 0, remap[np.maximum(f, 0)], -1)
