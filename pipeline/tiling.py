@@ -53,8 +53,10 @@ class TileGrid:
         y0 = math.floor(ymin / resolution) * resolution
         nx = max(1, int(math.floor((xmax - x0) / resolution)) + 1)
         ny = max(1, int(math.floor((ymax - y0) / resolution)) + 1)
-        # whole tiles north-south: the store is north-up, so its chunk rows
-        # line up with tile rows only when the grid ends on a tile edge
+        # a tile never outgrows the grid (one tile is the untiled case), and
+        # the grid has whole tiles north-south: the store is north-up, so its
+        # chunk rows line up with tile rows only when the grid ends on a tile edge
+        tile_cells = max(1, min(int(tile_cells), max(nx, ny)))
         ny = -(-ny // tile_cells) * tile_cells
         return cls(float(x0), float(y0), float(resolution), int(tile_cells), nx, ny)
 

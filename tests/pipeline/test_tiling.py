@@ -49,3 +49,9 @@ def test_too_many_cells_need_an_explicit_limit():
     g = TileGrid.covering((0.0, 0.0, 1e6, 1e6), 0.01, 1000)
     with pytest.raises(UsageError, match="above max_cells"):
         check_cells(g, 4_000_000_000)
+
+
+def test_one_tile_never_outgrows_the_grid():
+    g = TileGrid.covering((0.0, 0.0, 499.0, 299.0), 1.0, 65536)
+    assert g.n_tiles == 1
+    assert g.tile_cells == 500 and (g.nx, g.ny) == (500, 500)
