@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
-from .delaunay import Triangulation, _next, _prev, delaunay
+from .delaunay import Triangulation, _next, _prev, circumcenter_offset, delaunay
 from .errors import InvalidInputError
 from .flip import flip_edges
 from .merge import merge_triangles
@@ -87,15 +87,7 @@ def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.n
             or min(y[a], min(y[b], y[c])) + oy > window[3] + slack
         ):
             continue
-        bx = x[b] - x[a]
-        by = y[b] - y[a]
-        cx = x[c] - x[a]
-        cy = y[c] - y[a]
-        d = 2.0 * (bx * cy - by * cx)
-        bl = bx * bx + by * by
-        cl = cx * cx + cy * cy
-        ux = (cy * bl - by * cl) / d
-        uy = (bx * cl - cx * bl) / d
+        ux, uy = circumcenter_offset(x[a], y[a], x[b], y[b], x[c], y[c])
         r = math.sqrt(ux * ux + uy * uy) * (1.0 + 1e-9) + 1e-12
         ux += x[a] + ox
         uy += y[a] + oy

@@ -58,7 +58,8 @@ def _link(halfedges: np.ndarray, a: int, b: int) -> None:
 
 
 @njit
-def _circumradius2(ax, ay, bx, by, cx, cy) -> float:
+def circumcenter_offset(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
+    """Circumcentre of ``a, b, c`` relative to ``a`` (infinite or NaN when collinear)."""
     dx = bx - ax
     dy = by - ay
     ex = cx - ax
@@ -66,23 +67,21 @@ def _circumradius2(ax, ay, bx, by, cx, cy) -> float:
     bl = dx * dx + dy * dy
     cl = ex * ex + ey * ey
     d = dx * ey - dy * ex
-    if bl == 0.0 or cl == 0.0 or d == 0.0:
+    return (ey * bl - dy * cl) * 0.5 / d, (dx * cl - ex * bl) * 0.5 / d
+
+
+@njit
+def _circumradius2(ax, ay, bx, by, cx, cy) -> float:
+    if (ax == bx and ay == by) or (ax == cx and ay == cy) or (bx - ax) * (cy - ay) == (by - ay) * (cx - ax):
         return math.inf
-    x = (ey * bl - dy * cl) * 0.5 / d
-    y = (dx * cl - ex * bl) * 0.5 / d
+    x, y = circumcenter_offset(ax, ay, bx, by, cx, cy)
     return x * x + y * y
 
 
 @njit
 def _circumcenter(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
-    dx = bx - ax
-    dy = by - ay
-    ex = cx - ax
-    ey = cy - ay
-    bl = dx * dx + dy * dy
-    cl = ex * ex + ey * ey
-    d = dx * ey - dy * ex
-    return ax + (ey * bl - dy * cl) * 0.5 / d, ay + (dx * cl - ex * bl) * 0.5 / d
+    x, y = circumcenter_offset(ax, ay, bx, by, cx, cy)
+    return ax + x, ay + y
 
 
 @njit

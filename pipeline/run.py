@@ -129,7 +129,7 @@ def _client(config: RunConfig):
             raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
     threads = config.workers or os.cpu_count() or 1
     cluster = LocalCluster(
-        n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=":0"
+        n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=":0", memory_limit=0
     )
     return Client(cluster), cluster
 
