@@ -58,9 +58,13 @@ def bench_build(sizes: list[int], repeat: int) -> None:
     meshcore.build_mesh(rng.random((1000, 2)), "s3", "s4")  # compile outside the timings
     for n in sizes:
         xy = rng.random((n, 2))
-        ours = median_time(lambda: meshcore.build_mesh(xy, "s3", "s4"), repeat)
-        ours_dt = median_time(lambda: meshcore.build_mesh(xy, "delaunay", None), repeat)
-        tri = median_time(lambda: triangle.triangulate({"vertices": xy}, "Q"), repeat)
+        # interleaved, so that drift of the shared machine hits every code alike
+        runs: dict[str, list[float]] = {"ours": [], "dt": [], "tri": []}
+        for _ in range(repeat):
+            runs["ours"].append(median_time(lambda: meshcore.build_mesh(xy, "s3", "s4"), 1))
+            runs["tri"].append(median_time(lambda: triangle.triangulate({"vertices": xy}, "Q"), 1))
+            runs["dt"].append(median_time(lambda: meshcore.build_mesh(xy, "delaunay", None), 1))
+        ours, tri, ours_dt = (statistics.median(runs[k]) for k in ("ours", "tri", "dt"))
         qhull = median_time(lambda: Delaunay(xy), 1) if n <= 1_000_000 else float("nan")
         rows.append(
             [

@@ -105,40 +105,46 @@ def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.n
 
 
 @njit
-def _canonical_rotation(faces, points, vertex_input) -> None:
-    """Start every face at its lexicographically smallest vertex (by coordinates).
-
-    The rotation is then a property of the geometry, not of internal numbering,
-    so the same face gets bit-identical values in every run (tiled or not).
-    """
-    for k in range(faces.shape[0]):
-        nv = 4 if faces[k, 3] >= 0 else 3
-        best = 0
-        for j in range(1, nv):
-            a = vertex_input[faces[k, j]]
-            b = vertex_input[faces[k, best]]
-            if points[a, 0] < points[b, 0] or (points[a, 0] == points[b, 0] and points[a, 1] < points[b, 1]):
-                best = j
-        if best:
-            f0 = faces[k, 0]
-            f1 = faces[k, 1]
-            f2 = faces[k, 2]
-            f3 = faces[k, 3]
-            if nv == 3:
-                r = (f0, f1, f2)
-                faces[k, 0] = r[best % 3]
-                faces[k, 1] = r[(best + 1) % 3]
-                faces[k, 2] = r[(best + 2) % 3]
-            else:
-                r4 = (f0, f1, f2, f3)
-                faces[k, 0] = r4[best % 4]
-                faces[k, 1] = r4[(best + 1) % 4]
-                faces[k, 2] = r4[(best + 2) % 4]
-                faces[k, 3] = r4[(best + 3) % 4]
+def _before(x, y, u: int, v: int) -> bool:
+    return x[u] < x[v] or (x[u] == x[v] and y[u] < y[v])
 
 
 @njit
-def _faces_kernel(tri, he, partner, vertex_of, active) -> np.ndarray:
+def _emit(faces, k, x, y, vertex_of, a, b, c, d) -> None:
+    """Write a face starting at its lexicographically smallest vertex (by coordinates).
+
+    The rotation is then a property of the geometry, not of internal numbering,
+    so the same face gets bit-identical values in every run (tiled or not).
+    The local coordinates order points as the input does (the shift is exact).
+    """
+    a = np.int64(a)
+    b = np.int64(b)
+    c = np.int64(c)
+    d = np.int64(d)
+    if d < 0:
+        if _before(x, y, b, a) and _before(x, y, b, c):
+            a, b, c = b, c, a
+        elif _before(x, y, c, a) and _before(x, y, c, b):
+            a, b, c = c, a, b
+        faces[k, 3] = -1
+    else:
+        m = a
+        if _before(x, y, b, m):
+            m = b
+        if _before(x, y, c, m):
+            m = c
+        if _before(x, y, d, m):
+            m = d
+        while a != m:
+            a, b, c, d = b, c, d, a
+        faces[k, 3] = vertex_of[d]
+    faces[k, 0] = vertex_of[a]
+    faces[k, 1] = vertex_of[b]
+    faces[k, 2] = vertex_of[c]
+
+
+@njit
+def _faces_kernel(tri, he, partner, vertex_of, active, x, y) -> np.ndarray:
     nt = tri.shape[0] // 3
     count = 0
     for t in range(nt):
@@ -152,19 +158,13 @@ def _faces_kernel(tri, he, partner, vertex_of, active) -> np.ndarray:
             continue
         e = partner[t]
         if e == -1:
-            faces[k, 0] = vertex_of[tri[3 * t]]
-            faces[k, 1] = vertex_of[tri[3 * t + 1]]
-            faces[k, 2] = vertex_of[tri[3 * t + 2]]
-            faces[k, 3] = -1
+            _emit(faces, k, x, y, vertex_of, tri[3 * t], tri[3 * t + 1], tri[3 * t + 2], -1)
             k += 1
         else:
             f = he[e]
             if t < f // 3:
                 # (a, b, c) + (b, a, d) -> quadrangle a, d, b, c (counter-clockwise)
-                faces[k, 0] = vertex_of[tri[e]]
-                faces[k, 1] = vertex_of[tri[_prev(f)]]
-                faces[k, 2] = vertex_of[tri[_next(e)]]
-                faces[k, 3] = vertex_of[tri[_prev(e)]]
+                _emit(faces, k, x, y, vertex_of, tri[e], tri[_prev(f)], tri[_next(e)], tri[_prev(e)])
                 k += 1
     return faces
 
@@ -286,11 +286,11 @@ def build_mesh(
         partner = merge_triangles(triangulation, qm.value, mm.value, active)
 
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
-    tri, he = triangulation.triangles, triangulation.halfedges
-    del triangulation  # release the sweep's coordinates before the faces are allocated
-    faces = _faces_kernel(tri, he, partner, vertex_of_sorted, active)
-    _canonical_rotation(faces, points, vertex_input)
-    del tri, he, partner, vertex_of_sorted, active
+    faces = _faces_kernel(
+        triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, active,
+        triangulation.x, triangulation.y,
+    )
+    del triangulation, partner, vertex_of_sorted, active
     return Mesh(
         vertices=points[vertex_input],
         faces=faces,

@@ -71,7 +71,10 @@ def _normalised(ax, ay, bx, by, cx, cy):
     s = max(max(abs(ux), abs(uy)), max(abs(vx), abs(vy)))
     if s == 0.0 or not math.isfinite(s):
         return 0.0, 0.0, 0.0, 0.0
-    return ux / s, uy / s, vx / s, vy / s
+    if s > 1e-290:  # multiply by the inverse: cheaper, and exact enough
+        inv = 1.0 / s
+        return ux * inv, uy * inv, vx * inv, vy * inv
+    return ux / s, uy / s, vx / s, vy / s  # 1 / s would overflow
 
 
 @njit
@@ -129,6 +132,9 @@ def _quad_frame(ax, ay, bx, by, cx, cy, dx, dy):
     )
     if s == 0.0 or not math.isfinite(s):
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False
+    if s > 1e-290:
+        inv = 1.0 / s
+        return (bx - ax) * inv, (by - ay) * inv, (cx - ax) * inv, (cy - ay) * inv, (dx - ax) * inv, (dy - ay) * inv, True
     return (bx - ax) / s, (by - ay) / s, (cx - ax) / s, (cy - ay) / s, (dx - ax) / s, (dy - ay) / s, True
 
 
