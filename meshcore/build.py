@@ -279,7 +279,9 @@ def build_mesh(
             triangulation.x, triangulation.y, triangulation.triangles, np.array(bounds), float(o[0]), float(o[1]), *box
         )
     if tm is not TriangleMeasure.DELAUNAY:
-        flip_edges(triangulation, tm.value, active)
+        # a window piece flips in geometric order, so that it matches its
+        # neighbours' and a whole run's flips wherever they overlap
+        flip_edges(triangulation, tm.value, active, geometric_order=bounds is not None)
     if qm is None:
         partner = np.full(nt, -1, dtype=np.int32)
     else:
