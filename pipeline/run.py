@@ -334,16 +334,19 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
 
         t0 = time.perf_counter()
 
+        node_offsets, face_offsets = _offsets(grid, summaries)
+
         def dem_and_write(job: TileJob) -> int:
             layers = dem_tile(job)
             store.write_tile(config.output, spec, job.row, job.col, layers)
+            global_faces(job, node_offsets)
             return 0
 
         _map(client, dem_and_write, tile_jobs, _Progress("dem", len(tile_jobs), show), lambda _: 0)
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        _write_mesh(config, grid, scratch, summaries)
+        _write_mesh(config, grid, scratch, node_offsets, face_offsets)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
         client.close()
@@ -386,10 +389,8 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
     return hull
 
 
-def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: list[TileSummary]) -> None:
-    """Renumber the pieces' vertices globally (owner tile, then lexicographic) and write them."""
-    from . import store
-
+def _offsets(grid: TileGrid, summaries: list[TileSummary]) -> tuple[np.ndarray, np.ndarray]:
+    """Where each tile's nodes and faces start in the global arrays (tiles in row-major order)."""
     by_tile = {(s.row, s.col): s for s in summaries}
     order = grid.tiles()
     node_offsets = np.zeros(len(order) + 1, dtype=np.int64)
@@ -397,37 +398,52 @@ def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, summaries: lis
     for k, key in enumerate(order):
         node_offsets[k + 1] = node_offsets[k] + by_tile[key].vertices_owned
         face_offsets[k + 1] = face_offsets[k] + by_tile[key].faces
-    writer = store.MeshWriter(config.output, int(node_offsets[-1]), int(face_offsets[-1]), config.zarr_format)
-    owned_keys: dict[tuple[int, int], np.ndarray] = {}
+    return node_offsets, face_offsets
 
-    def keys_of(key: tuple[int, int]) -> np.ndarray:
-        if key not in owned_keys:
-            if len(owned_keys) > 16:
-                owned_keys.pop(next(iter(owned_keys)))
-            owned = load_piece(scratch, *key, ("owned_xy",))["owned_xy"]
-            owned_keys[key] = owned[:, 0] + 1j * owned[:, 1]
-        return owned_keys[key]
 
-    tile_number = {key: k for k, key in enumerate(order)}
-    for k, key in enumerate(order):
-        piece = load_piece(scratch, *key, ("owned_xy", "owned_z", "vertex_xyz", "faces"))
-        owned = piece["owned_xy"]
-        writer.write_nodes(int(node_offsets[k]), owned[:, 0], owned[:, 1], piece["owned_z"])
-        v = piece["vertex_xyz"]
-        faces = piece["faces"]
-        if faces.shape[0] == 0:
-            continue
+def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
+    """Renumber a piece's face corners to global node ids and save them for the writer.
+
+    A node's id is its owner tile's offset plus its rank in that tile's sorted
+    table of owned points; every tile computes the same id for a shared node.
+    """
+    grid = job.grid
+    scratch = Path(job.scratch)
+    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "faces"))
+    v = piece["vertex_xyz"]
+    faces = piece["faces"]
+    gid = np.empty(v.shape[0], dtype=np.int64)
+    if faces.shape[0]:
         orow, ocol = grid.owner(v[:, 0], v[:, 1])
-        gid = np.empty(v.shape[0], dtype=np.int64)
+        owner = orow * grid.n_cols + ocol
         vkey = v[:, 0] + 1j * v[:, 1]
-        for owner in set(zip(orow.tolist(), ocol.tolist())):
-            sel = (orow == owner[0]) & (ocol == owner[1])
-            table = keys_of(owner)
+        for number in np.unique(owner).tolist():
+            sel = owner == number
+            r, c = divmod(number, grid.n_cols)
+            table = load_piece(scratch, r, c, ("owned_xy",))["owned_xy"]
+            table = table[:, 0] + 1j * table[:, 1]
             idx = np.searchsorted(table, vkey[sel])
             if np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
-                raise PipelineError(f"tile {key}: a face vertex is not owned by tile {owner} (stitching bug)")
-            gid[sel] = node_offsets[tile_number[owner]] + idx
-        writer.write_faces(int(face_offsets[k]), np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
+                raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
+            gid[sel] = node_offsets[number] + idx
+    np.save(scratch / "tiles" / f"{job.row:05d}_{job.col:05d}" / "faces_global.npy",
+            np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
+
+
+def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, node_offsets, face_offsets) -> None:
+    """Stream every tile's nodes and renumbered faces into the store's mesh group."""
+    from . import store
+    from .tiling import tile_dir
+
+    order = grid.tiles()
+    writer = store.MeshWriter(config.output, int(node_offsets[-1]), int(face_offsets[-1]), config.zarr_format)
+    for k, key in enumerate(order):
+        piece = load_piece(scratch, *key, ("owned_xy", "owned_z"))
+        owned = piece["owned_xy"]
+        writer.write_nodes(int(node_offsets[k]), owned[:, 0], owned[:, 1], piece["owned_z"])
+        faces = np.load(tile_dir(scratch, *key) / "faces_global.npy")
+        if faces.shape[0]:
+            writer.write_faces(int(face_offsets[k]), faces)
     writer.set_tiles(
         np.array([r for r, _ in order]),
         np.array([c for _, c in order]),
