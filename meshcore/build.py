@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
-from .delaunay import Triangulation, _next, _prev, circumcenter_offset, delaunay
+from .delaunay import _next, _prev, circumcenter_offset, delaunay
 from .errors import InvalidInputError
 from .flip import flip_edges
 from .merge import merge_triangles

@@ -439,7 +439,7 @@ def _check_target(
     if hint:
         suggestion = f"use --out-crs {hint} or a national grid"
     else:
-        suggestion = "use --out-crs EPSG:xxxx (a UTM zone or national grid)"
+        suggestion = "use --out-crs with the EPSG code of a UTM zone or national grid"
     raise CrsError(f"{what} is {kind}; meshes need a projected CRS in metres or feet: {suggestion}")
 
 

@@ -15,7 +15,6 @@ Stages (each timed in the run report):
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import shutil
@@ -369,7 +368,7 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
     Every tile meshes with these, so its own convex hull is the global one and
     every region of its window is covered by its triangles.
     """
-    from .tiles import dedupe
+    from .tiles import vertex_z
 
     hull = hull_candidates(candidates)
     if hull.shape[0] == 0:
@@ -381,11 +380,13 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
     rows, cols = grid.owner(hull[:, 0], hull[:, 1])
     for r, c in set(zip(rows.tolist(), cols.tolist())):
         pts = load_tile_points(scratch, r, c)
-        sel = np.isin(pts[:, 0] + 1j * pts[:, 1], key[(rows == r) & (cols == c)])
-        uxy, uz, _ = dedupe(pts[sel], policy)
-        at = np.searchsorted(np.sort(key), uxy[:, 0] + 1j * uxy[:, 1])
-        order = np.argsort(key)
-        hull[order[at], 2] = uz
+        mine = np.flatnonzero((rows == r) & (cols == c))
+        pkey = pts[:, 0] + 1j * pts[:, 1]
+        sel = np.isin(pkey, key[mine])
+        # every copy of a hull point, reduced by the duplicate policy like any vertex
+        group = np.searchsorted(np.sort(key[mine]), pkey[sel])
+        z = vertex_z(group, mine.size, pts[sel, 2], policy)
+        hull[mine[np.argsort(key[mine])], 2] = z
     return hull
 
 
@@ -460,7 +461,3 @@ def _version() -> str:
         return version("terrain-pipeline")
     except PackageNotFoundError:  # pragma: no cover
         return "unknown"
-
-
-def report_json(report: RunReport) -> str:
-    return json.dumps(report.to_dict(), indent=2, default=str)

@@ -28,7 +28,7 @@ import meshcore
 
 from .tiling import TileGrid, load_tile_points, points_in_box, tile_dir
 
-__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "dedupe"]
+__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z"]
 
 MAX_EXPANSIONS = 6
 """Rounds of loading missing points before a tile is reported uncertified."""
@@ -66,28 +66,6 @@ class TileSummary:
     expansions: int
     certified: bool
     seconds: float
-
-
-def dedupe(points: NDArray[np.float64], policy: str) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-    """Distinct (x, y) sorted lexicographically, their z by ``policy``, and each point's group."""
-    if points.shape[0] == 0:
-        return np.empty((0, 2)), np.empty(0), np.empty(0, dtype=np.int64)
-    order = np.lexsort((points[:, 1], points[:, 0]))  # stable: "first" keeps reading order
-    p = points[order]
-    new = np.r_[True, (p[1:, 0] != p[:-1, 0]) | (p[1:, 1] != p[:-1, 1])]
-    starts = np.flatnonzero(new)
-    z = p[:, 2]
-    if policy == "lowest":
-        zu = np.minimum.reduceat(z, starts)
-    elif policy == "highest":
-        zu = np.maximum.reduceat(z, starts)
-    elif policy == "mean":
-        zu = np.add.reduceat(z, starts) / np.diff(np.r_[starts, z.size])
-    else:
-        zu = z[starts]
-    group = np.empty(points.shape[0], dtype=np.int64)
-    group[order] = np.cumsum(new) - 1
-    return p[starts, :2].copy(), zu, group
 
 
 def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
