@@ -25,6 +25,10 @@ def sample(name: str) -> Path:
     return path
 
 
+def _run(path: Path, out: Path, **kw):
+    return run(RunConfig(inputs=(str(path),), output=str(out), **{"resolution": 1.0, **kw}), progress=False)
+
+
 def _check_store(out: Path, report) -> None:
     xy, z, faces = store.read_mesh(out)
     meshcore.validate(meshcore.Mesh(np.asarray(xy), np.asarray(faces), np.arange(len(xy))))
@@ -37,7 +41,7 @@ def _check_store(out: Path, report) -> None:
 def test_lambert93_laz_14(tmp_path):
     path = sample("ign_semis_lambert93.laz")
     out = tmp_path / "ign.zarr"
-    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=2.0, tile_size=256.0, workers=2), progress=False)
+    report = _run(path, out, resolution=2.0, tile_size=256.0, workers=2)
     assert report.points_read == 289_055
     assert report.points_kept == 152_678
     assert report.tiles >= 4
@@ -50,7 +54,7 @@ def test_us_feet_and_info(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "23,875" in text or "23875" in text
     out = tmp_path / "feet.zarr"
-    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=5.0, workers=2), progress=False)
+    report = _run(path, out, resolution=5.0, workers=2)
     assert report.points_kept == 9_003
     _check_store(out, report)
     from pyproj import CRS
@@ -65,7 +69,7 @@ def test_geographic_input_needs_a_projected_crs(tmp_path, capsys):
     assert code == 2
     assert "projected" in capsys.readouterr().err
     with pytest.raises(CrsError):
-        run(RunConfig(inputs=(str(path),), output=str(tmp_path / "g2.zarr"), resolution=1.0, classes=None), progress=False)
+        _run(path, tmp_path / "g2.zarr", classes=None)
 
 
 def test_broken_crs_needs_in_crs(tmp_path, capsys):
@@ -74,7 +78,7 @@ def test_broken_crs_needs_in_crs(tmp_path, capsys):
     assert code == 2
     assert "warsaw_small_broken_crs.las" in capsys.readouterr().err
     out = tmp_path / "w2.zarr"
-    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, in_crs="EPSG:2180"), progress=False)
+    report = _run(path, out, in_crs="EPSG:2180")
     assert report.points_kept == 1_381
     _check_store(out, report)
 
@@ -82,10 +86,7 @@ def test_broken_crs_needs_in_crs(tmp_path, capsys):
 def test_duplicates_are_counted(tmp_path):
     path = sample("plane_many_duplicates.laz")
     out = tmp_path / "plane.zarr"
-    report = run(
-        RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, classes=None, in_crs="EPSG:3945"),
-        progress=False,
-    )
+    report = _run(path, out, classes=None, in_crs="EPSG:3945")
     assert report.points_read == 28_185
     assert report.duplicates == 12_495
     assert report.vertices == 28_185 - 12_495
@@ -95,10 +96,7 @@ def test_duplicates_are_counted(tmp_path):
 def test_single_point(tmp_path):
     path = sample("single_point.laz")
     out = tmp_path / "one.zarr"
-    report = run(
-        RunConfig(inputs=(str(path),), output=str(out), resolution=1.0, classes=None, in_crs="EPSG:2154"),
-        progress=False,
-    )
+    report = _run(path, out, classes=None, in_crs="EPSG:2154")
     assert report.points_kept == 1 and report.vertices == 1 and report.faces == 0
     xy, z, faces = store.read_mesh(out)
     assert len(xy) == 1 and len(faces) == 0
