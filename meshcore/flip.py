@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import njit
+from ._order import order_ties_by
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
 from .quality import s1_kernel, s3_cubed_kernel
@@ -151,27 +152,8 @@ def geometric_edge_order(triangulation: Triangulation, active: np.ndarray) -> np
         triangulation.x, triangulation.y, triangulation.triangles, triangulation.halfedges, active
     )
     order = np.argsort(mx)  # numpy's sort is several times faster than lexsort here
-    _order_ties_by(order, mx, my)
+    order_ties_by(order, mx, my)
     return edges[order]
-
-
-@njit
-def _order_ties_by(order, key, tie) -> None:
-    """Within runs of equal ``key`` (in ``order``), order by ``tie`` (insertion sort: runs are short)."""
-    n = order.shape[0]
-    k = 0
-    while k < n:
-        m = k + 1
-        while m < n and key[order[m]] == key[order[k]]:
-            m += 1
-        for i in range(k + 1, m):
-            v = order[i]
-            j = i - 1
-            while j >= k and tie[order[j]] > tie[v]:
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-        k = m
 
 
 def flip_edges(

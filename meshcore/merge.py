@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._jit import njit
+from ._order import order_ties_by
 from .delaunay import Triangulation, _next, _prev
 from .flip import is_strictly_convex_pair, triangle_score_kernel, triangle_scores
 from .quality import s2_kernel, s4_cubed_kernel
@@ -103,22 +104,10 @@ def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
 
 def _order_by_gain(gains: np.ndarray) -> np.ndarray:
     """Indices by decreasing gain; equal gains keep increasing index (half-edge) order."""
-    order = np.argsort(-gains)
-    _sort_ties(gains, order)
+    key = -gains
+    order = np.argsort(key)
+    order_ties_by(order, key, np.arange(gains.shape[0], dtype=np.float64))
     return order
-
-
-@njit
-def _sort_ties(gains: np.ndarray, order: np.ndarray) -> None:
-    n = order.shape[0]
-    k = 0
-    while k < n:
-        m = k + 1
-        while m < n and gains[order[m]] == gains[order[k]]:
-            m += 1
-        if m - k > 1:
-            order[k:m] = np.sort(order[k:m])
-        k = m
 
 
 def merge_candidates(
