@@ -9,8 +9,10 @@ Stages (each timed in the run report):
 3. *mesh*: one task per tile: its piece of the combined mesh (certified
    against its neighbours, see :mod:`pipeline.tiles`);
 4. *dem*: one task per tile: the DEM chunk from the stitched faces over it,
-   written straight into its own Zarr chunk (no locks);
-5. *write mesh*: the pieces, renumbered globally, into the store's UGRID group.
+   written straight into its own Zarr chunk (no locks), and the piece's faces
+   renumbered to global node ids;
+5. *write mesh*: the pieces' nodes and renumbered faces streamed into the
+   store's UGRID group.
 """
 
 from __future__ import annotations
@@ -384,9 +386,9 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
         pkey = pts[:, 0] + 1j * pts[:, 1]
         sel = np.isin(pkey, key[mine])
         # every copy of a hull point, reduced by the duplicate policy like any vertex
-        group = np.searchsorted(np.sort(key[mine]), pkey[sel])
-        z = vertex_z(group, mine.size, pts[sel, 2], policy)
-        hull[mine[np.argsort(key[mine])], 2] = z
+        by_key = np.argsort(key[mine])
+        group = np.searchsorted(key[mine][by_key], pkey[sel])
+        hull[mine[by_key], 2] = vertex_z(group, mine.size, pts[sel, 2], policy)
     return hull
 
 
