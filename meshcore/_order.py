@@ -1,12 +1,14 @@
-"""Ordering helpers shared by the kernels."""
+"""Ordering helpers shared by the kernels: tie runs, and a numbering of a
+triangulation fixed by the geometry alone."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ._jit import njit
+from .delaunay import Triangulation
 
-__all__ = ["order_ties_by"]
+__all__ = ["order_ties_by", "morton_keys", "geometric_order"]
 
 
 @njit
@@ -36,3 +38,164 @@ def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
                 j -= 1
             order[j + 1] = v
         k = m
+
+
+@njit
+def _spread(v: np.uint64) -> np.uint64:
+    """The low 32 bits of ``v`` moved to the even bit positions of a 64-bit word."""
+    v &= np.uint64(0x00000000FFFFFFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x0000FFFF0000FFFF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF00FF00FF)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x3333333333333333)
+    v = (v | (v << np.uint64(1))) & np.uint64(0x5555555555555555)
+    return v
+
+
+@njit
+def _sortable(u: np.uint64) -> np.uint64:
+    """A float64's bits ``u`` as an integer whose order is the floats' order."""
+    if u >> np.uint64(63):
+        return ~u
+    return u | (np.uint64(1) << np.uint64(63))
+
+
+@njit
+def morton_keys(x_bits: np.ndarray, y_bits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 128-bit Z-curve key (high, low words) of points given by their float64 bits."""
+    n = x_bits.shape[0]
+    high = np.empty(n, dtype=np.uint64)
+    low = np.empty(n, dtype=np.uint64)
+    half = np.uint64(32)
+    for k in range(n):
+        ux = _sortable(x_bits[k])
+        uy = _sortable(y_bits[k])
+        high[k] = _spread(ux >> half) | (_spread(uy >> half) << np.uint64(1))
+        low[k] = _spread(ux) | (_spread(uy) << np.uint64(1))
+    return high, low
+
+
+def _leading_word(high: np.ndarray, low: np.ndarray) -> np.ndarray:
+    """The 64 bits of 128-bit keys that follow the prefix all of them share.
+
+    Sorting by these, then by the low word within ties, is the order of the
+    full keys: the shared prefix says nothing and the dropped tail only breaks
+    ties.  Keys of nearby points (one tile) share many leading bits.
+    """
+    if high.size == 0:
+        return high
+    spread = int(np.bitwise_or.reduce(high ^ high[0]))
+    shift = 64 - spread.bit_length()  # leading bits every key shares
+    if shift == 0:
+        return high
+    if shift == 64:
+        return low
+    return (high << np.uint64(shift)) | (low >> np.uint64(64 - shift))
+
+
+def _point_ranks(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Rank of every point along the Z-curve of its coordinates (distinct points
+    get distinct ranks; equal points are never both vertices)."""
+    high, low = morton_keys(x.view(np.uint64), y.view(np.uint64))
+    lead = _leading_word(high, low)
+    order = np.argsort(lead)
+    order_ties_by(order, lead, low)
+    rank = np.empty(order.shape[0], dtype=np.int64)
+    rank[order] = np.arange(order.shape[0])
+    return rank
+
+
+@njit
+def _renumber_kernel(tri, he, rank):
+    """Triangles sorted by the ranks of their corners, each starting at its
+    lowest-ranked corner (a counting sort on that corner), with corners
+    numbered by rank."""
+    nt = tri.shape[0] // 3
+    n = rank.shape[0]
+    first = np.empty(nt, dtype=np.int64)  # rotation of each triangle
+    start = np.zeros(n + 1, dtype=np.int64)
+    for t in range(nt):
+        r0 = rank[tri[3 * t]]
+        r1 = rank[tri[3 * t + 1]]
+        r2 = rank[tri[3 * t + 2]]
+        j = 0
+        lo = r0
+        if r1 < lo:
+            j = 1
+            lo = r1
+        if r2 < lo:
+            j = 2
+            lo = r2
+        first[t] = j
+        start[lo + 1] += 1
+    for r in range(n):
+        start[r + 1] += start[r]
+    base = start.copy()  # where each corner's run begins
+    slot = np.empty(nt, dtype=np.int64)  # new position -> old triangle
+    second = np.empty(nt, dtype=np.int64)  # rank of the corner after the lowest
+    for t in range(nt):
+        j = first[t]
+        lo = rank[tri[3 * t + j]]
+        nxt = rank[tri[3 * t + (j + 1) % 3]]
+        k = start[lo]
+        start[lo] += 1
+        run = base[lo]
+        # a corner starts few triangles: insert into its short run; the
+        # directed edge (lowest, next) is unique, so the order is strict
+        while k > run and second[k - 1] > nxt:
+            slot[k] = slot[k - 1]
+            second[k] = second[k - 1]
+            k -= 1
+        slot[k] = t
+        second[k] = nxt
+    new_of_old = np.empty(3 * nt, dtype=np.int32)
+    for k in range(nt):
+        t = slot[k]
+        for i in range(3):
+            new_of_old[3 * t + (first[t] + i) % 3] = 3 * k + i
+    new_tri = np.empty_like(tri)
+    new_he = np.empty_like(he)
+    for e in range(3 * nt):
+        g = new_of_old[e]
+        new_tri[g] = rank[tri[e]]
+        h = he[e]
+        new_he[g] = -1 if h < 0 else new_of_old[h]
+    return new_tri, new_he
+
+
+def geometric_order(triangulation: Triangulation) -> Triangulation:
+    """The same triangulation with its triangles numbered in an order fixed by
+    the geometry alone.
+
+    Points are ranked along a Z-curve (Morton order) of their input
+    coordinates, whose bits are interleaved as order-preserving integers;
+    triangles follow the ranks of their lowest corner, then of the next corner
+    counter-clockwise, and start at their lowest corner.  Two triangulations of
+    overlapping point sets (tiles) then number the triangles they share in the
+    same relative order, whatever their internal numbering or local origin, so
+    order-dependent passes (flips, merges) treat them the same way.  The
+    Points are renumbered by rank too, so the Z-curve keeps neighbouring
+    triangles and their corners close in memory.
+    """
+    t = triangulation
+    # the local shift is exact, so these are the input coordinates
+    rank = _point_ranks(t.x + float(t.origin[0]), t.y + float(t.origin[1]))
+    tri, he = _renumber_kernel(t.triangles, t.halfedges, rank)
+    x, y, order, rep = _renumber_points(t.x, t.y, t.order, t.rep, rank)
+    return Triangulation(x, y, t.origin, order, rep, tri, he)
+
+
+@njit
+def _renumber_points(x, y, order, rep, rank):
+    n = x.shape[0]
+    new_x = np.empty_like(x)
+    new_y = np.empty_like(y)
+    new_order = np.empty_like(order)
+    new_rep = np.empty_like(rep)
+    for k in range(n):
+        r = rank[k]
+        new_x[r] = x[k]
+        new_y[r] = y[k]
+        new_order[r] = order[k]
+        new_rep[r] = rank[rep[k]]
+    return new_x, new_y, new_order, new_rep

@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
+from ._order import geometric_order
 from .delaunay import _next, _prev, circumcenter_offset, delaunay
 from .errors import InvalidInputError
 from .flip import flip_edges
@@ -267,6 +268,10 @@ def build_mesh(
     points = as_points(xy)
 
     triangulation = delaunay(points)
+    if bounds is not None:
+        # a window piece is numbered by its geometry, so that its flips and
+        # merges match its neighbours' and a whole run's wherever they overlap
+        triangulation = geometric_order(triangulation)
     nt = triangulation.triangles.shape[0] // 3
     escapes = None
     if bounds is None:
@@ -279,9 +284,7 @@ def build_mesh(
             triangulation.x, triangulation.y, triangulation.triangles, np.array(bounds), float(o[0]), float(o[1]), *box
         )
     if tm is not TriangleMeasure.DELAUNAY:
-        # a window piece flips in geometric order, so that it matches its
-        # neighbours' and a whole run's flips wherever they overlap
-        flip_edges(triangulation, tm.value, active, geometric_order=bounds is not None)
+        flip_edges(triangulation, tm.value, active)
     if qm is None:
         partner = np.full(nt, -1, dtype=np.int32)
     else:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import njit
-from ._order import order_ties_by
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
 from .quality import s1_kernel, s3_cubed_kernel
@@ -60,24 +59,17 @@ def is_strictly_convex_pair(x, y, tri, he, e: int) -> bool:
 
 
 @njit
-def _flip_kernel(x, y, tri, he, active, first, measure: int, tolerance: float) -> int:
+def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
     q = triangle_scores(measure, x, y, tri)
     m = tri.shape[0]
     queued = np.zeros(m, dtype=np.uint8)
     stack = np.empty(m, dtype=np.int32)
     n = 0
-    if first.shape[0] > 0:
-        for k in range(first.shape[0] - 1, -1, -1):  # the stack pops first[0] first
-            e = first[k]
+    for e in range(m - 1, -1, -1):  # the stack pops the first edge first
+        if he[e] > e and active[e // 3] and active[he[e] // 3]:
             stack[n] = e
             n += 1
             queued[e] = 1
-    else:
-        for e in range(m):
-            if he[e] > e and active[e // 3] and active[he[e] // 3]:
-                stack[n] = e
-                n += 1
-                queued[e] = 1
     flips = 0
     while n > 0:
         n -= 1
@@ -118,63 +110,24 @@ def _flip_kernel(x, y, tri, he, active, first, measure: int, tolerance: float) -
     return flips
 
 
-@njit
-def _interior_edges(x, y, tri, he, active):
-    """Half-edges of the interior edges between active triangles, and twice their midpoints."""
-    m = tri.shape[0]
-    count = 0
-    for e in range(m):
-        if he[e] > e and active[e // 3] and active[he[e] // 3]:
-            count += 1
-    edges = np.empty(count, dtype=np.int32)
-    mx = np.empty(count)
-    my = np.empty(count)
-    k = 0
-    for e in range(m):
-        if he[e] > e and active[e // 3] and active[he[e] // 3]:
-            a = tri[e]
-            b = tri[_next(e)]
-            edges[k] = e
-            mx[k] = x[a] + x[b]
-            my[k] = y[a] + y[b]
-            k += 1
-    return edges, mx, my
-
-
-def geometric_edge_order(triangulation: Triangulation, active: np.ndarray) -> np.ndarray:
-    """Interior edges between active triangles in lexicographic order of their midpoints.
-
-    Flipping in this order makes the result a function of the geometry alone,
-    not of the triangulation's internal numbering: two runs over overlapping
-    point sets (tiles) then flip the edges they share the same way.
-    """
-    edges, mx, my = _interior_edges(
-        triangulation.x, triangulation.y, triangulation.triangles, triangulation.halfedges, active
-    )
-    order = np.argsort(mx)  # numpy's sort is several times faster than lexsort here
-    order_ties_by(order, mx, my)
-    return edges[order]
-
-
 def flip_edges(
     triangulation: Triangulation,
     measure: str,
     active: np.ndarray | None = None,
     tolerance: float = FLIP_TOLERANCE,
-    geometric_order: bool = False,
 ) -> int:
     """Flip diagonals in place until no flip improves ``measure`` ("s1" or "s3").
 
     With ``active`` (one flag per triangle), only diagonals between two active
     triangles are considered, so the region the active triangles cover stays
-    the same.  With ``geometric_order`` the edges are first visited in the
-    order of their midpoints (see :func:`geometric_edge_order`), otherwise in
-    the triangulation's own order (faster).  Returns the number of flips made.
+    the same.  Edges are visited in the triangulation's own order, so two
+    triangulations numbered in the same geometric order (see
+    :func:`meshcore._order.geometric_order`) flip the edges they share the
+    same way.  Returns the number of flips made.
     """
     code = {"s1": _S1, "s3": _S3}[measure]
     if active is None:
         active = np.ones(triangulation.triangles.shape[0] // 3, dtype=np.uint8)
-    first = geometric_edge_order(triangulation, active) if geometric_order else np.empty(0, dtype=np.int32)
     return int(
         _flip_kernel(
             triangulation.x,
@@ -182,7 +135,6 @@ def flip_edges(
             triangulation.triangles,
             triangulation.halfedges,
             active,
-            first,
             code,
             float(tolerance),
         )

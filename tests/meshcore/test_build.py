@@ -286,3 +286,27 @@ def test_window_must_be_a_box():
         build_mesh(np.zeros((3, 2)), window=(1.0, 0.0, 0.0, 1.0))
     with pytest.raises(InvalidInputError, match="window must be"):
         build_mesh(np.zeros((3, 2)), window=(1.0, 0.0))
+
+
+def _face_set(mesh):
+    """Faces as tuples of corner coordinates (meshcore starts each at its smallest corner)."""
+    out = set()
+    for row in mesh.faces.tolist():
+        out.add(tuple(tuple(mesh.vertices[v]) for v in row if v >= 0))
+    return out
+
+
+@pytest.mark.parametrize("triangle_measure, quad_measure", [("s1", "s2"), ("s3", "s4")])
+def test_window_piece_depends_on_geometry_not_on_numbering(rng, triangle_measure, quad_measure):
+    # the same window from the same nearby points, once alone and once shuffled
+    # among many far points (another sweep, other internal numbers, another
+    # local origin): flips and merges must treat every active triangle alike
+    near = np.round(rng.random((4000, 2)) * 60.0 + 500_000.0, 2)
+    far = np.round(rng.random((6000, 2)) * 200.0 + 499_900.0, 2)
+    far = far[(np.abs(far - 500_030.0) > 40.0).any(axis=1)]
+    window = (500_010.0, 500_010.0, 500_050.0, 500_050.0)
+    alone = build_mesh(near, triangle_measure, quad_measure, window=window)
+    mixed = np.vstack([near, far])[rng.permutation(len(near) + len(far))]
+    among = build_mesh(mixed, triangle_measure, quad_measure, window=window)
+    assert alone.n_quads > 100
+    assert _face_set(alone) == _face_set(among)
