@@ -409,26 +409,31 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
 
     A node's id is its owner tile's offset plus its rank in that tile's sorted
     table of owned points; every tile computes the same id for a shared node.
+    The piece knows the ranks of the corners it owns; the others (near its
+    edges) are looked up in their owners' tables.
     """
     grid = job.grid
     scratch = Path(job.scratch)
-    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "faces"))
+    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank", "faces"))
     v = piece["vertex_xyz"]
     faces = piece["faces"]
-    gid = np.empty(v.shape[0], dtype=np.int64)
-    if faces.shape[0]:
-        orow, ocol = grid.owner(v[:, 0], v[:, 1])
+    rank = piece["vertex_rank"]
+    here = job.row * grid.n_cols + job.col
+    gid = node_offsets[here] + rank
+    foreign = np.flatnonzero(rank < 0)
+    if foreign.size:
+        orow, ocol = grid.owner(v[foreign, 0], v[foreign, 1])
         owner = orow * grid.n_cols + ocol
-        vkey = v[:, 0] + 1j * v[:, 1]
+        vkey = v[foreign, 0] + 1j * v[foreign, 1]
         for number in np.unique(owner).tolist():
             sel = owner == number
             r, c = divmod(number, grid.n_cols)
             table = load_piece(scratch, r, c, ("owned_xy",))["owned_xy"]
             table = table[:, 0] + 1j * table[:, 1]
             idx = np.searchsorted(table, vkey[sel])
-            if np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
+            if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
-            gid[sel] = node_offsets[number] + idx
+            gid[foreign[sel]] = node_offsets[number] + idx
     np.save(scratch / "tiles" / f"{job.row:05d}_{job.col:05d}" / "faces_global.npy",
             np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
 

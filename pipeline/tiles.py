@@ -10,8 +10,9 @@ spill files) and rebuilds, until none is left ("certified").  Flips and merges
 happen only between triangles of the same piece, so they never cross a seam.
 
 A tile's result is saved to the scratch folder: the points it owns (sorted, for
-the global vertex numbering) and its faces with their corner coordinates, which
-the DEM pass and the mesh writer read back.
+the global vertex numbering) and its faces with their corner coordinates and,
+for the corners it owns, their rank in that sorted table; the DEM pass and the
+mesh writer read them back.
 """
 
 from __future__ import annotations
@@ -210,6 +211,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
     faces = np.where(mesh.faces >= 0, remap[np.maximum(mesh.faces, 0)], -1)
     owned_order = np.flatnonzero(owned)
     owned_order = owned_order[np.argsort(xy[owned_order, 0] + 1j * xy[owned_order, 1])]
+    rank = np.full(xy.shape[0], -1, dtype=np.int64)
+    rank[owned_order] = np.arange(owned_order.size)
     folder = tile_dir(Path(job.scratch), job.row, job.col)
     folder.mkdir(parents=True, exist_ok=True)
     counts = None
@@ -221,6 +224,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         owned_xy=xy[owned_order],
         owned_z=z[owned_order],
         vertex_xyz=vertex_xyz,
+        vertex_rank=rank[used],
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
     )
@@ -255,17 +259,14 @@ def _border(vertex_xyz, faces, box):
     """The faces that reach outside the tile's box (its neighbours' DEM needs them)."""
     if faces.shape[0] == 0:
         return vertex_xyz[:0], faces
-    fx = np.where(faces >= 0, vertex_xyz[np.maximum(faces, 0), 0], np.nan)
-    fy = np.where(faces >= 0, vertex_xyz[np.maximum(faces, 0), 1], np.nan)
-    out = (np.nanmin(fx, 1) < box[0]) | (np.nanmax(fx, 1) > box[2])
-    out |= (np.nanmin(fy, 1) < box[1]) | (np.nanmax(fy, 1) > box[3])
+    x, y = vertex_xyz[:, 0], vertex_xyz[:, 1]
+    outside = (x < box[0]) | (x > box[2]) | (y < box[1]) | (y > box[3])
+    out = outside[faces[:, :3]].any(axis=1) | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
     f = faces[out]
-    mask = np.zeros(vertex_xyz.shape[0], dtype=bool)
-    mask[f[f >= 0]] = True
-    used = np.flatnonzero(mask)
-    remap = np.full(vertex_xyz.shape[0], -1, dtype=np.int64)
-    remap[used] = np.arange(used.size)
-    return vertex_xyz[used], np.where(f >= 0, remap[np.maximum(f, 0)], -1)
+    used, inverse = np.unique(f, return_inverse=True)  # -1 first when present
+    has_gap = used.size > 0 and used[0] < 0
+    f = inverse.reshape(f.shape) - int(has_gap)
+    return vertex_xyz[used[int(has_gap):]], f
 
 
 def load_piece(scratch: Path, row: int, col: int, keys=None, name: str = "piece") -> dict[str, NDArray]:
