@@ -71,6 +71,36 @@ def _window_mask(points, order, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
 
 
 @njit
+def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
+    """True when the whole box lies clearly right of the directed line p -> q."""
+    dx = qx - px
+    dy = qy - py
+    tol = slack * (abs(dx) + abs(dy))
+    for cx, cy in ((x_lo, y_lo), (x_hi, y_lo), (x_hi, y_hi), (x_lo, y_hi)):
+        if dx * (cy - py) - dy * (cx - px) >= -tol:
+            return False
+    return True
+
+
+@njit
+def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
+    """Whether the counter-clockwise triangle abc meets the closed box (conservative:
+    near misses within ``slack`` count as meeting).  Infinite box sides are fine."""
+    x_lo = max(x_lo, min(ax, min(bx, cx)) - slack)
+    x_hi = min(x_hi, max(ax, max(bx, cx)) + slack)
+    y_lo = max(y_lo, min(ay, min(by, cy)) - slack)
+    y_hi = min(y_hi, max(ay, max(by, cy)) + slack)
+    if x_lo > x_hi or y_lo > y_hi:
+        return False
+    # the box is now finite: separated only when it lies right of an edge
+    return not (
+        _outside_edge(ax, ay, bx, by, x_lo, y_lo, x_hi, y_hi, slack)
+        or _outside_edge(bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack)
+        or _outside_edge(cx, cy, ax, ay, x_lo, y_lo, x_hi, y_hi, slack)
+    )
+
+
+@njit
 def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
     that meet the window (the window's piece is exact once all of these are)."""
@@ -81,12 +111,7 @@ def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.n
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        if (
-            max(x[a], max(x[b], x[c])) + ox < window[0] - slack
-            or min(x[a], min(x[b], x[c])) + ox > window[2] + slack
-            or max(y[a], max(y[b], y[c])) + oy < window[1] - slack
-            or min(y[a], min(y[b], y[c])) + oy > window[3] + slack
-        ):
+        if not _meets_box(x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack):
             continue
         ux, uy = circumcenter_offset(x[a], y[a], x[b], y[b], x[c], y[c])
         r = math.sqrt(ux * ux + uy * uy) * (1.0 + 1e-9) + 1e-12

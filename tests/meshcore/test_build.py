@@ -310,3 +310,24 @@ def test_window_piece_depends_on_geometry_not_on_numbering(rng, triangle_measure
     among = build_mesh(mixed, triangle_measure, quad_measure, window=window)
     assert alone.n_quads > 100
     assert _face_set(alone) == _face_set(among)
+
+
+def test_meets_box_is_exact_up_to_its_slack(rng):
+    from meshcore.build import _meets_box
+
+    for _ in range(400):
+        a, b, c = rng.random((3, 2)) * 10
+        if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) < 0:
+            b, c = c, b
+        lo = rng.random(2) * 10
+        hi = lo + rng.random(2) * 3
+        meets = _meets_box(*a, *b, *c, lo[0], lo[1], hi[0], hi[1], 0.0)
+        # dense samples of the triangle: any inside the box proves they meet
+        w = rng.dirichlet(np.ones(3), 20000)
+        p = w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c
+        hit = np.any((p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0]) & (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1]))
+        if hit:
+            assert meets
+    # a sliver whose bounding box covers the box but which passes beside it
+    assert not _meets_box(0.0, 0.0, 10.0, 9.0, 0.0, 1.0, 8.0, 0.0, 10.0, 2.0, 0.0)
+    assert _meets_box(0.0, 0.0, 10.0, 9.0, 0.0, 1.0, -np.inf, -np.inf, np.inf, 0.5, 0.0)

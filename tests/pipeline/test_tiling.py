@@ -55,3 +55,37 @@ def test_one_tile_never_outgrows_the_grid():
     g = TileGrid.covering((0.0, 0.0, 499.0, 299.0), 1.0, 65536)
     assert g.n_tiles == 1
     assert g.tile_cells == 500 and (g.nx, g.ny) == (500, 500)
+
+
+def test_uncovered_parts_are_exactly_the_box_minus_the_held_boxes(rng):
+    from pipeline.tiles import _uncovered
+
+    def inside(p, b, strict=False):
+        if strict:
+            return (p[:, 0] > b[0]) & (p[:, 0] < b[2]) & (p[:, 1] > b[1]) & (p[:, 1] < b[3])
+        return (p[:, 0] >= b[0]) & (p[:, 0] <= b[2]) & (p[:, 1] >= b[1]) & (p[:, 1] <= b[3])
+
+    for _ in range(50):
+        x, y = rng.random(2) * 10
+        box = (x, y, x + 1 + rng.random() * 5, y + 1 + rng.random() * 5)
+        held = []
+        for _ in range(int(rng.integers(0, 5))):
+            x, y = rng.random(2) * 12 - 1
+            held.append((x, y, x + rng.random() * 4, y + rng.random() * 4))
+        parts = _uncovered(box, held)
+        if not held:
+            assert parts == [box]
+        pts = np.c_[rng.uniform(box[0], box[2], 4000), rng.uniform(box[1], box[3], 4000)]
+        held_in = np.zeros(len(pts), dtype=bool)
+        held_strict = np.zeros(len(pts), dtype=bool)
+        for h in held:
+            held_in |= inside(pts, h)
+            held_strict |= inside(pts, h, strict=True)
+        part_in = np.zeros(len(pts), dtype=bool)
+        part_strict = np.zeros(len(pts), dtype=bool)
+        for p in parts:
+            assert box[0] <= p[0] <= p[2] <= box[2] and box[1] <= p[1] <= p[3] <= box[3]
+            part_in |= inside(pts, p)
+            part_strict |= inside(pts, p, strict=True)
+        assert np.all(held_in | part_in)  # nothing of the box is forgotten
+        assert not np.any(held_strict & part_strict)  # and nothing held is asked for again
