@@ -113,8 +113,60 @@ def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float,
     return out
 
 
-def _inside(inner: tuple[float, float, float, float], outer: tuple[float, float, float, float]) -> bool:
-    return inner[0] >= outer[0] and inner[1] >= outer[1] and inner[2] <= outer[2] and inner[3] <= outer[3]
+def _intersect(a, b):
+    """The intersection of two closed boxes, or None."""
+    out = (max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3]))
+    return out if out[0] <= out[2] and out[1] <= out[3] else None
+
+
+def _uncovered(box, held: list) -> list:
+    """The parts of ``box`` (as boxes) outside every box of ``held``."""
+    parts = [box]
+    for h in held:
+        rest = []
+        for p in parts:
+            cut = _intersect(p, h)
+            if cut is None:
+                rest.append(p)
+                continue
+            # up to four slabs of p around the cut (edges shared: closed boxes)
+            if p[1] < cut[1]:
+                rest.append((p[0], p[1], p[2], cut[1]))
+            if cut[3] < p[3]:
+                rest.append((p[0], cut[3], p[2], p[3]))
+            if p[0] < cut[0]:
+                rest.append((p[0], cut[1], cut[0], cut[3]))
+            if cut[2] < p[2]:
+                rest.append((cut[2], cut[1], p[2], cut[3]))
+        parts = rest
+        if not parts:
+            break
+    return parts
+
+
+def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
+    """Strips along the data extent's edges that the tile's box reaches, one
+    buffer deep and one tile longer than the box on either side.
+
+    Near a straight survey edge the Delaunay triangles are slivers whose
+    circumcircles reach far along the edge, just inside it; holding these
+    strips from the start spares most edge tiles a second build.
+    """
+    x0, y0, x1, y1 = job.extent
+    reach = min(job.grid.tile_size, 32.0 * job.buffer)
+    depth = job.buffer
+    lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
+    lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
+    bands = []
+    if box[1] <= y0:
+        bands.append((lo_x, y0, hi_x, min(y1, y0 + depth)))
+    if box[3] >= y1:
+        bands.append((lo_x, max(y0, y1 - depth), hi_x, y1))
+    if box[0] <= x0:
+        bands.append((x0, lo_y, min(x1, x0 + depth), hi_y))
+    if box[2] >= x1:
+        bands.append((max(x0, x1 - depth), lo_y, x1, hi_y))
+    return bands
 
 
 def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]:
@@ -163,6 +215,10 @@ def mesh_tile(job: TileJob) -> TileSummary:
         # left outside its triangulation
         hull = _hull_near(job.hull, held[0])
         points = np.concatenate([own, hull[~points_in_box(hull, held[0])]])
+    bands = _edge_bands(job, held[0])
+    if bands:
+        points = np.concatenate([points, _load_boxes(job, bands, held)])
+        held.extend(bands)
     expansions = 0
 
     def build(points):
@@ -172,30 +228,38 @@ def mesh_tile(job: TileJob) -> TileSummary:
 
     mesh = build(points)
     while True:
-        missing = []
+        # circles not yet vouched for; their points are loaded from near to
+        # far (a sliver's circle can span the survey, though a few nearby
+        # points usually break it)
         circles = []
+        requests = []
+        reach = job.grid.tile_size * 2**expansions
+        near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         for cx, cy, r in mesh.window_escapes:
             box = _disk_box_in(cx, cy, r, job.extent)
-            if box is None or any(_inside(box, h) for h in held):
+            rest = [] if box is None else _uncovered(box, held)
+            if not rest:
                 continue
-            missing.append(box)
             circles.append((cx, cy, r))
-        if not missing or expansions >= MAX_EXPANSIONS:
+            requests.extend(b for b in (_intersect(p, near) for p in rest) if b is not None)
+        if not circles or expansions >= MAX_EXPANSIONS:
             break
         expansions += 1
-        extra = _load_boxes(job, missing, held)
-        held.extend(missing)
+        if not requests:
+            continue
+        extra = _load_boxes(job, requests, held)
+        held.extend(requests)
         if extra.shape[0] == 0:
             continue
         c = np.array(circles)
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
         if np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
-            # a missing point lies in a circle: the piece changes, build again
+            # a loaded point lies in a circle: the piece changes, build again
             points = np.concatenate([points, extra])
             mesh = build(points)
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], points[:, 2], job.duplicates)
-    certified = not missing
+    certified = not circles
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
     owned = (orow == job.row) & (ocol == job.col)
