@@ -134,6 +134,7 @@ def validate(mesh: Mesh) -> None:
         _fail(f"vertices must be a finite (n, 2) array, got shape {v.shape}")
     if f.ndim != 2 or f.shape[1] != 4 or not np.issubdtype(f.dtype, np.integer):
         _fail(f"faces must be an integer (m, 4) array, got {f.dtype} {f.shape}")
+    f = f.astype(np.int64, copy=False)  # edge keys below exceed 32 bits
     n_v = v.shape[0]
     if f.size and (f[:, :3].min() < 0 or f.max() >= n_v or f[:, 3].min() < -1):
         _fail("faces reference vertices out of range (only column 3 may be -1)")

@@ -71,3 +71,10 @@ def test_no_faces_is_valid_only_for_collinear_vertices():
     validate(mesh_of([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]], np.empty((0, 4))))
     with pytest.raises(InvalidMeshError, match="not collinear"):
         validate(mesh_of(SQUARE, np.empty((0, 4))))
+
+
+def test_int32_faces_of_a_large_mesh_validate(rng):
+    # edge keys (a * n + b) wrap around in 32 bits: with 300k vertices many collide
+    mesh = build_mesh(rng.random((300_000, 2)), "s3", "s4")
+    narrow = Mesh(mesh.vertices, mesh.faces.astype(np.int32), mesh.input_to_vertex)
+    validate(narrow)
