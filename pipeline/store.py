@@ -18,7 +18,7 @@ Layout
             mesh2d      ()        topology (cf_role mesh_topology)
             node_x, node_y (nNodes)           float64
             node_z      (nNodes)              float64, on the nodes
-            face_nodes  (nFaces, nMaxFaceNodes=4) int64, -1 pads triangles
+            face_nodes  (nFaces, nMaxFaceNodes=4) int32 (int64 past 2**31 nodes), -1 pads triangles
             spatial_ref ()        the same grid mapping as the root
             tile_row, tile_col (nTiles)       int64
             tile_node_offset, tile_face_offset (nTileOffsets = nTiles + 1) int64
@@ -388,6 +388,11 @@ def write_tile(
         _open_array(path, layer)[rows, cols] = north_up
 
 
+def face_index_dtype(n_nodes: int) -> np.dtype:
+    """The smallest signed integer type that numbers ``n_nodes`` nodes (and -1)."""
+    return np.dtype(np.int32) if n_nodes < 2**31 else np.dtype(np.int64)
+
+
 class MeshWriter:
     """Streams the combined mesh into the store's UGRID group ``mesh``.
 
@@ -473,7 +478,7 @@ class MeshWriter:
             "face_nodes",
             shape=(self.n_faces, 4),
             chunks=(_chunk(self.n_faces), 4),
-            dtype=np.int64,
+            dtype=face_index_dtype(self.n_nodes),
             fill=-1,
             masked=True,
             dims=("nFaces", "nMaxFaceNodes"),

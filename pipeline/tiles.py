@@ -371,13 +371,11 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     if not faces:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
         return empty, np.empty(0), np.empty(0, dtype=np.int8)
+    # a corner shared with a neighbour's face appears once per piece, with the
+    # same coordinates and z: interpolation needs no merged vertex table
     v = np.concatenate(verts)
-    key = v[:, 0] + 1j * v[:, 1]
-    unique, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    f = np.concatenate(faces)
-    f = np.where(f >= 0, inverse[np.maximum(f, 0)], -1)
-    mesh = meshcore.Mesh(v[first, :2], f, np.arange(unique.size))
-    return mesh, v[first, 2], np.concatenate(kinds)
+    mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), np.concatenate(faces), np.arange(v.shape[0]))
+    return mesh, np.ascontiguousarray(v[:, 2]), np.concatenate(kinds)
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
