@@ -32,7 +32,7 @@ import numpy as np
 
 from .config import RunConfig
 from .errors import PipelineError
-from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile
+from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
 __all__ = ["run", "RunReport", "route_source"]
@@ -347,7 +347,7 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        _write_mesh(config, grid, scratch, node_offsets, face_offsets)
+        _write_mesh(client, config, grid, scratch, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
         client.close()
@@ -412,6 +412,8 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
     The piece knows the ranks of the corners it owns; the others (near its
     edges) are looked up in their owners' tables.
     """
+    from . import store
+
     grid = job.grid
     scratch = Path(job.scratch)
     piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank", "faces"))
@@ -434,24 +436,64 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
             if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
             gid[foreign[sel]] = node_offsets[number] + idx
-    np.save(scratch / "tiles" / f"{job.row:05d}_{job.col:05d}" / "faces_global.npy",
-            np.where(faces >= 0, gid[np.maximum(faces, 0)], -1))
+    dtype = store.face_index_dtype(int(node_offsets[-1]))
+    save_piece(scratch, job.row, job.col, "piece", faces_global=np.where(faces >= 0, gid[np.maximum(faces, 0)], -1).astype(dtype))
 
 
-def _write_mesh(config: RunConfig, grid: TileGrid, scratch: Path, node_offsets, face_offsets) -> None:
-    """Stream every tile's nodes and renumbered faces into the store's mesh group."""
+@dataclass(frozen=True)
+class _MeshBlock:
+    """Rows ``[start, stop)`` of the mesh's node or face arrays, gathered from
+    the tiles' pieces (whole chunks, so blocks write in parallel without locks)."""
+
+    output: str
+    scratch: str
+    tiles: tuple[tuple[int, int], ...]
+    offsets: tuple[int, ...]
+    what: str
+    start: int
+    stop: int
+
+
+def write_mesh_block(block: _MeshBlock) -> tuple[str, int, int]:
     from . import store
-    from .tiling import tile_dir
 
-    order = grid.tiles()
+    offsets = np.asarray(block.offsets)
+    first = int(np.searchsorted(offsets, block.start, side="right")) - 1
+    parts = []
+    for k in range(first, len(block.tiles)):
+        lo, hi = max(block.start, int(offsets[k])), min(block.stop, int(offsets[k + 1]))
+        if lo >= block.stop:
+            break
+        if lo >= hi:
+            continue
+        keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces_global",)
+        piece = load_piece(Path(block.scratch), *block.tiles[k], keys)
+        parts.append({key: np.asarray(a[lo - offsets[k] : hi - offsets[k]]) for key, a in piece.items()})
+    writer = store.MeshWriter.attach(block.output)
+    if block.what == "nodes":
+        xy = np.concatenate([p["owned_xy"] for p in parts])
+        writer.write_nodes(block.start, xy[:, 0], xy[:, 1], np.concatenate([p["owned_z"] for p in parts]))
+    else:
+        writer.write_faces(block.start, np.concatenate([p["faces_global"] for p in parts]))
+    return block.what, block.start, block.stop
+
+
+def _write_mesh(client, config: RunConfig, grid: TileGrid, scratch: Path, node_offsets, face_offsets, show: bool) -> None:
+    """Write every tile's nodes and renumbered faces into the store's mesh group,
+    in blocks of whole chunks on the workers."""
+    from . import store
+
+    order = tuple(grid.tiles())
     writer = store.MeshWriter(config.output, int(node_offsets[-1]), int(face_offsets[-1]), config.zarr_format)
-    for k, key in enumerate(order):
-        piece = load_piece(scratch, *key, ("owned_xy", "owned_z"))
-        owned = piece["owned_xy"]
-        writer.write_nodes(int(node_offsets[k]), owned[:, 0], owned[:, 1], piece["owned_z"])
-        faces = np.load(tile_dir(scratch, *key) / "faces_global.npy")
-        if faces.shape[0]:
-            writer.write_faces(int(face_offsets[k]), faces)
+    step = 4 * store.MESH_CHUNK
+    blocks = [
+        _MeshBlock(config.output, str(scratch), order, tuple(int(v) for v in offsets), what, start, min(start + step, int(offsets[-1])))
+        for what, offsets in (("nodes", node_offsets), ("faces", face_offsets))
+        for start in range(0, int(offsets[-1]), step)
+    ]
+    done = _map(client, write_mesh_block, blocks, _Progress("write", len(blocks), show), lambda _: 0)
+    for what, start, stop in done:
+        writer.record(what, start, stop)
     writer.set_tiles(
         np.array([r for r, _ in order]),
         np.array([c for _, c in order]),

@@ -29,7 +29,7 @@ import meshcore
 
 from .tiling import TileGrid, load_tile_points, points_in_box, tile_dir
 
-__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z"]
+__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece"]
 
 MAX_EXPANSIONS = 6
 """Rounds of loading missing points before a tile is reported uncertified."""
@@ -277,14 +277,12 @@ def mesh_tile(job: TileJob) -> TileSummary:
     owned_order = owned_order[np.argsort(xy[owned_order, 0] + 1j * xy[owned_order, 1])]
     rank = np.full(xy.shape[0], -1, dtype=np.int64)
     rank[owned_order] = np.arange(owned_order.size)
-    folder = tile_dir(Path(job.scratch), job.row, job.col)
-    folder.mkdir(parents=True, exist_ok=True)
     counts = None
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
     vertex_xyz = np.column_stack([xy[used], z[used]])
-    np.savez(
-        folder / "piece.npz",
+    save_piece(
+        Path(job.scratch), job.row, job.col, "piece",
         owned_xy=xy[owned_order],
         owned_z=z[owned_order],
         vertex_xyz=vertex_xyz,
@@ -293,7 +291,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
     )
     border_v, border_f = _border(vertex_xyz, faces, bx)
-    np.savez(folder / "border.npz", vertex_xyz=border_v, faces=border_f)
+    save_piece(Path(job.scratch), job.row, job.col, "border", vertex_xyz=border_v, faces=border_f)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -333,10 +331,18 @@ def _border(vertex_xyz, faces, box):
     return vertex_xyz[used[int(has_gap):]], f
 
 
-def load_piece(scratch: Path, row: int, col: int, keys=None, name: str = "piece") -> dict[str, NDArray]:
-    """Arrays saved by :func:`mesh_tile` (only ``keys`` when given)."""
-    with np.load(tile_dir(scratch, row, col) / f"{name}.npz") as data:
-        return {k: data[k] for k in (keys or data.files)}
+def save_piece(scratch: Path, row: int, col: int, name: str, **arrays: NDArray) -> None:
+    """Save a tile's arrays under ``name`` (one ``.npy`` each, so readers can map slices)."""
+    folder = tile_dir(scratch, row, col) / name
+    folder.mkdir(parents=True, exist_ok=True)
+    for key, value in arrays.items():
+        np.save(folder / f"{key}.npy", value)
+
+
+def load_piece(scratch: Path, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
+    """Arrays saved by :func:`save_piece`, memory-mapped (read only)."""
+    folder = tile_dir(scratch, row, col) / name
+    return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in keys}
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8]]:

@@ -302,6 +302,25 @@ def test_mesh_writer_refuses_an_incomplete_mesh(tmp_path, grid):
         mesh.close()
 
 
+def test_attached_writers_fill_slices_the_creating_writer_records(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
+    mesh = MeshWriter(path, n_nodes=7, n_faces=4)
+    MeshWriter.attach(path).write_nodes(0, NODE_X[:5], NODE_Y[:5], NODE_Z[:5])
+    MeshWriter.attach(path).write_nodes(5, NODE_X[5:], NODE_Y[5:], NODE_Z[5:])
+    MeshWriter.attach(path).write_faces(0, FACES)
+    mesh.set_tiles([0, 0], [0, 1], NODE_OFFSETS, FACE_OFFSETS)
+    mesh.record("nodes", 0, 5)
+    mesh.record("faces", 0, 4)
+    with pytest.raises(StoreError, match=r"mesh nodes \[5, 7\) were never written"):
+        mesh.close()  # the writer trusts only what it was told
+    mesh.record("nodes", 5, 7)
+    mesh.close()
+    xy, z, faces = read_mesh(path)
+    assert_allclose(z, NODE_Z)
+    assert_array_equal(faces, FACES)
+    assert faces.dtype == np.int32
+
+
 def test_finalize_updates_attrs_appends_history_and_consolidates(tmp_path, grid):
     path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
     write_two_piece_mesh(path)
