@@ -11,7 +11,7 @@ from __future__ import annotations
 from .api import Tile, TiledStore, open_store
 from .config import RunConfig
 from .errors import CrsError, InputFileError, PipelineError, UsageError
-from .run import RunReport, run
+from .runner import RunReport, run
 
 open = open_store  # noqa: A001 - pipeline.open(store) mirrors xarray.open_zarr
 

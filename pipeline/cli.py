@@ -78,7 +78,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3; 2 for GDAL 3.6)")
-    run.add_argument("--scratch-dir", help="folder for the spill files (default: the system temp folder)")
+    run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
     run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -160,7 +160,7 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
 
 def _demo(out: Path, points: int) -> int:
     from .config import RunConfig
-    from .run import run
+    from .runner import run
     from .synthetic import SurveySpec, write_survey
 
     survey = out / "survey"
@@ -192,7 +192,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge
             )
         if args.command == "run":
-            from .run import run
+            from .runner import run
 
             config = _run_config(args)
             report = run(config, progress=None if not args.no_progress else False, log=_log)

@@ -22,6 +22,12 @@ Layout
             spatial_ref ()        the same grid mapping as the root
             tile_row, tile_col (nTiles)       int64
             tile_node_offset, tile_face_offset (nTileOffsets = nTiles + 1) int64
+        status/
+            tile_done  (tile_row, tile_col)  int8: 1 once the tile's layers are
+                                  written (rows from the south; one chunk each)
+
+The root attribute ``complete`` is true only once every tile and the mesh are
+written; until then a rerun of the same job resumes.
 
 The raster layers are north-up (row 0 is the northern-most row), chunked in
 ``tile_cells x tile_cells`` tiles, so each tile of the pipeline writes exactly
@@ -78,6 +84,10 @@ __all__ = [
     "GridSpec",
     "create_store",
     "write_tile",
+    "mark_tile_done",
+    "tiles_done",
+    "reset_tiles_done",
+    "read_attrs",
     "MeshWriter",
     "finalize_store",
     "open_dem",
@@ -93,6 +103,10 @@ GRID_MAPPING = "spatial_ref"
 MESH_GROUP = "mesh"
 TOPOLOGY = "mesh2d"
 HISTORY_ATTR = "run_history"
+
+STATUS_GROUP = "status"
+TILE_DONE = f"{STATUS_GROUP}/tile_done"
+"""Array ``(tile_row, tile_col)`` of int8 in group ``status``: 1 once a tile's layers are written."""
 
 MESH_CHUNK = 1 << 18
 """Nodes (and faces) per chunk of the mesh arrays: 2 MiB of float64."""
@@ -349,7 +363,42 @@ def create_store(
             dims=("y", "x"),
             attrs=layer_attrs | {"grid_mapping": GRID_MAPPING, "coordinates": GRID_MAPPING} | gdal_crs,
         )
+    n_rows, n_cols = -(-grid.ny // grid.tile_cells), -(-grid.nx // grid.tile_cells)
+    _create_array(
+        root.create_group(STATUS_GROUP),
+        TILE_DONE.split("/")[1],
+        shape=(n_rows, n_cols),
+        chunks=(1, 1),  # one object per tile: tiles record themselves without locks
+        dtype=np.int8,
+        fill=0,
+        dims=("tile_row", "tile_col"),
+        attrs={"long_name": "1 where the tile's DEM is written (tile rows from the south)", "flag_values": [0, 1]},
+    )
     _consolidate(path)
+
+
+def mark_tile_done(path: StorePath, tile_row: int, tile_col: int) -> None:
+    """Record that a tile's layers are written (call only after writing them)."""
+    _open_array(path, TILE_DONE)[tile_row, tile_col] = 1
+
+
+def tiles_done(path: StorePath) -> NDArray[np.bool_]:
+    """``(n_rows, n_cols)``: which tiles' layers are written (rows from the south)."""
+    return _open_array(path, TILE_DONE)[...] == 1
+
+
+def reset_tiles_done(path: StorePath) -> None:
+    """Mark every tile as not written (their layers will be written again)."""
+    array = _open_array(path, TILE_DONE)
+    array[...] = 0
+
+
+def read_attrs(path: StorePath) -> dict[str, Any] | None:
+    """The root attributes of an existing store, or None when ``path`` holds none."""
+    where = os.fspath(path)
+    if not _is_zarr_store(where):
+        return None
+    return dict(_open_group(path).attrs.asdict())
 
 
 def write_tile(

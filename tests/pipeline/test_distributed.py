@@ -14,7 +14,7 @@ import xarray as xr
 
 from pipeline import store
 from pipeline.config import RunConfig
-from pipeline.run import run
+from pipeline.runner import run
 from pipeline.synthetic import SurveySpec, write_survey
 
 

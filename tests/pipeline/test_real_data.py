@@ -13,7 +13,7 @@ from pipeline import store
 from pipeline.cli import main
 from pipeline.config import RunConfig
 from pipeline.errors import CrsError
-from pipeline.run import run
+from pipeline.runner import run
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 

@@ -10,7 +10,7 @@ import meshcore
 from pipeline import store
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.run import run
+from pipeline.runner import run
 from pipeline.synthetic import SurveySpec, terrain_height, write_survey
 
 SPEC = SurveySpec(points=60_000, files=3, width=300.0, height=200.0, seed=3)

@@ -1,4 +1,4 @@
-"""``pipeline.run``: LAS/LAZ archives -> tiles on Dask -> one seamless DEM and mesh in Zarr.
+"""``pipeline.runner``: LAS/LAZ archives -> tiles on Dask -> one seamless DEM and mesh in Zarr.
 
 Stages (each timed in the run report):
 
@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -31,7 +29,8 @@ from typing import Any
 import numpy as np
 
 from .config import RunConfig
-from .errors import PipelineError
+from .checkpoint import WorkDir, work_dir_for
+from .errors import PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
@@ -135,15 +134,29 @@ def _client(config: RunConfig):
     return Client(cluster), cluster
 
 
-def _map(client, fn: Callable, items: list, progress: _Progress, points: Callable[[Any], int]) -> list:
+def _map(
+    client,
+    fn: Callable,
+    items: list,
+    progress: _Progress,
+    points: Callable[[Any], int],
+    finished: Callable[[Any, Any], None] | None = None,
+) -> list:
+    """``fn`` over ``items`` on the cluster; ``finished(item, result)`` runs here
+    as each task ends (to record it), before the next result is taken."""
     from distributed import as_completed
 
+    results: list[Any] = [None] * len(items)
+    if not items:
+        return results
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
-    results: list[Any] = [None] * len(items)
     for future in as_completed(futures):
         result = future.result()
-        results[index[future.key]] = result
+        i = index[future.key]
+        results[i] = result
+        if finished is not None:
+            finished(items[i], result)
         progress.update(points(result))
     return results
 
@@ -168,6 +181,8 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
     from .sources import PointFilter, iter_points
 
     t0 = time.perf_counter()
+    for part in (Path(job.scratch) / "tiles").glob(f"*/{job.index:06d}_*.npy"):
+        part.unlink()  # left by a stopped run: this file is routed again from the start
     spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
     reproject = Reprojector(job.source_wkt, job.target_wkt)
     point_filter = PointFilter(
@@ -234,6 +249,11 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
 
     ``progress`` draws progress bars on stderr (default: when it is a terminal);
     ``log`` receives one-line messages about the run.
+
+    A job that was stopped (killed, interrupted, failed) resumes when run
+    again with the same parameters and inputs: finished files, tiles and mesh
+    blocks are skipped (see :mod:`pipeline.checkpoint`).  A store made with
+    other parameters or inputs is an error unless ``config.overwrite``.
     """
     from . import store
     from .crs import resolve_crs
@@ -265,37 +285,63 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         "software": "terrain-pipeline",
         "version": _version(),
         "parameters": config.to_dict(),
-        "inputs": [{"path": str(i.path), "size": i.size_bytes, "points": i.point_count} for i in infos],
+        "inputs": [
+            {"path": str(i.path), "size": i.size_bytes, "points": i.point_count, "mtime": _mtime(i.path)}
+            for i in infos
+        ],
         "crs_wkt": plan.target_wkt,
         "grid": grid.to_dict(),
         "buffer": buffer,
     }
     spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
-    store.create_store(
-        config.output,
-        spec,
-        plan.target_wkt,
-        layers=config.layers,
-        attrs={"provenance": provenance, "complete": False},
-        zarr_format=config.zarr_format,
-        overwrite=config.overwrite,
-    )
+    work = WorkDir(work_dir_for(config.output, config.scratch_dir))
+    previous = _existing_job(config, provenance)
+    if previous is not None and previous.get("complete"):
+        say(f"{config.output}: already complete; nothing to do (--overwrite to run again)")
+        done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
+        done.notes.append("the store was already complete: nothing was recomputed")
+        return done
+    if previous is None:
+        store.create_store(
+            config.output,
+            spec,
+            plan.target_wkt,
+            layers=config.layers,
+            attrs={"provenance": provenance, "complete": False},
+            zarr_format=config.zarr_format,
+            overwrite=config.overwrite,
+        )
+        work.reset()
+    else:
+        if not work.exists():
+            # the intermediate files are gone: every stage runs again
+            store.reset_tiles_done(config.output)
+            work.reset()
+        say(f"{config.output}: resuming an unfinished run")
+        report.notes.append("resumed an unfinished run: finished work was kept")
     report.stages["scan"] = time.perf_counter() - t0
 
-    scratch_root = Path(config.scratch_dir) if config.scratch_dir else None
-    scratch = Path(tempfile.mkdtemp(prefix="terrain-", dir=scratch_root))
+    scratch = work.path
     client, cluster = _client(config)
     try:
         t0 = time.perf_counter()
+        counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
         jobs = [
             _RouteJob(
                 i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt,
                 config.classes, config.keep_withheld, config.bbox,
             )
             for i, p in enumerate(paths)
+            if counts[i] is None
         ]
-        counts = _map(client, route_source, jobs, _Progress("read", len(jobs), show), lambda c: c["read"])
+
+        def routed(job: _RouteJob, result: dict[str, Any]) -> None:
+            work.record("route", f"{job.index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
+            counts[job.index] = result
+
+        _map(client, route_source, jobs, _Progress("read", len(jobs), show), lambda c: c["read"], routed)
         for c in counts:
+            assert c is not None
             report.points_read += c["read"]
             report.filtered_class += c["filtered_class"]
             report.filtered_withheld += c["filtered_withheld"]
@@ -303,8 +349,8 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
             report.points_kept += c["kept"]
             if c["kept"] == 0:
                 report.notes.append(f"{c['path']}: no points of the chosen classes")
-        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts]
-        hull = _hull_points(np.concatenate([c["hull"] for c in counts]), grid, scratch, config.duplicates)
+        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None]
+        hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
         report.stages["route"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -316,10 +362,19 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
             )
             for r, c in grid.tiles()
         ]
-        summaries: list[TileSummary] = _map(
-            client, mesh_tile, tile_jobs, _Progress("mesh", len(tile_jobs), show), lambda s: s.points_owned
-        )
-        for s in summaries:
+        summaries: dict[tuple[int, int], TileSummary] = {}
+        for job in tile_jobs:
+            rec = work.recorded("mesh", _tile_key(job))
+            if rec is not None:
+                summaries[(job.row, job.col)] = TileSummary(**rec)
+        todo = [job for job in tile_jobs if (job.row, job.col) not in summaries]
+
+        def meshed(job: TileJob, summary: TileSummary) -> None:
+            work.record("mesh", _tile_key(job), asdict(summary))
+            summaries[(job.row, job.col)] = summary
+
+        _map(client, mesh_tile, todo, _Progress("mesh", len(todo), show), lambda s: s.points_owned, meshed)
+        for s in summaries.values():
             report.duplicates += s.duplicates
             report.vertices += s.vertices_owned
             report.faces += s.faces
@@ -334,26 +389,27 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         report.stages["mesh"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-
-        node_offsets, face_offsets = _offsets(grid, summaries)
+        node_offsets, face_offsets = _offsets(grid, list(summaries.values()))
+        written = store.tiles_done(config.output)
+        todo = [job for job in tile_jobs if not written[job.row, job.col]]
 
         def dem_and_write(job: TileJob) -> int:
             layers = dem_tile(job)
             store.write_tile(config.output, spec, job.row, job.col, layers)
             global_faces(job, node_offsets)
+            store.mark_tile_done(config.output, job.row, job.col)
             return 0
 
-        _map(client, dem_and_write, tile_jobs, _Progress("dem", len(tile_jobs), show), lambda _: 0)
+        _map(client, dem_and_write, todo, _Progress("dem", len(todo), show), lambda _: 0)
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        _write_mesh(client, config, grid, scratch, node_offsets, face_offsets, show)
+        _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-        shutil.rmtree(scratch, ignore_errors=True)
 
     report.stages["total"] = time.perf_counter() - t_start
     store.finalize_store(
@@ -361,7 +417,52 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         {"report": report.to_dict(), "complete": True},
         history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
     )
+    work.remove()
     return report
+
+
+def _tile_key(job: TileJob) -> str:
+    return f"{job.row:05d}_{job.col:05d}"
+
+
+def _mtime(path) -> float:
+    return os.stat(path).st_mtime
+
+
+def _existing_job(config: RunConfig, provenance: dict[str, Any]) -> dict[str, Any] | None:
+    """The attributes of an earlier run of the same job at ``config.output`` (to
+    resume or skip), or None to start afresh.  An existing store of another job
+    is an error unless ``config.overwrite``."""
+    from . import store
+
+    if config.overwrite:
+        return None
+    attrs = store.read_attrs(config.output)
+    if attrs is None:
+        return None
+    where = config.output
+    old = attrs.get("provenance", {})
+    try:
+        before = RunConfig.from_dict(old.get("parameters", {}))
+    except (PipelineError, TypeError):
+        raise UsageError(f"{where}: an existing store of unknown origin; pass --overwrite to replace it") from None
+    changed = config.differences(before)
+    if changed:
+        detail = ", ".join(f"{k}: {getattr(before, k)!r} -> {getattr(config, k)!r}" for k in changed)
+        raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass --overwrite to replace it")
+    key = ("path", "size", "mtime")
+    was = {tuple(i.get(k) for k in key) for i in old.get("inputs", [])}
+    now = {tuple(i.get(k) for k in key) for i in provenance["inputs"]}
+    if was != now:
+        added = sorted(p for p, *_ in now - was)
+        gone = sorted(p for p, *_ in was - now)
+        raise UsageError(
+            f"{where}: the inputs changed since the store was made (new or changed: {added or 'none'}; "
+            f"gone or changed: {gone or 'none'}); pass --overwrite, or use 'terrain workflow' for incremental runs"
+        )
+    if old.get("grid") != provenance["grid"]:
+        raise UsageError(f"{where}: the existing store has another grid; pass --overwrite to replace it")
+    return attrs
 
 
 def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: str) -> np.ndarray:
@@ -478,22 +579,34 @@ def write_mesh_block(block: _MeshBlock) -> tuple[str, int, int]:
     return block.what, block.start, block.stop
 
 
-def _write_mesh(client, config: RunConfig, grid: TileGrid, scratch: Path, node_offsets, face_offsets, show: bool) -> None:
+def _write_mesh(client, config: RunConfig, grid: TileGrid, work: WorkDir, node_offsets, face_offsets, show: bool) -> None:
     """Write every tile's nodes and renumbered faces into the store's mesh group,
-    in blocks of whole chunks on the workers."""
+    in blocks of whole chunks on the workers (blocks written before a stop are kept)."""
     from . import store
 
     order = tuple(grid.tiles())
-    writer = store.MeshWriter(config.output, int(node_offsets[-1]), int(face_offsets[-1]), config.zarr_format)
+    sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}
+    if work.recorded("write", "created") == sizes:
+        writer = store.MeshWriter.attach(config.output)
+    else:
+        work.forget("write")
+        writer = store.MeshWriter(config.output, sizes["nodes"], sizes["faces"], config.zarr_format)
+        work.record("write", "created", sizes)
     step = 4 * store.MESH_CHUNK
-    blocks = [
-        _MeshBlock(config.output, str(scratch), order, tuple(int(v) for v in offsets), what, start, min(start + step, int(offsets[-1])))
-        for what, offsets in (("nodes", node_offsets), ("faces", face_offsets))
-        for start in range(0, int(offsets[-1]), step)
-    ]
-    done = _map(client, write_mesh_block, blocks, _Progress("write", len(blocks), show), lambda _: 0)
-    for what, start, stop in done:
-        writer.record(what, start, stop)
+    blocks = []
+    for what, offsets in (("nodes", node_offsets), ("faces", face_offsets)):
+        for start in range(0, int(offsets[-1]), step):
+            stop = min(start + step, int(offsets[-1]))
+            if work.recorded("write", f"{what}_{start}") is not None:
+                writer.record(what, start, stop)
+                continue
+            blocks.append(_MeshBlock(config.output, str(work.path), order, tuple(int(v) for v in offsets), what, start, stop))
+
+    def written(block: _MeshBlock, result: tuple[str, int, int]) -> None:
+        writer.record(*result)
+        work.record("write", f"{block.what}_{block.start}", {"stop": block.stop})
+
+    _map(client, write_mesh_block, blocks, _Progress("write", len(blocks), show), lambda _: 0, written)
     writer.set_tiles(
         np.array([r for r, _ in order]),
         np.array([c for _, c in order]),

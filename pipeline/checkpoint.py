@@ -1,0 +1,77 @@
+"""The work folder of a job, and the records that let a killed job resume.
+
+A run keeps its intermediate files (spilled points, meshed pieces) in a work
+folder beside the store and records each finished unit of work there: a routed
+input file, a meshed tile, a written block of the mesh.  A record is written
+only after the unit's files are complete (an atomic rename), so a job killed
+at any moment and run again redoes only the units without a record.  DEM
+tiles are recorded in the store itself (``tile_done``).  The folder is removed
+when the store is complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["WorkDir", "work_dir_for"]
+
+
+def work_dir_for(output: str, scratch_dir: str | None) -> Path:
+    """``.NAME.work`` beside the store, or inside ``scratch_dir`` when given."""
+    out = Path(output).absolute()
+    parent = Path(scratch_dir).absolute() if scratch_dir else out.parent
+    return parent / f".{out.name}.work"
+
+
+class WorkDir:
+    """The work folder of one job and its records of finished work."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+
+    def reset(self) -> None:
+        """Start over: an empty folder."""
+        shutil.rmtree(self.path, ignore_errors=True)
+        self.path.mkdir(parents=True)
+
+    def exists(self) -> bool:
+        return (self.path / "records").is_dir()
+
+    def remove(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+
+    def _record_path(self, stage: str, key: str) -> Path:
+        return self.path / "records" / stage / f"{key}.json"
+
+    def record(self, stage: str, key: str, payload: dict[str, Any], **arrays: np.ndarray) -> None:
+        """Record a finished unit of work (with small arrays); atomic."""
+        target = self._record_path(stage, key)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        for name, value in arrays.items():
+            tmp = target.with_name(f"{key}.{name}.tmp.npy")
+            np.save(tmp, value)
+            os.replace(tmp, target.with_name(f"{key}.{name}.npy"))
+        tmp = target.with_suffix(".tmp")
+        tmp.write_text(json.dumps(payload))
+        os.replace(tmp, target)
+
+    def recorded(self, stage: str, key: str, *arrays: str) -> dict[str, Any] | None:
+        """The payload of a finished unit (arrays under their names), or None."""
+        target = self._record_path(stage, key)
+        try:
+            payload = json.loads(target.read_text())
+        except (OSError, ValueError):
+            return None
+        for name in arrays:
+            payload[name] = np.load(target.with_name(f"{key}.{name}.npy"))
+        return payload
+
+    def forget(self, stage: str) -> None:
+        """Drop every record of a stage (its work will be redone)."""
+        shutil.rmtree(self.path / "records" / stage, ignore_errors=True)

@@ -1,0 +1,156 @@
+"""Resuming stopped jobs: a failed or killed run, run again, gives the same store."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+import pipeline.runner as run_module
+from pipeline import store
+from pipeline.config import RunConfig
+from pipeline.errors import UsageError
+from pipeline.synthetic import SurveySpec, write_survey
+
+SPEC = SurveySpec(points=48_000, files=3, width=240.0, height=160.0, seed=11)
+METADATA = {"zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"}
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("survey")
+    write_survey(folder, SPEC)
+    return folder
+
+
+def _config(survey, out, **kw) -> RunConfig:
+    values = dict(inputs=(str(survey),), output=str(out), resolution=2.0, tile_size=48.0, workers=2)
+    values.update(kw)
+    return RunConfig(**values)
+
+
+@pytest.fixture(scope="module")
+def reference(survey, tmp_path_factory):
+    out = tmp_path_factory.mktemp("reference") / "dem.zarr"
+    run_module.run(_config(survey, out), progress=False)
+    return out
+
+
+def _chunk_files(path: Path) -> dict[str, bytes]:
+    """Every array chunk of the store, by relative path (metadata left out)."""
+    out = {}
+    for root, _, files in os.walk(path):
+        for name in files:
+            if name not in METADATA:
+                full = Path(root) / name
+                out[str(full.relative_to(path))] = full.read_bytes()
+    return out
+
+
+def _assert_same_store(path: Path, reference: Path) -> None:
+    got, want = zarr.open_group(str(path), mode="r"), zarr.open_group(str(reference), mode="r")
+    names = sorted(name for name, _ in want.arrays()) + sorted(f"mesh/{n}" for n, _ in want["mesh"].arrays())
+    for name in names:
+        a, b = got[name][...], want[name][...]
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+    assert _chunk_files(path) == _chunk_files(reference)  # byte for byte
+    assert got.attrs["complete"] is True
+
+
+def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monkeypatch):
+    out = tmp_path / "dem.zarr"
+    real_dem, real_mesh = run_module.dem_tile, run_module.mesh_tile
+    calls = {"dem": 0, "mesh": 0}
+
+    def failing_dem(job):
+        calls["dem"] += 1
+        if calls["dem"] == 6:
+            raise RuntimeError("disk on fire")
+        return real_dem(job)
+
+    monkeypatch.setattr(run_module, "dem_tile", failing_dem)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        run_module.run(_config(survey, out), progress=False)
+    assert store.read_attrs(out)["complete"] is False
+    done = store.tiles_done(out)
+    assert 0 < done.sum() < done.size
+
+    def counting_mesh(job):
+        calls["mesh"] += 1
+        return real_mesh(job)
+
+    monkeypatch.setattr(run_module, "dem_tile", real_dem)
+    monkeypatch.setattr(run_module, "mesh_tile", counting_mesh)
+    report = run_module.run(_config(survey, out), progress=False)
+    assert calls["mesh"] == 0  # every tile was meshed before the failure
+    assert any("resumed" in note for note in report.notes)
+    assert report.points_read == SPEC.points
+    _assert_same_store(out, reference)
+    assert not (tmp_path / ".dem.zarr.work").exists()
+
+
+def test_a_complete_store_is_left_alone(survey, reference):
+    before = {p: p.stat().st_mtime_ns for p in Path(reference).rglob("*") if p.is_file()}
+    report = run_module.run(_config(survey, reference), progress=False)
+    assert any("already complete" in note for note in report.notes)
+    assert report.points_read == SPEC.points
+    assert {p: p.stat().st_mtime_ns for p in Path(reference).rglob("*") if p.is_file()} == before
+
+
+def test_other_parameters_are_an_error_naming_them(survey, reference):
+    with pytest.raises(UsageError, match=r"other parameters \(triangle_measure: 's3' -> 's1'"):
+        run_module.run(_config(survey, reference, triangle_measure="s1"), progress=False)
+
+
+def test_changed_inputs_are_an_error(survey, tmp_path):
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    for p in Path(survey).glob("*.laz"):
+        (folder / p.name).write_bytes(p.read_bytes())
+    out = tmp_path / "dem.zarr"
+    run_module.run(_config(folder, out, tile_size=96.0), progress=False)
+    first = sorted(folder.glob("*.laz"))[0]
+    os.utime(first, (time.time() + 10, time.time() + 10))
+    with pytest.raises(UsageError, match=f"inputs changed.*{first.name}"):
+        run_module.run(_config(folder, out, tile_size=96.0), progress=False)
+    run_module.run(_config(folder, out, tile_size=96.0, overwrite=True), progress=False)
+    assert store.read_attrs(out)["complete"] is True
+
+
+def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, reference, tmp_path):
+    out = tmp_path / "dem.zarr"
+    command = [
+        sys.executable, "-m", "pipeline.cli", "run", str(survey), "-o", str(out),
+        "--resolution", "2", "--tile-size", "48", "--workers", "2", "--no-progress",
+    ]
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    rng = np.random.default_rng(7)
+    started = time.perf_counter()
+    subprocess.run(command, env=env, capture_output=True, timeout=600)  # how long a whole run takes
+    whole = time.perf_counter() - started
+    store_path = Path(out)
+    import shutil
+
+    shutil.rmtree(store_path)
+    shutil.rmtree(tmp_path / ".dem.zarr.work", ignore_errors=True)
+    kills = 0
+    for delay in rng.uniform(0.15, 0.7, 5) * whole:
+        proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            proc.wait(timeout=delay)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+            proc.wait()
+            kills += 1
+    assert kills >= 3
+    final = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert final.returncode == 0, final.stderr
+    _assert_same_store(store_path, reference)
