@@ -72,6 +72,18 @@ class WorkDir:
             payload[name] = np.load(target.with_name(f"{key}.{name}.npy"))
         return payload
 
+    def forget_record(self, stage: str, key: str) -> None:
+        """Drop one record and its arrays (that unit of work will be redone)."""
+        target = self._record_path(stage, key)
+        for path in target.parent.glob(f"{key}.*"):
+            path.unlink()
+
+    def rename_record(self, stage: str, old: str, new: str) -> None:
+        """Move a record (and its arrays) to another key."""
+        target = self._record_path(stage, old)
+        for path in list(target.parent.glob(f"{old}.*")):
+            path.rename(path.with_name(new + path.name[len(old):]))
+
     def forget(self, stage: str) -> None:
         """Drop every record of a stage (its work will be redone)."""
         shutil.rmtree(self.path / "records" / stage, ignore_errors=True)

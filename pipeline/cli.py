@@ -92,6 +92,21 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
     demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
 
+    wf = sub.add_parser(
+        "workflow",
+        help="incremental jobs from a TOML file (nightly archives)",
+        description="A workflow file names inputs, an output store and any 'terrain run' parameters. "
+        "'run' brings the store up to date, recomputing only the tiles touched by new, changed or "
+        "removed files; 'status' says what the last run did and what the next one would do.",
+    )
+    wf_sub = wf.add_subparsers(dest="action", required=True, metavar="ACTION")
+    wf_run = wf_sub.add_parser("run", help="bring the workflow's store up to date")
+    wf_run.add_argument("job", type=Path, help="the workflow file (TOML)")
+    wf_run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    wf_status = wf_sub.add_parser("status", help="last run, files known, tiles pending")
+    wf_status.add_argument("job", type=Path, help="the workflow file (TOML)")
+    wf_status.add_argument("--json", action="store_true", help="print JSON")
+
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
     info.add_argument("--json", action="store_true", help="print JSON")
@@ -196,6 +211,24 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             config = _run_config(args)
             report = run(config, progress=None if not args.no_progress else False, log=_log)
+            print(report.table())
+            for note in report.notes:
+                print(f"note: {note}")
+            return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
+        if args.command == "workflow":
+            from .workflow import Workflow, run_workflow, status_text, workflow_status
+
+            workflow = Workflow.load(args.job)
+            if args.action == "status":
+                status = workflow_status(workflow)
+                if args.json:
+                    import json
+
+                    print(json.dumps(status, indent=2))
+                else:
+                    print(status_text(status))
+                return EXIT_OK
+            report = run_workflow(workflow, progress=None if not args.no_progress else False, log=_log)
             print(report.table())
             for note in report.notes:
                 print(f"note: {note}")

@@ -9,10 +9,13 @@ Stages (each timed in the run report):
 3. *mesh*: one task per tile: its piece of the combined mesh (certified
    against its neighbours, see :mod:`pipeline.tiles`);
 4. *dem*: one task per tile: the DEM chunk from the stitched faces over it,
-   written straight into its own Zarr chunk (no locks), and the piece's faces
-   renumbered to global node ids;
-5. *write mesh*: the pieces' nodes and renumbered faces streamed into the
-   store's UGRID group.
+   written straight into its own Zarr chunk (no locks);
+5. *write mesh*: one task per tile renumbers its piece's faces to global node
+   ids, then one task per block of whole chunks writes the nodes and faces
+   into the store's UGRID group.
+
+Every finished unit is recorded (:mod:`pipeline.checkpoint`), so a stopped run
+resumes, and :func:`execute` can update a store after its inputs changed.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +38,7 @@ from .errors import PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
-__all__ = ["run", "RunReport", "route_source"]
+__all__ = ["run", "execute", "RunReport", "route_source"]
 
 POINTS_PER_TILE = 1_500_000
 """Target number of points per tile when ``tile_size`` is not given."""
@@ -178,7 +182,7 @@ class _RouteJob:
 def route_source(job: _RouteJob) -> dict[str, Any]:
     """Stream one file into the tiles' spill files; returns its counts."""
     from .crs import Reprojector
-    from .sources import PointFilter, iter_points
+    from .sources import PointFilter, file_digest, iter_points
 
     t0 = time.perf_counter()
     for part in (Path(job.scratch) / "tiles").glob(f"*/{job.index:06d}_*.npy"):
@@ -202,31 +206,43 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
             counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
             x, y, z = x[inside], y[inside], z[inside]
         counts["kept"] += int(x.size)
+        if x.size:
+            b = counts.setdefault("bounds", [math.inf, math.inf, -math.inf, -math.inf])
+            b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
+            b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
         spill.add(x, y, z)
         hull = hull_candidates(np.concatenate([hull, np.column_stack([x, y, z])]))
     spill.flush()
+    counts["sha256"] = file_digest(job.path)
     counts["hull"] = hull
     counts["seconds"] = time.perf_counter() - t0
     return counts
 
 
-def _target_bounds(infos, plan) -> tuple[float, float, float, float]:
-    """Union of the files' header bounds, in the target CRS."""
+def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
+    """A file's header bounds in the target CRS (None for an empty file)."""
     from pyproj import CRS, Transformer
 
+    if info.point_count == 0:
+        return None
+    b = info.bounds
+    x0, y0, x1, y1 = b[0], b[1], b[3], b[4]
+    if source_wkt != target_wkt:
+        t = Transformer.from_crs(CRS.from_wkt(source_wkt), CRS.from_wkt(target_wkt), always_xy=True)
+        x0, y0, x1, y1 = t.transform_bounds(x0, y0, x1, y1, densify_pts=21)
+    return float(x0), float(y0), float(x1), float(y1)
+
+
+def _target_bounds(infos, plan) -> tuple[float, float, float, float]:
+    """Union of the files' header bounds, in the target CRS."""
     xmin = ymin = math.inf
     xmax = ymax = -math.inf
-    target = CRS.from_wkt(plan.target_wkt)
     for info, src in zip(infos, plan.source_wkts):
-        b = info.bounds
-        if info.point_count == 0:
+        b = _file_bounds(info, src, plan.target_wkt)
+        if b is None:
             continue
-        x0, y0, x1, y1 = b[0], b[1], b[3], b[4]
-        if src != plan.target_wkt:
-            t = Transformer.from_crs(CRS.from_wkt(src), target, always_xy=True)
-            x0, y0, x1, y1 = t.transform_bounds(x0, y0, x1, y1, densify_pts=21)
-        xmin, ymin = min(xmin, x0), min(ymin, y0)
-        xmax, ymax = max(xmax, x1), max(ymax, y1)
+        xmin, ymin = min(xmin, b[0]), min(ymin, b[1])
+        xmax, ymax = max(xmax, b[2]), max(ymax, b[3])
     return xmin, ymin, xmax, ymax
 
 
@@ -255,6 +271,19 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
     blocks are skipped (see :mod:`pipeline.checkpoint`).  A store made with
     other parameters or inputs is an error unless ``config.overwrite``.
     """
+    return execute(config, progress=progress, log=log)
+
+
+def execute(
+    config: RunConfig,
+    *,
+    progress: bool | None = None,
+    log: Callable[[str], None] | None = None,
+    incremental: bool = False,
+) -> RunReport:
+    """:func:`run`, or with ``incremental`` an update of the store after its
+    inputs changed: the work folder is kept after the run, and only the tiles
+    whose points (or hull) changed are computed again (see :mod:`pipeline.workflow`)."""
     from . import store
     from .crs import resolve_crs
     from .sources import discover_inputs, read_info
@@ -286,18 +315,31 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         "version": _version(),
         "parameters": config.to_dict(),
         "inputs": [
-            {"path": str(i.path), "size": i.size_bytes, "points": i.point_count, "mtime": _mtime(i.path)}
-            for i in infos
+            {
+                "path": str(i.path), "size": i.size_bytes, "points": i.point_count, "mtime": _mtime(i.path),
+                "bounds": _file_bounds(i, src, plan.target_wkt),
+            }
+            for i, src in zip(infos, plan.source_wkts)
         ],
         "crs_wkt": plan.target_wkt,
         "grid": grid.to_dict(),
+        "extent": list(bounds),
         "buffer": buffer,
     }
     spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
     work = WorkDir(work_dir_for(config.output, config.scratch_dir))
-    previous = _existing_job(config, provenance)
-    if previous is not None and previous.get("complete"):
-        say(f"{config.output}: already complete; nothing to do (--overwrite to run again)")
+    previous = _existing_job(config, provenance, allow_new_inputs=incremental)
+    fresh_frame = previous is not None and any(
+        previous.get("provenance", {}).get(k) != provenance[k] for k in ("grid", "extent", "buffer")
+    )
+    if incremental and fresh_frame:
+        report.notes.append("the grid, extent or buffer changed: every tile was computed again")
+        previous = None
+    elif fresh_frame:
+        raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")
+    same_inputs = previous is not None and _input_keys(previous["provenance"]["inputs"]) == _input_keys(provenance["inputs"])
+    if previous is not None and previous.get("complete") and same_inputs:
+        say(f"{config.output}: already complete; nothing to do")
         done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
         done.notes.append("the store was already complete: nothing was recomputed")
         return done
@@ -309,14 +351,23 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
             layers=config.layers,
             attrs={"provenance": provenance, "complete": False},
             zarr_format=config.zarr_format,
-            overwrite=config.overwrite,
+            overwrite=config.overwrite or incremental,
         )
         work.reset()
+    elif not work.exists():
+        # the intermediate files are gone: every stage runs again
+        store.reset_tiles_done(config.output)
+        work.reset()
+        report.notes.append("the work folder was missing: every tile was computed again")
+    elif not same_inputs:
+        changed = _forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
+        tiles = _tiles_depending_on(work, grid, changed)
+        _forget_tiles(work, config.output, grid, tiles)
+        report.notes.append(
+            f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again"
+        )
+        store.finalize_store(config.output, {"provenance": provenance, "complete": False})
     else:
-        if not work.exists():
-            # the intermediate files are gone: every stage runs again
-            store.reset_tiles_done(config.output)
-            work.reset()
         say(f"{config.output}: resuming an unfinished run")
         report.notes.append("resumed an unfinished run: finished work was kept")
     report.stages["scan"] = time.perf_counter() - t0
@@ -351,6 +402,11 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
                 report.notes.append(f"{c['path']}: no points of the chosen classes")
         report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None]
         hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
+        moved = _tiles_whose_hull_moved(work, grid, buffer, hull)
+        if moved:
+            _forget_tiles(work, config.output, grid, moved)
+            report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
+        np.save(work.path / "hull.npy", hull)
         report.stages["route"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -366,6 +422,7 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         for job in tile_jobs:
             rec = work.recorded("mesh", _tile_key(job))
             if rec is not None:
+                rec["held"] = tuple(tuple(box) for box in rec.get("held", ()))
                 summaries[(job.row, job.col)] = TileSummary(**rec)
         todo = [job for job in tile_jobs if (job.row, job.col) not in summaries]
 
@@ -396,7 +453,6 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         def dem_and_write(job: TileJob) -> int:
             layers = dem_tile(job)
             store.write_tile(config.output, spec, job.row, job.col, layers)
-            global_faces(job, node_offsets)
             store.mark_tile_done(config.output, job.row, job.col)
             return 0
 
@@ -404,7 +460,7 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
+        _write_mesh(client, config, grid, work, tile_jobs, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
         client.close()
@@ -417,7 +473,8 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
         {"report": report.to_dict(), "complete": True},
         history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
     )
-    work.remove()
+    if not incremental:
+        work.remove()
     return report
 
 
@@ -429,10 +486,15 @@ def _mtime(path) -> float:
     return os.stat(path).st_mtime
 
 
-def _existing_job(config: RunConfig, provenance: dict[str, Any]) -> dict[str, Any] | None:
+def _input_keys(inputs: list[dict[str, Any]]) -> set[tuple]:
+    return {(i.get("path"), i.get("size"), i.get("mtime")) for i in inputs}
+
+
+def _existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs: bool = False) -> dict[str, Any] | None:
     """The attributes of an earlier run of the same job at ``config.output`` (to
     resume or skip), or None to start afresh.  An existing store of another job
-    is an error unless ``config.overwrite``."""
+    (or, unless ``allow_new_inputs``, of other inputs) is an error unless
+    ``config.overwrite``."""
     from . import store
 
     if config.overwrite:
@@ -450,19 +512,121 @@ def _existing_job(config: RunConfig, provenance: dict[str, Any]) -> dict[str, An
     if changed:
         detail = ", ".join(f"{k}: {getattr(before, k)!r} -> {getattr(config, k)!r}" for k in changed)
         raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass --overwrite to replace it")
-    key = ("path", "size", "mtime")
-    was = {tuple(i.get(k) for k in key) for i in old.get("inputs", [])}
-    now = {tuple(i.get(k) for k in key) for i in provenance["inputs"]}
-    if was != now:
+    was, now = _input_keys(old.get("inputs", [])), _input_keys(provenance["inputs"])
+    if was != now and not allow_new_inputs:
         added = sorted(p for p, *_ in now - was)
         gone = sorted(p for p, *_ in was - now)
         raise UsageError(
             f"{where}: the inputs changed since the store was made (new or changed: {added or 'none'}; "
             f"gone or changed: {gone or 'none'}); pass --overwrite, or use 'terrain workflow' for incremental runs"
         )
-    if old.get("grid") != provenance["grid"]:
-        raise UsageError(f"{where}: the existing store has another grid; pass --overwrite to replace it")
     return attrs
+
+
+def _forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> list[tuple]:
+    """Drop the spilled points and records of inputs that changed or went away,
+    renumber the spill files of the others to their new place in the input
+    list, and return the regions (boxes) whose points changed."""
+    from .sources import file_digest
+
+    old_index = {i["path"]: k for k, i in enumerate(before)}
+    regions: list[tuple] = []
+    keep: dict[int, int] = {}  # old index -> new index
+    for k, item in enumerate(now):
+        j = old_index.get(item["path"])
+        if j is not None:
+            old = before[j]
+            rec = work.recorded("route", f"{j:06d}")
+            same = (old["size"], old["mtime"]) == (item["size"], item["mtime"])
+            if not same and rec is not None and old["size"] == item["size"]:
+                same = rec.get("sha256") == file_digest(item["path"])  # touched, not changed
+            if same and rec is not None:
+                keep[j] = k
+                continue
+        if item.get("bounds"):
+            regions.append(tuple(item["bounds"]))
+    for j, old in enumerate(before):
+        if j in keep:
+            continue
+        rec = work.recorded("route", f"{j:06d}")
+        box = (rec or {}).get("bounds") or old.get("bounds")
+        if box:
+            regions.append(tuple(box))
+        _drop_source(work, j)
+    # renumber in two steps, so no new name meets an old one still in use
+    for j in keep:
+        _rename_source(work, j, f"tmp{j:06d}")
+    for j, k in keep.items():
+        _rename_source(work, f"tmp{j:06d}", f"{k:06d}")
+    return regions
+
+
+def _drop_source(work: WorkDir, index: int) -> None:
+    for part in (work.path / "tiles").glob(f"*/{index:06d}_*.npy"):
+        part.unlink()
+    work.forget_record("route", f"{index:06d}")
+
+
+def _rename_source(work: WorkDir, old: int | str, new: str) -> None:
+    old = f"{old:06d}" if isinstance(old, int) else old
+    for part in (work.path / "tiles").glob(f"*/{old}_*.npy"):
+        part.rename(part.with_name(new + part.name[len(old):]))
+    work.rename_record("route", old, new)
+
+
+def _tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> set[tuple[int, int]]:
+    """Tiles whose recorded piece held points in any of ``regions`` (all tiles
+    without a record count too: they are computed anyway)."""
+    out = set()
+    for r, c in grid.tiles():
+        rec = work.recorded("mesh", f"{r:05d}_{c:05d}")
+        if rec is None:
+            out.add((r, c))
+            continue
+        for held in rec.get("held", ()):
+            if any(h[0] <= b[2] and b[0] <= h[2] and h[1] <= b[3] and b[1] <= h[3] for h in [held] for b in regions):
+                out.add((r, c))
+                break
+    return out
+
+
+def _tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: np.ndarray) -> set[tuple[int, int]]:
+    """Tiles with a recorded piece whose nearby part of the global hull changed."""
+    from .tiles import _hull_near
+
+    path = work.path / "hull.npy"
+    if not path.exists():
+        return set()
+    before = np.load(path)
+    if before.shape == hull.shape and np.array_equal(before, hull):
+        return set()
+    out = set()
+    for r, c in grid.tiles():
+        if work.recorded("mesh", f"{r:05d}_{c:05d}") is None:
+            continue
+        bx = grid.box(r, c)
+        box = (bx[0] - buffer, bx[1] - buffer, bx[2] + buffer, bx[3] + buffer)
+        a, b = _hull_near(before, box), _hull_near(hull, box)
+        if a.shape != b.shape or not np.array_equal(a, b):
+            out.add((r, c))
+    return out
+
+
+def _forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[int, int]]) -> None:
+    """Mesh these tiles again, and write the DEM of them and their neighbours
+    (whose DEM reads their border faces) and the whole mesh again."""
+    from . import store
+
+    dem = set()
+    for r, c in tiles:
+        work.forget_record("mesh", f"{r:05d}_{c:05d}")
+        dem.update(
+            (rr, cc)
+            for rr in range(max(0, r - 1), min(grid.n_rows, r + 2))
+            for cc in range(max(0, c - 1), min(grid.n_cols, c + 2))
+        )
+    store.reset_tiles_done(output, sorted(dem))
+    work.forget("write")
 
 
 def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: str) -> np.ndarray:
@@ -579,17 +743,24 @@ def write_mesh_block(block: _MeshBlock) -> tuple[str, int, int]:
     return block.what, block.start, block.stop
 
 
-def _write_mesh(client, config: RunConfig, grid: TileGrid, work: WorkDir, node_offsets, face_offsets, show: bool) -> None:
-    """Write every tile's nodes and renumbered faces into the store's mesh group,
-    in blocks of whole chunks on the workers (blocks written before a stop are kept)."""
+def _write_mesh(
+    client, config: RunConfig, grid: TileGrid, work: WorkDir, tile_jobs: list[TileJob], node_offsets, face_offsets, show: bool
+) -> None:
+    """Renumber every piece's faces to global node ids, then write the nodes and
+    faces into the store's mesh group in blocks of whole chunks on the workers
+    (tiles renumbered and blocks written before a stop are kept)."""
     from . import store
 
+    todo = [job for job in tile_jobs if work.recorded("write", f"faces_{_tile_key(job)}") is None]
+    _map(
+        client, partial(global_faces, node_offsets=node_offsets), todo, _Progress("number", len(todo), show),
+        lambda _: 0, lambda job, _: work.record("write", f"faces_{_tile_key(job)}", {}),
+    )
     order = tuple(grid.tiles())
     sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}
     if work.recorded("write", "created") == sizes:
         writer = store.MeshWriter.attach(config.output)
     else:
-        work.forget("write")
         writer = store.MeshWriter(config.output, sizes["nodes"], sizes["faces"], config.zarr_format)
         work.record("write", "created", sizes)
     step = 4 * store.MESH_CHUNK

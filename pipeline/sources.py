@@ -46,6 +46,7 @@ __all__ = [
     "SourceInfo",
     "class_counts",
     "discover_inputs",
+    "file_digest",
     "iter_points",
     "read_info",
 ]
@@ -785,3 +786,13 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
                 filtered_withheld=filtered_withheld,
             )
 
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (hex): its identity whatever its time stamps."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 22), b""):
+            digest.update(block)
+    return digest.hexdigest()

@@ -387,10 +387,13 @@ def tiles_done(path: StorePath) -> NDArray[np.bool_]:
     return _open_array(path, TILE_DONE)[...] == 1
 
 
-def reset_tiles_done(path: StorePath) -> None:
-    """Mark every tile as not written (their layers will be written again)."""
+def reset_tiles_done(path: StorePath, tiles: Sequence[tuple[int, int]] | None = None) -> None:
+    """Mark tiles (default: all) as not written (their layers will be written again)."""
     array = _open_array(path, TILE_DONE)
-    array[...] = 0
+    if tiles is None:
+        array[...] = 0
+    for row, col in tiles or ():
+        array[row, col] = 0
 
 
 def read_attrs(path: StorePath) -> dict[str, Any] | None:

@@ -67,6 +67,9 @@ class TileSummary:
     expansions: int
     certified: bool
     seconds: float
+    held: tuple[tuple[float, float, float, float], ...] = ()
+    """The boxes whose points the tile held: its piece depends on no other point
+    (besides the global hull's)."""
 
 
 def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
@@ -303,6 +306,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         expansions=expansions,
         certified=certified,
         seconds=time.perf_counter() - t0,
+        held=tuple(tuple(float(v) for v in box) for box in held),
     )
 
 

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zarr
 
 import pipeline.runner as run_module
 from pipeline import store
@@ -19,8 +18,9 @@ from pipeline.config import RunConfig
 from pipeline.errors import UsageError
 from pipeline.synthetic import SurveySpec, write_survey
 
+from .store_checks import assert_same_store
+
 SPEC = SurveySpec(points=48_000, files=3, width=240.0, height=160.0, seed=11)
-METADATA = {"zarr.json", ".zarray", ".zattrs", ".zgroup", ".zmetadata"}
 
 
 @pytest.fixture(scope="module")
@@ -41,28 +41,6 @@ def reference(survey, tmp_path_factory):
     out = tmp_path_factory.mktemp("reference") / "dem.zarr"
     run_module.run(_config(survey, out), progress=False)
     return out
-
-
-def _chunk_files(path: Path) -> dict[str, bytes]:
-    """Every array chunk of the store, by relative path (metadata left out)."""
-    out = {}
-    for root, _, files in os.walk(path):
-        for name in files:
-            if name not in METADATA:
-                full = Path(root) / name
-                out[str(full.relative_to(path))] = full.read_bytes()
-    return out
-
-
-def _assert_same_store(path: Path, reference: Path) -> None:
-    got, want = zarr.open_group(str(path), mode="r"), zarr.open_group(str(reference), mode="r")
-    names = sorted(name for name, _ in want.arrays()) + sorted(f"mesh/{n}" for n, _ in want["mesh"].arrays())
-    for name in names:
-        a, b = got[name][...], want[name][...]
-        assert a.dtype == b.dtype and a.shape == b.shape, name
-        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
-    assert _chunk_files(path) == _chunk_files(reference)  # byte for byte
-    assert got.attrs["complete"] is True
 
 
 def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monkeypatch):
@@ -93,7 +71,7 @@ def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monk
     assert calls["mesh"] == 0  # every tile was meshed before the failure
     assert any("resumed" in note for note in report.notes)
     assert report.points_read == SPEC.points
-    _assert_same_store(out, reference)
+    assert_same_store(out, reference)
     assert not (tmp_path / ".dem.zarr.work").exists()
 
 
@@ -153,4 +131,4 @@ def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, referenc
     assert kills >= 3
     final = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert final.returncode == 0, final.stderr
-    _assert_same_store(store_path, reference)
+    assert_same_store(store_path, reference)

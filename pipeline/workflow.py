@@ -1,0 +1,182 @@
+"""Declarative, incremental jobs for archives that grow: ``terrain workflow``.
+
+A workflow is a TOML file::
+
+    [workflow]
+    inputs = ["/data/archive/**/*.laz"]   # files, folders, globs (relative to this file)
+    output = "/data/dem/archive.zarr"
+    scheduler = "tcp://scheduler:8786"    # optional: an existing Dask cluster
+
+    [run]                                 # any ``terrain run`` parameter
+    resolution = 1.0
+    tile_size = 500.0
+    buffer = 10.0
+
+Each run remembers the input files it processed (path, size, modification
+time, SHA-256 of the content) and keeps its work folder.  The next run
+recomputes only the tiles whose points changed: the tiles that held points in
+the bounds of a new, changed or removed file, or near a changed part of the
+convex hull, plus the DEM of their neighbours; every other tile's DEM chunk is
+left untouched.  The result equals a full run over the current archive.  When
+the grid, the data extent or the buffer changes (e.g. a file extends the
+survey, or ``tile_size``/``buffer`` are left to their density-derived
+defaults and the point count changes), every tile is computed again.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from .config import RunConfig
+from .errors import UsageError
+
+__all__ = ["Workflow", "run_workflow", "workflow_status"]
+
+
+@dataclass(frozen=True)
+class Workflow:
+    """A job file: where it lives, its name and the run it describes."""
+
+    path: Path
+    name: str
+    config: RunConfig
+
+    @classmethod
+    def load(cls, path: str | Path) -> Workflow:
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as exc:
+            raise UsageError(f"{path}: cannot read the workflow file ({exc.strerror})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise UsageError(f"{path}: not valid TOML ({exc})") from None
+        head = data.get("workflow")
+        if not isinstance(head, dict):
+            raise UsageError(f"{path}: needs a [workflow] table with inputs and output")
+        unknown = sorted(set(head) - {"inputs", "output", "scheduler", "name"})
+        if unknown:
+            raise UsageError(f"{path}: unknown key(s) in [workflow]: {unknown}")
+        for key in ("inputs", "output"):
+            if key not in head:
+                raise UsageError(f"{path}: [workflow] needs {key!r}")
+        inputs = head["inputs"]
+        if isinstance(inputs, str):
+            inputs = [inputs]
+        base = path.parent
+        params: dict[str, Any] = dict(data.get("run", {}))
+        for key in ("inputs", "output", "scheduler", "overwrite"):
+            if key in params:
+                raise UsageError(f"{path}: {key!r} belongs in [workflow], not [run]")
+        params["inputs"] = tuple(str(_resolve(base, p)) for p in inputs)
+        params["output"] = str(_resolve(base, head["output"]))
+        if head.get("scheduler"):
+            params["scheduler"] = head["scheduler"]
+        if "scratch_dir" in params:
+            params["scratch_dir"] = str(_resolve(base, params["scratch_dir"]))
+        try:
+            config = RunConfig.from_dict(params)
+        except UsageError as exc:
+            raise UsageError(f"{path}: {exc}") from None
+        return cls(path=path, name=str(head.get("name", path.stem)), config=config)
+
+
+def _resolve(base: Path, value: str) -> Path:
+    p = Path(value).expanduser()
+    return p if p.is_absolute() else base / p
+
+
+def run_workflow(workflow: Workflow, *, progress: bool | None = None, log: Callable[[str], None] | None = None):
+    """Bring the workflow's store up to date with its inputs; returns the run report."""
+    from .runner import execute
+
+    return execute(workflow.config, progress=progress, log=log, incremental=True)
+
+
+def workflow_status(workflow: Workflow) -> dict[str, Any]:
+    """Last run, files known, and what the next run would do."""
+    from . import store
+    from .checkpoint import WorkDir, work_dir_for
+    from .sources import discover_inputs
+
+    cfg = workflow.config
+    status: dict[str, Any] = {"workflow": workflow.name, "job_file": str(workflow.path), "output": cfg.output}
+    attrs = store.read_attrs(cfg.output)
+    if attrs is None:
+        status.update(state="never run", files_known=0, points_known=0, last_run=None)
+    else:
+        history = attrs.get(store.HISTORY_ATTR, [])
+        known = attrs.get("provenance", {}).get("inputs", [])
+        status.update(
+            state="complete" if attrs.get("complete") else "unfinished (the next run resumes)",
+            last_run=history[-1].get("finished") if history else None,
+            files_known=len(known),
+            points_known=sum(int(i.get("points", 0)) for i in known),
+        )
+    try:
+        current = [str(p) for p in discover_inputs(cfg.inputs)]
+    except UsageError as exc:
+        status.update(inputs_error=str(exc))
+        current = []
+    before = {i["path"]: i for i in (attrs or {}).get("provenance", {}).get("inputs", [])}
+    new = [p for p in current if p not in before]
+    gone = [p for p in before if p not in set(current)]
+    changed = []
+    for p in current:
+        old = before.get(p)
+        if old is not None:
+            st = Path(p).stat()
+            if (st.st_size, st.st_mtime) != (old.get("size"), old.get("mtime")):
+                changed.append(p)
+    status.update(new_files=new, changed_files=changed, removed_files=gone)
+    if attrs is None:
+        status["tiles_pending"] = "all"
+        return status
+    done = store.tiles_done(cfg.output)
+    pending = int(done.size - done.sum()) if not attrs.get("complete") else 0
+    if new or changed or gone:
+        work = WorkDir(work_dir_for(cfg.output, cfg.scratch_dir))
+        status["tiles_pending"] = _pending_after_changes(attrs, work, new + changed, gone, before, done.shape)
+    else:
+        status["tiles_pending"] = pending
+    status["tiles_total"] = int(done.size)
+    return status
+
+
+def _pending_after_changes(attrs, work, touched: list[str], gone: list[str], before, shape) -> int | str:
+    """Tiles the next run would mesh again (an estimate from the files' header bounds)."""
+    from .runner import _tiles_depending_on
+    from .sources import read_info
+    from .tiling import TileGrid
+
+    if not work.exists():
+        return "all"
+    grid = TileGrid.from_dict(attrs["provenance"]["grid"])
+    regions = []
+    for p in touched:
+        b = read_info(Path(p)).bounds
+        regions.append((b[0], b[1], b[3], b[4]))
+    for p in gone:
+        if before[p].get("bounds"):
+            regions.append(tuple(before[p]["bounds"]))
+    return len(_tiles_depending_on(work, grid, regions))
+
+
+def status_text(status: dict[str, Any]) -> str:
+    """The status as aligned lines for a terminal."""
+    rows = [
+        ("workflow", status["workflow"]),
+        ("store", f"{status['output']} ({status['state']})"),
+        ("last run", status.get("last_run") or "never"),
+        ("files known", f"{status['files_known']:,} ({status['points_known']:,} points)"),
+        ("new files", str(len(status["new_files"]))),
+        ("changed files", str(len(status["changed_files"]))),
+        ("removed files", str(len(status["removed_files"]))),
+        ("tiles pending", f"{status['tiles_pending']}" + (f" of {status['tiles_total']}" if "tiles_total" in status else "")),
+    ]
+    if "inputs_error" in status:
+        rows.append(("inputs", status["inputs_error"]))
+    width = max(len(name) for name, _ in rows)
+    return "\n".join(f"{name.ljust(width)}  {value}" for name, value in rows)

@@ -1,0 +1,141 @@
+"""Incremental workflows: only the tiles touched by changed files are computed again."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.config import RunConfig
+from pipeline.errors import UsageError
+from pipeline.runner import run
+from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.workflow import Workflow, run_workflow, workflow_status
+
+from .store_checks import assert_same_store
+
+ORIGIN = (651000.0, 6861000.0)
+JOB = """
+[workflow]
+name = "nightly test"
+inputs = ["archive/*.laz"]
+output = "out/archive.zarr"
+
+[run]
+resolution = 2.0
+tile_size = 40.0
+buffer = 6.0
+layers = ["slope"]
+"""
+
+
+def _patch(archive: Path, name: str, corner: tuple[float, float], seed: int, size: float = 50.0) -> Path:
+    """A dense survey patch inside the base survey, as archive/NAME.laz."""
+    spec = SurveySpec(
+        origin=(ORIGIN[0] + corner[0], ORIGIN[1] + corner[1]), width=size, height=size,
+        points=6000, files=1, overlap=0.0, seed=seed,
+    )
+    tmp = archive.parent / f"tmp_{name}"
+    (path,) = write_survey(tmp, spec)
+    target = archive / f"{name}.laz"
+    shutil.move(path, target)
+    shutil.rmtree(tmp)
+    return target
+
+
+@pytest.fixture
+def job(tmp_path):
+    archive = tmp_path / "archive"
+    base = SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=24_000, files=2, seed=1)
+    write_survey(archive, base)
+    _patch(archive, "patch_a", (20.0, 20.0), seed=2)
+    _patch(archive, "patch_b", (150.0, 90.0), seed=3)
+    path = tmp_path / "nightly.toml"
+    path.write_text(JOB)
+    return path
+
+
+def _chunk_times(path: Path) -> dict[str, int]:
+    folder = Path(path) / "elevation"
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file() and p.name != "zarr.json"}
+
+
+def _full_run(workflow: Workflow, out: Path) -> Path:
+    values = workflow.config.to_dict() | {"output": str(out), "overwrite": True}
+    run(RunConfig.from_dict(values), progress=False)
+    return out
+
+
+def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
+    workflow = Workflow.load(job)
+    assert workflow.config.output == str(tmp_path / "out" / "archive.zarr")
+    assert workflow_status(workflow)["state"] == "never run"
+    run_workflow(workflow, progress=False)
+    status = workflow_status(workflow)
+    assert status["state"] == "complete" and status["files_known"] == 4 and status["tiles_pending"] == 0
+    before = _chunk_times(workflow.config.output)
+
+    archive = tmp_path / "archive"
+    time.sleep(0.01)
+    _patch(archive, "patch_a", (20.0, 20.0), seed=20)  # changed content, same place
+    (archive / "patch_b.laz").unlink()  # removed
+    _patch(archive, "patch_c", (160.0, 20.0), seed=4)  # new
+    status = workflow_status(workflow)
+    assert status["new_files"] == [str(archive / "patch_c.laz")]
+    assert status["changed_files"] == [str(archive / "patch_a.laz")]
+    assert status["removed_files"] == [str(archive / "patch_b.laz")]
+    total = status["tiles_total"]
+    assert 0 < status["tiles_pending"] < total
+
+    report = run_workflow(workflow, progress=False)
+    assert any("inputs changed" in note for note in report.notes), report.notes
+    after = _chunk_times(workflow.config.output)
+    untouched = [k for k in before if after.get(k) == before[k]]
+    assert 0 < len(untouched) < total  # far tiles were not written again, near ones were
+    assert report.points_read == 24_000 + 2 * 6000
+    # the same store as a full run over the archive as it is now
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+    assert workflow_status(workflow)["tiles_pending"] == 0
+
+    # a file touched but not changed (same bytes) costs nothing
+    settled = _chunk_times(workflow.config.output)
+    stamp = time.time() + 5
+    os.utime(archive / "patch_c.laz", (stamp, stamp))
+    report = run_workflow(workflow, progress=False)
+    assert any("0 of" in note for note in report.notes), report.notes
+    assert _chunk_times(workflow.config.output) == settled
+    assert_same_store(Path(workflow.config.output), tmp_path / "full.zarr")
+
+
+def test_cli_workflow_run_and_status(job, capsys):
+    assert main(["workflow", "status", str(job)]) == 0
+    assert "never run" in capsys.readouterr().out
+    assert main(["workflow", "run", str(job), "--no-progress"]) == 0
+    assert "points read" in capsys.readouterr().out
+    assert main(["workflow", "status", str(job), "--json"]) == 0
+    assert '"tiles_pending": 0' in capsys.readouterr().out
+
+
+def test_bad_workflow_files_are_one_line_errors(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[workflow]\ninputs = ['x/*.laz']\n")
+    with pytest.raises(UsageError, match="needs 'output'"):
+        Workflow.load(bad)
+    bad.write_text("[workflow]\ninputs = ['x']\noutput = 'o.zarr'\n[run]\nresolution = 1\noutput = 'p'\n")
+    with pytest.raises(UsageError, match="belongs in \\[workflow\\]"):
+        Workflow.load(bad)
+    assert main(["workflow", "run", str(tmp_path / "missing.toml")]) == 2
+    assert "cannot read the workflow file" in capsys.readouterr().err
+
+
+def test_shipped_examples_load():
+    folder = Path(__file__).parents[2] / "workflows"
+    jobs = sorted(folder.glob("*.toml"))
+    assert len(jobs) >= 2
+    for path in jobs:
+        workflow = Workflow.load(path)
+        assert workflow.config.tile_size and workflow.config.buffer  # fixed, so runs stay incremental
