@@ -3,7 +3,8 @@
 A workflow is a TOML file::
 
     [workflow]
-    inputs = ["/data/archive/**/*.laz"]   # files, folders, globs (relative to this file)
+    inputs = ["/data/archive/**/*.laz"]   # files, folders, globs (relative to this
+                                          # file; $VARIABLES are expanded)
     output = "/data/dem/archive.zarr"
     scheduler = "tcp://scheduler:8786"    # optional: an existing Dask cluster
 
@@ -25,6 +26,7 @@ defaults and the point count changes), every tile is computed again.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,13 +72,13 @@ class Workflow:
         for key in ("inputs", "output", "scheduler", "overwrite"):
             if key in params:
                 raise UsageError(f"{path}: {key!r} belongs in [workflow], not [run]")
-        params["inputs"] = tuple(str(_resolve(base, p)) for p in inputs)
-        params["output"] = str(_resolve(base, head["output"]))
-        if head.get("scheduler"):
-            params["scheduler"] = head["scheduler"]
-        if "scratch_dir" in params:
-            params["scratch_dir"] = str(_resolve(base, params["scratch_dir"]))
         try:
+            params["inputs"] = tuple(str(_resolve(base, p)) for p in inputs)
+            params["output"] = str(_resolve(base, head["output"]))
+            if head.get("scheduler"):
+                params["scheduler"] = head["scheduler"]
+            if "scratch_dir" in params:
+                params["scratch_dir"] = str(_resolve(base, params["scratch_dir"]))
             config = RunConfig.from_dict(params)
         except UsageError as exc:
             raise UsageError(f"{path}: {exc}") from None
@@ -84,7 +86,11 @@ class Workflow:
 
 
 def _resolve(base: Path, value: str) -> Path:
-    p = Path(value).expanduser()
+    """A path of the file: ``~`` and ``$VARIABLES`` expanded, relative to ``base``."""
+    expanded = os.path.expandvars(value)
+    if "$" in expanded:
+        raise UsageError(f"{value!r}: an environment variable in it is not set")
+    p = Path(expanded).expanduser()
     return p if p.is_absolute() else base / p
 
 

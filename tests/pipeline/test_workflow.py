@@ -132,10 +132,19 @@ def test_bad_workflow_files_are_one_line_errors(tmp_path, capsys):
     assert "cannot read the workflow file" in capsys.readouterr().err
 
 
-def test_shipped_examples_load():
+def test_shipped_examples_load(monkeypatch):
+    monkeypatch.setenv("TERRAIN_DATA", "/data")
     folder = Path(__file__).parents[2] / "workflows"
     jobs = sorted(folder.glob("*.toml"))
     assert len(jobs) >= 2
     for path in jobs:
         workflow = Workflow.load(path)
         assert workflow.config.tile_size and workflow.config.buffer  # fixed, so runs stay incremental
+
+
+def test_unset_variables_in_paths_are_named(tmp_path, monkeypatch):
+    monkeypatch.delenv("NO_SUCH_VARIABLE", raising=False)
+    job = tmp_path / "job.toml"
+    job.write_text("[workflow]\ninputs = ['$NO_SUCH_VARIABLE/x']\noutput = 'o.zarr'\n[run]\nresolution = 1\n")
+    with pytest.raises(UsageError, match="NO_SUCH_VARIABLE.*not set"):
+        Workflow.load(job)
