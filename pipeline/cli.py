@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -10,12 +11,14 @@ from pathlib import Path
 from meshcore import MeshError
 
 from .errors import PipelineError, UsageError
+from .logs import LOGGER, configure
 
 __all__ = ["main"]
 
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
 
 
 def _positive_int(text: str) -> int:
@@ -26,11 +29,23 @@ def _positive_int(text: str) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="count", default=0, help="more detail, and tracebacks of errors")
+    common.add_argument("-q", "--quiet", action="store_true", help="print errors only")
+    common.add_argument("--log-json", action="store_true", help="log JSON lines on stderr (for schedulers)")
     parser = argparse.ArgumentParser(
         prog="terrain",
         description="Combined triangle/quad terrain meshes and DEMs from point clouds.",
+        epilog="Exit codes: 0 success; 1 some tiles or tasks failed; 2 usage or input error; 130 interrupted. "
+        "Every command takes -v/--verbose, -q/--quiet and --log-json.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    real_add = sub.add_parser
+
+    def add_parser(name, **kw):
+        return real_add(name, parents=[common], **kw)
+
+    sub.add_parser = add_parser  # type: ignore[method-assign]
 
     exp = sub.add_parser(
         "experiment",
@@ -100,10 +115,10 @@ def _parser() -> argparse.ArgumentParser:
         "removed files; 'status' says what the last run did and what the next one would do.",
     )
     wf_sub = wf.add_subparsers(dest="action", required=True, metavar="ACTION")
-    wf_run = wf_sub.add_parser("run", help="bring the workflow's store up to date")
+    wf_run = wf_sub.add_parser("run", parents=[common], help="bring the workflow's store up to date")
     wf_run.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_run.add_argument("--no-progress", action="store_true", help="no progress bar")
-    wf_status = wf_sub.add_parser("status", help="last run, files known, tiles pending")
+    wf_status = wf_sub.add_parser("status", parents=[common], help="last run, files known, tiles pending")
     wf_status.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_status.add_argument("--json", action="store_true", help="print JSON")
 
@@ -173,84 +188,90 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
     return values
 
 
-def _demo(out: Path, points: int) -> int:
+def _demo(args: argparse.Namespace) -> int:
     from .config import RunConfig
     from .runner import run
     from .synthetic import SurveySpec, write_survey
 
+    out, points = args.out, args.points
     survey = out / "survey"
     paths = write_survey(survey, SurveySpec(points=points, files=4, width=800.0, height=600.0))
-    print(f"wrote {len(paths)} LAZ files ({points:,} points, EPSG:2154) to {survey}")
+    LOGGER.info(f"wrote {len(paths)} LAZ files ({points:,} points, EPSG:2154) to {survey}")
     config = RunConfig(
         inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
         layers=("slope", "face_kind", "point_count"), max_edge=15.0, overwrite=True,
     )
-    report = run(config, log=_log)
-    print(report.table())
-    print(f"store: {config.output}  (xarray.open_zarr; the mesh is the group 'mesh')")
+    report = run(config, progress=_progress(args), log=LOGGER.info)
+    _report(args, report)
+    LOGGER.info(f"store: {config.output}  (xarray.open_zarr; the mesh is the group 'mesh')")
     return EXIT_OK
 
 
-def _log(message: str) -> None:
-    print(message, file=sys.stderr)
+def _progress(args: argparse.Namespace) -> bool | None:
+    """Progress bars: on a terminal, unless asked for none, quiet or JSON logs."""
+    if args.quiet or args.log_json or getattr(args, "no_progress", False):
+        return False
+    return None
+
+
+def _report(args: argparse.Namespace, report) -> int:
+    """Show a run's report (a table, or one JSON log line); its exit code."""
+    if args.log_json:
+        LOGGER.info("run finished", extra={"data": {"report": report.to_dict()}})
+    elif not args.quiet:
+        print(report.table())
+        for note in report.notes:
+            print(f"note: {note}")
+    return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``terrain``; returns the exit code (0 ok, 1 failed, 2 usage or input error)."""
+    """Entry point of ``terrain``; returns the exit code (0 ok, 1 failed, 2 usage or input error, 130 interrupted)."""
     parser = _parser()
     args = parser.parse_args(argv)
+    configure(-1 if args.quiet else args.verbose, args.log_json)
     try:
-        if args.command == "experiment":
-            from .experiment import experiment_command
-
-            return experiment_command(
-                points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge
-            )
-        if args.command == "run":
-            from .runner import run
-
-            config = _run_config(args)
-            report = run(config, progress=None if not args.no_progress else False, log=_log)
-            print(report.table())
-            for note in report.notes:
-                print(f"note: {note}")
-            return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
-        if args.command == "workflow":
-            from .workflow import Workflow, run_workflow, status_text, workflow_status
-
-            workflow = Workflow.load(args.job)
-            if args.action == "status":
-                status = workflow_status(workflow)
-                if args.json:
-                    import json
-
-                    print(json.dumps(status, indent=2))
-                else:
-                    print(status_text(status))
-                return EXIT_OK
-            report = run_workflow(workflow, progress=None if not args.no_progress else False, log=_log)
-            print(report.table())
-            for note in report.notes:
-                print(f"note: {note}")
-            return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
-        if args.command == "demo":
-            return _demo(args.out, args.points)
-        if args.command == "info":
-            from .inspect import info_json, info_report
-            from .sources import discover_inputs
-
-            paths = discover_inputs(args.inputs)
-            if args.json:
-                import json
-
-                print(json.dumps(info_json(paths), indent=2, default=str))
-            else:
-                print(info_report(paths))
-            return EXIT_OK
+        return _command(args)
     except (PipelineError, MeshError) as exc:
-        print(f"terrain: error: {exc}", file=sys.stderr)
+        LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
         return EXIT_USAGE
-    return EXIT_FAILED
+    except KeyboardInterrupt:
+        LOGGER.error("terrain: stopped; run the same command again to resume")
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # a failed task or a bug: one line, the traceback with -v
+        hint = "" if args.verbose else " (-v shows the traceback)"
+        LOGGER.error(f"terrain: error: {type(exc).__name__}: {exc}{hint}", exc_info=args.verbose > 0)
+        return EXIT_FAILED
+
+
+def _command(args: argparse.Namespace) -> int:
+    if args.command == "experiment":
+        from .experiment import experiment_command
+
+        return experiment_command(points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge)
+    if args.command == "run":
+        from .runner import run
+
+        return _report(args, run(_run_config(args), progress=_progress(args), log=LOGGER.info))
+    if args.command == "workflow":
+        from .workflow import Workflow, run_workflow, status_text, workflow_status
+
+        workflow = Workflow.load(args.job)
+        if args.action == "status":
+            status = workflow_status(workflow)
+            print(json.dumps(status, indent=2) if args.json else status_text(status))
+            return EXIT_OK
+        return _report(args, run_workflow(workflow, progress=_progress(args), log=LOGGER.info))
+    if args.command == "demo":
+        return _demo(args)
+    if args.command == "info":
+        from .inspect import info_json, info_report
+        from .sources import discover_inputs
+
+        paths = discover_inputs(args.inputs)
+        print(json.dumps(info_json(paths), indent=2, default=str) if args.json else info_report(paths))
+        return EXIT_OK
+    raise UsageError(f"unknown command {args.command!r}")  # pragma: no cover
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,84 @@
+"""The command line's contract: exit codes, one-line errors, quiet and JSON logs."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import pipeline.runner as runner
+from pipeline.cli import main
+from pipeline.synthetic import SurveySpec, write_survey
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("survey")
+    write_survey(folder, SurveySpec(points=20_000, files=2, width=200.0, height=120.0, seed=4))
+    return folder
+
+
+def _run(survey, out, *flags):
+    return main(["run", str(survey), "-o", str(out), "--resolution", "4", "--tile-size", "64", *flags])
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "missing.laz"), "-o", str(tmp_path / "o.zarr"), "--resolution", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.laz" in err[0] and err[0].startswith("terrain: error:")
+    assert main(["run", str(tmp_path / "missing.laz"), "-o", str(tmp_path / "o.zarr"), "--resolution", "1", "-v"]) == 2
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_quiet_prints_nothing_on_success(survey, tmp_path, capsys):
+    assert _run(survey, tmp_path / "q.zarr", "-q") == 0
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
+
+
+def test_json_logs_are_one_object_per_line_ending_with_the_report(survey, tmp_path, capsys):
+    assert _run(survey, tmp_path / "j.zarr", "--log-json") == 0
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    records = [json.loads(line) for line in captured.err.strip().splitlines()]
+    assert all({"time", "level", "message"} <= set(r) for r in records)
+    assert records[-1]["message"] == "run finished"
+    assert records[-1]["report"]["points_read"] == 20_000
+
+
+def test_a_failed_task_is_exit_1_with_one_line(survey, tmp_path, capsys, monkeypatch):
+    def broken(job):
+        raise RuntimeError("tile exploded")
+
+    monkeypatch.setattr(runner, "mesh_tile", broken)
+    assert _run(survey, tmp_path / "f.zarr", "--no-progress") == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "terrain: error: RuntimeError: tile exploded (-v shows the traceback)"
+    assert not any("Traceback" in line for line in err)
+
+
+def test_ctrl_c_is_exit_130_quiet_and_resumable(tmp_path):
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=200_000, files=2, width=500.0, height=400.0, seed=9))
+    out = tmp_path / "c.zarr"
+    command = [sys.executable, "-m", "pipeline.cli", "run", str(folder), "-o", str(out),
+               "--resolution", "1", "--tile-size", "50", "--no-progress"]
+    started = time.perf_counter()
+    whole = subprocess.run(command + ["--overwrite"], capture_output=True, timeout=600)
+    assert whole.returncode == 0
+    elapsed = time.perf_counter() - started
+    proc = subprocess.Popen(command + ["--overwrite"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.75 * elapsed)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130  # interrupted three quarters of the way through
+    lines = err.strip().splitlines()
+    assert lines[-1] == "terrain: stopped; run the same command again to resume"
+    assert not any("distributed" in line or "Traceback" in line for line in lines), err
+    again = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert "resumed" in again.stdout
