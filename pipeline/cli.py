@@ -100,9 +100,11 @@ def _parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser(
         "demo",
-        help="write a synthetic survey (LAZ, EPSG:2154) and run the whole job on it",
-        description="Writes a synthetic LiDAR survey with analytic terrain into DIR/survey and runs "
-        "'terrain run' on it into DIR/dem.zarr, printing the run report.",
+        help="write a realistic synthetic survey and run the whole job on it, with pictures",
+        description="Writes a synthetic LiDAR survey (four overlapping LAZ strips in Lambert-93: hills, a "
+        "valley with a lake that returns nothing, buildings and trees as non-ground classes) into "
+        "DIR/survey, runs 'terrain run' on it into DIR/dem.zarr, prints the report, and draws "
+        "DIR/dem.png (hillshade) and DIR/mesh.png (the combined mesh at the lake shore).",
     )
     demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
     demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
@@ -121,6 +123,16 @@ def _parser() -> argparse.ArgumentParser:
     wf_status = wf_sub.add_parser("status", parents=[common], help="last run, files known, tiles pending")
     wf_status.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_status.add_argument("--json", action="store_true", help="print JSON")
+
+    preview = sub.add_parser(
+        "preview",
+        help="draw a store's DEM (hillshade, colour ramp, legend, scale) and optionally its mesh",
+        description="Writes a PNG of the DEM; with --window, a second panel draws the combined mesh's "
+        "triangles and quadrangles over the hillshade inside that box.",
+    )
+    preview.add_argument("store", help="a store written by terrain run")
+    preview.add_argument("-o", "--output", required=True, help="the PNG to write")
+    preview.add_argument("--window", help="xmin,ymin,xmax,ymax (store CRS) to zoom into and draw the mesh")
 
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
@@ -190,21 +202,33 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
 
 def _demo(args: argparse.Namespace) -> int:
     from .config import RunConfig
+    from .preview import render_preview
     from .runner import run
-    from .synthetic import SurveySpec, write_survey
+    from .synthetic import demo_spec, write_survey
 
     out, points = args.out, args.points
+    spec = demo_spec(points)
     survey = out / "survey"
-    paths = write_survey(survey, SurveySpec(points=points, files=4, width=800.0, height=600.0))
-    LOGGER.info(f"wrote {len(paths)} LAZ files ({points:,} points, EPSG:2154) to {survey}")
+    paths = write_survey(survey, spec)
+    LOGGER.info(
+        f"wrote {len(paths)} overlapping LAZ strips ({points:,} points, {spec.crs}: hills, a valley with a "
+        f"lake, {spec.buildings} buildings, {spec.trees} trees) to {survey}"
+    )
     config = RunConfig(
         inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
-        layers=("slope", "face_kind", "point_count"), max_edge=15.0, overwrite=True,
+        # bridge the ground under buildings (<= 30 m), not the lake (140 m across)
+        layers=("slope", "face_kind", "point_count"), max_edge=50.0, overwrite=True,
     )
     report = run(config, progress=_progress(args), log=LOGGER.info)
-    _report(args, report)
+    code = _report(args, report)
+    x0, y0 = spec.origin
+    lx, ly, r = spec.lake  # type: ignore[misc]
+    overview = render_preview(config.output, out / "dem.png")
+    shore = (x0 + lx - r - 25.0, y0 + ly - 20.0, x0 + lx - r + 15.0, y0 + ly + 20.0)
+    zoom = render_preview(config.output, out / "mesh.png", window=shore)
     LOGGER.info(f"store: {config.output}  (xarray.open_zarr; the mesh is the group 'mesh')")
-    return EXIT_OK
+    LOGGER.info(f"pictures: {overview}, {zoom} (the mesh at the lake shore)")
+    return code
 
 
 def _progress(args: argparse.Namespace) -> bool | None:
@@ -264,6 +288,12 @@ def _command(args: argparse.Namespace) -> int:
         return _report(args, run_workflow(workflow, progress=_progress(args), log=LOGGER.info))
     if args.command == "demo":
         return _demo(args)
+    if args.command == "preview":
+        from .preview import render_preview
+
+        window = None if args.window is None else tuple(_float_list(args.window, "--window", 4))
+        LOGGER.info(f"wrote {render_preview(args.store, args.output, window=window)}")
+        return EXIT_OK
     if args.command == "info":
         from .inspect import info_json, info_report
         from .sources import discover_inputs

@@ -3,7 +3,9 @@
 The terrain is a smooth analytic function (hills and a valley), so the error of
 a DEM built from the points is known.  Points are written with laspy as real
 LAS/LAZ files in a projected CRS, with ground (class 2) and non-ground classes,
-a few withheld points and a few exact duplicates.
+a few withheld points and a few exact duplicates.  A scene can add a lake (no
+returns at all, as over water), buildings (class 6 roofs, no ground beneath)
+and trees (class 5 canopy over some ground returns).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["terrain_height", "SurveySpec", "write_survey"]
+__all__ = ["terrain_height", "SurveySpec", "demo_spec", "write_survey"]
 
 
 def terrain_height(x: NDArray[np.float64], y: NDArray[np.float64], origin=(0.0, 0.0)) -> NDArray[np.float64]:
@@ -42,6 +44,52 @@ class SurveySpec:
     point_format: int = 6
     version: str = "1.4"
     seed: int = 0
+    lake: tuple[float, float, float] | None = None
+    """(x, y, radius) from the origin: a lake, with no returns."""
+    buildings: int = 0
+    """Flat-roofed buildings (class 6) of 10-30 m, placed at random."""
+    trees: int = 0
+    """Tree crowns (class 5) of 3-9 m radius, placed at random."""
+
+
+def demo_spec(points: int = 400_000) -> SurveySpec:
+    """The demo's survey: 800 m x 600 m of hills and a valley in Lambert-93, four
+    overlapping strips, a lake in the valley, a village and scattered trees."""
+    return SurveySpec(
+        points=points, files=4, width=800.0, height=600.0, overlap=25.0, ground_share=0.93,
+        lake=(500.0, 330.0, 70.0), buildings=40, trees=400, seed=2026,
+    )
+
+
+def _scene(spec: SurveySpec, rng: np.random.Generator):
+    """Buildings (x0, y0, x1, y1, roof z) and trees (x, y, r, height), off the lake."""
+    x0, y0 = spec.origin
+
+    def off_lake(x, y, margin):
+        if spec.lake is None:
+            return True
+        lx, ly, r = spec.lake
+        return (x - lx) ** 2 + (y - ly) ** 2 > (r + margin) ** 2
+
+    buildings = []
+    while len(buildings) < spec.buildings:
+        # a village on the hillside: buildings clustered around one place
+        cx = spec.width * 0.25 + rng.normal(0, spec.width * 0.08)
+        cy = spec.height * 0.6 + rng.normal(0, spec.height * 0.08)
+        w, h = rng.uniform(10, 30, 2)
+        if not (w < cx < spec.width - w and h < cy < spec.height - h) or not off_lake(cx, cy, 40):
+            continue
+        box = (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+        if any(box[0] < b[2] + 4 and b[0] < box[2] + 4 and box[1] < b[3] + 4 and b[1] < box[3] + 4 for b in buildings):
+            continue
+        ground = terrain_height(np.array([x0 + cx]), np.array([y0 + cy]), spec.origin)[0]
+        buildings.append((*box, float(ground + rng.uniform(5, 14))))
+    trees = []
+    while len(trees) < spec.trees:
+        x, y = rng.uniform(0, spec.width), rng.uniform(0, spec.height)
+        if off_lake(x, y, 10) and not any(b[0] - 5 < x < b[2] + 5 and b[1] - 5 < y < b[3] + 5 for b in buildings):
+            trees.append((x, y, rng.uniform(3, 9), rng.uniform(8, 25)))
+    return buildings, trees
 
 
 def write_survey(folder: str | Path, spec: SurveySpec = SurveySpec()) -> list[Path]:
@@ -52,6 +100,7 @@ def write_survey(folder: str | Path, spec: SurveySpec = SurveySpec()) -> list[Pa
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(spec.seed)
+    buildings, trees = _scene(spec, rng)
     x0, y0 = spec.origin
     strip = spec.width / spec.files
     per_file = spec.points // spec.files
@@ -66,11 +115,28 @@ def write_survey(folder: str | Path, spec: SurveySpec = SurveySpec()) -> list[Pa
         ground = rng.random(per_file) < spec.ground_share
         z = terrain_height(x, y, spec.origin)
         z = np.where(ground, z, z + rng.random(per_file) * 20.0 + 1.0)
-        n_dup = int(spec.duplicate_share * per_file)
+        cls = np.where(ground, 2, rng.choice([1, 3, 4], per_file)).astype(np.uint8)
+        for bx0, by0, bx1, by1, roof in buildings:
+            on = (x >= x0 + bx0) & (x <= x0 + bx1) & (y >= y0 + by0) & (y <= y0 + by1)
+            ground[on] = False
+            cls[on] = 6
+            z[on] = roof + rng.normal(0.0, 0.03, int(on.sum()))
+        for tx, ty, r, height in trees:
+            d2 = (x - x0 - tx) ** 2 + (y - y0 - ty) ** 2
+            crown = (d2 <= r * r) & (rng.random(per_file) < 0.7)  # some pulses reach the ground
+            ground[crown] = False
+            cls[crown] = 5
+            z[crown] = terrain_height(x[crown], y[crown], spec.origin) + height * (1.0 - 0.5 * d2[crown] / (r * r)) * rng.uniform(0.85, 1.0, int(crown.sum()))
+        if spec.lake is not None:
+            lx, ly, r = spec.lake
+            dry = (x - x0 - lx) ** 2 + (y - y0 - ly) ** 2 > r * r  # water returns nothing
+            x, y, z, ground, cls = x[dry], y[dry], z[dry], ground[dry], cls[dry]
+        n = x.size
+        n_dup = int(spec.duplicate_share * n)
         if n_dup:
-            src = rng.integers(0, per_file, n_dup)
-            dst = rng.integers(0, per_file, n_dup)
-            x[dst], y[dst], ground[dst] = x[src], y[src], ground[src]
+            src = rng.integers(0, n, n_dup)
+            dst = rng.integers(0, n, n_dup)
+            x[dst], y[dst], ground[dst], cls[dst] = x[src], y[src], ground[src], cls[src]
             z[dst] = z[src] + np.where(ground[src], rng.random(n_dup) * 0.05, 1.0)
         header = laspy.LasHeader(point_format=spec.point_format, version=spec.version)
         header.scales = np.array([0.01, 0.01, 0.01])
@@ -80,8 +146,8 @@ def write_survey(folder: str | Path, spec: SurveySpec = SurveySpec()) -> list[Pa
         las.x = x
         las.y = y
         las.z = z
-        las.classification = np.where(ground, 2, rng.choice([1, 3, 5, 6], per_file)).astype(np.uint8)
-        las.withheld = rng.random(per_file) < spec.withheld_share
+        las.classification = cls
+        las.withheld = rng.random(n) < spec.withheld_share
         path = folder / f"strip_{k:02d}.{'laz' if spec.laz else 'las'}"
         las.write(path)
         paths.append(path)

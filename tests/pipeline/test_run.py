@@ -145,9 +145,30 @@ def test_python_api_over_tiles(tiled):
 
 
 def test_cli_demo_and_zarr_format_2(tmp_path):
-    assert main(["demo", "--out", str(tmp_path), "--points", "20000"]) == 0
+    from matplotlib.image import imread
+
+    from pipeline.synthetic import demo_spec
+
+    assert main(["demo", "--out", str(tmp_path), "--points", "40000"]) == 0
     ds = xr.open_zarr(tmp_path / "dem.zarr")
     assert {"elevation", "slope", "face_kind", "point_count"} <= set(ds.data_vars)
+    report = ds.attrs["report"]
+    assert report["filtered_class"] > 0.05 * report["points_read"]  # buildings, trees, noise
+    spec = demo_spec()
+    lx, ly, r = spec.lake
+    x0, y0 = spec.origin
+    elev = ds["elevation"]
+    assert np.isnan(float(elev.sel(x=x0 + lx, y=y0 + ly, method="nearest")))  # the lake: no returns, no DEM
+    assert np.isfinite(float(elev.sel(x=x0 + lx - r - 10, y=y0 + ly, method="nearest")))  # its shore
+    # under the buildings the ground is bridged (they are smaller than max_edge)
+    box = elev.sel(x=slice(x0 + 20, x0 + 780), y=slice(y0 + 580, y0 + 20))
+    gx, gy = np.meshgrid(box["x"].values, box["y"].values)
+    dry = (gx - x0 - lx) ** 2 + (gy - y0 - ly) ** 2 > (r + 10) ** 2
+    assert np.isfinite(box.values[dry]).mean() > 0.999
+    for name in ("dem.png", "mesh.png"):
+        picture = imread(tmp_path / name)
+        assert picture.shape[0] > 400 and picture.shape[1] > 600
+        assert picture[..., :3].std() > 0.1  # not blank
     out = tmp_path / "v2.zarr"
     code = main(["run", str(tmp_path / "survey"), "-o", str(out), "--resolution", "4", "--zarr-format", "2", "--no-progress"])
     assert code == 0

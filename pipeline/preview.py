@@ -1,0 +1,211 @@
+"""Pictures of a store: a hillshaded DEM with a colour ramp, legend and scale
+bar, and optionally the combined mesh over a zoom window (triangles and
+quadrangles in two colours)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UsageError
+
+__all__ = ["render_preview", "MAX_MESH_FACES"]
+
+MAX_MESH_FACES = 60_000
+"""More faces than this in the zoom window would draw as a grey smear: refused."""
+
+
+def _ramp():
+    """Green lowlands to brown and white heights: matplotlib's "terrain" without
+    its blue, which would read as water on dry land."""
+    from matplotlib import colormaps
+    from matplotlib.colors import ListedColormap
+
+    return ListedColormap(colormaps["terrain"](np.linspace(0.22, 1.0, 256)), name="terrain_land")
+
+
+def _nice_length(span: float) -> float:
+    """A round scale-bar length near a fifth of ``span`` (1, 2 or 5 times a power of ten)."""
+    target = span / 5.0
+    power = 10 ** math.floor(math.log10(target))
+    return max(m * power for m in (1, 2, 5) if m * power <= target)
+
+
+def _hillshade(elevation: np.ndarray, resolution: float, ramp=None):
+    """RGB of the elevation on a colour ramp (default: land colours), lit from
+    the north-west; NaN cells white.  Returns the RGB, the norm and the ramp."""
+    from matplotlib.colors import LightSource, Normalize
+
+    ramp = _ramp() if ramp is None else ramp
+
+    valid = np.isfinite(elevation)
+    lo, hi = float(np.nanmin(elevation)), float(np.nanmax(elevation))
+    if hi <= lo:
+        hi = lo + 1.0
+    filled = np.where(valid, elevation, np.nanmean(elevation))
+    light = LightSource(azdeg=315, altdeg=45)
+    norm = Normalize(lo, hi)
+    rgb = light.shade(filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0, dx=resolution, dy=resolution)
+    rgb[~valid] = (1.0, 1.0, 1.0, 1.0)
+    return rgb, norm, ramp
+
+
+def _crs_name(ds) -> str:
+    from pyproj import CRS
+
+    wkt = ds["spatial_ref"].attrs.get("crs_wkt")
+    return CRS.from_wkt(wkt).name if wkt else "no CRS"
+
+
+def _window_faces(store_path: str, window: tuple[float, float, float, float]):
+    """The mesh's faces meeting the window, as corner coordinates, and their kinds."""
+    from . import api
+
+    tiles = api.open_store(store_path)
+    polys, quads = [], []
+    reach = tiles.grid.tile_size  # a tile's faces may cross into its neighbours
+    for tile in tiles.tiles():
+        x0, y0, x1, y1 = tile.box
+        if x1 + reach < window[0] or x0 - reach > window[2] or y1 + reach < window[1] or y0 - reach > window[3]:
+            continue
+        mesh, _ = tiles.tile_mesh(tile)
+        f = mesh.faces
+        if f.shape[0] == 0:
+            continue
+        xy = mesh.vertices[np.maximum(f, 0)]  # (m, 4, 2)
+        is_quad = f[:, 3] >= 0
+        xy[~is_quad, 3] = xy[~is_quad, 2]
+        lo, hi = xy.min(axis=1), xy.max(axis=1)
+        hit = (hi[:, 0] >= window[0]) & (lo[:, 0] <= window[2]) & (hi[:, 1] >= window[1]) & (lo[:, 1] <= window[3])
+        polys.append(xy[hit])
+        quads.append(is_quad[hit])
+    if not polys:
+        return np.empty((0, 4, 2)), np.empty(0, dtype=bool)
+    return np.concatenate(polys), np.concatenate(quads)
+
+
+def render_preview(
+    store_path: str | Path,
+    out: str | Path,
+    *,
+    window: tuple[float, float, float, float] | None = None,
+    max_pixels: int = 1600,
+) -> Path:
+    """Draw the store's DEM (and with ``window`` the mesh over it) into a PNG.
+
+    Parameters
+    ----------
+    store_path : a store written by ``terrain run``
+    out : the PNG to write
+    window : (xmin, ymin, xmax, ymax) in the store's CRS, optional
+        A second panel zooms into this box and draws the combined mesh's
+        triangles and quadrangles over the hillshade.
+    max_pixels : the longest side of the overview, in DEM cells (coarser
+        stores are subsampled, never resampled)
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Patch
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    from .store import StoreError, open_dem, read_attrs
+
+    if read_attrs(store_path) is None:
+        raise StoreError(f"{store_path}: not a Zarr store")
+    ds = open_dem(store_path)
+    if "elevation" not in ds:
+        raise UsageError(f"{store_path}: the store has no elevation layer")
+    res = float(abs(ds["x"].values[1] - ds["x"].values[0])) if ds.sizes["x"] > 1 else 1.0
+    step = max(1, math.ceil(max(ds.sizes["x"], ds.sizes["y"]) / max_pixels))
+    elev = ds["elevation"].values[::step, ::step].astype(np.float64)
+    if not np.isfinite(elev).any():
+        raise UsageError(f"{store_path}: the DEM has no data to draw")
+    xs, ys = ds["x"].values, ds["y"].values
+    extent = (xs[0] - res / 2, xs[-1] + res / 2, ys[-1] - res / 2, ys[0] + res / 2)
+    # crop the overview to the cells with data (the grid is padded to whole tiles)
+    rows = np.flatnonzero(np.isfinite(elev).any(axis=1))
+    cols = np.flatnonzero(np.isfinite(elev).any(axis=0))
+    elev = elev[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+    cell = res * step
+    left, top = extent[0] + cols[0] * cell, extent[3] - rows[0] * cell
+    extent = (left, left + elev.shape[1] * cell, top - elev.shape[0] * cell, top)
+    rgb, norm, ramp = _hillshade(elev, cell)
+
+    panels = 2 if window is not None else 1
+    fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
+    ax = axes[0, 0]
+    ax.imshow(rgb, extent=extent, origin="upper", interpolation="nearest")
+    span = extent[1] - extent[0]
+    length = _nice_length(span)
+    ax.add_artist(AnchoredSizeBar(ax.transData, length, f"{length:g} m", "lower left", pad=0.5,
+                                  color="black", frameon=True, size_vertical=span / 250))
+    ax.annotate("N", xy=(0.95, 0.93), xytext=(0.95, 0.8), xycoords="axes fraction", ha="center",
+                arrowprops={"arrowstyle": "-|>", "color": "black"}, fontsize=12, fontweight="bold")
+    mappable = plt.cm.ScalarMappable(norm=norm, cmap=ramp)
+    fig.colorbar(mappable, ax=ax, shrink=0.8, label="elevation (m)")
+    ax.set_title(f"{Path(store_path).name}: DEM, {res:g} m cells ({_crs_name(ds)})", fontsize=10)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=8)
+
+    if window is not None:
+        x0, y0, x1, y1 = window
+        if not (x0 < x1 and y0 < y1):
+            raise UsageError(f"--window must be xmin,ymin,xmax,ymax with min < max, got {window}")
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="red", linewidth=1.5))
+        polys, quads = _window_faces(str(store_path), window)
+        if polys.shape[0] > MAX_MESH_FACES:
+            plt.close(fig)
+            raise UsageError(
+                f"the window holds {polys.shape[0]:,} faces, too many to draw legibly "
+                f"(at most {MAX_MESH_FACES:,}); choose a smaller --window"
+            )
+        zoom = axes[0, 1]
+        c0 = max(0, int((x0 - (xs[0] - res / 2)) // res))
+        c1 = min(len(xs), int(math.ceil((x1 - (xs[0] - res / 2)) / res)))
+        r0 = max(0, int(((ys[0] + res / 2) - y1) // res))
+        r1 = min(len(ys), int(math.ceil(((ys[0] + res / 2) - y0) / res)))
+        sub = ds["elevation"].values[r0:r1, c0:c1].astype(np.float64)
+        if np.isfinite(sub).any():
+            # grey relief under the mesh, so the two face colours read clearly
+            zrgb, _, _ = _hillshade(sub, res, ramp=plt.get_cmap("Greys_r"))
+            zoom.imshow(zrgb, extent=(xs[0] - res / 2 + c0 * res, xs[0] - res / 2 + c1 * res,
+                                      ys[0] + res / 2 - r1 * res, ys[0] + res / 2 - r0 * res),
+                        origin="upper", interpolation="nearest", alpha=0.5)
+        max_edge = ds.attrs.get("provenance", {}).get("parameters", {}).get("max_edge")
+        closed = np.concatenate([polys, polys[:, :1]], axis=1)
+        longest = np.sqrt((np.diff(closed, axis=1) ** 2).sum(axis=2)).max(axis=1)
+        bridged = longest > max_edge if max_edge else np.zeros(len(polys), dtype=bool)
+        colours = {"triangles": "#2166ac", "quadrangles": "#f4a516"}
+        handles = []
+        for label, sel in (("triangles", ~quads & ~bridged), ("quadrangles", quads & ~bridged)):
+            zoom.add_collection(PolyCollection(polys[sel], facecolors=colours[label], edgecolors="#202020",
+                                               linewidths=0.3, alpha=0.6))
+            handles.append(Patch(facecolor=colours[label], alpha=0.6, edgecolor="#202020",
+                                 label=f"{label} ({int(sel.sum()):,})"))
+        if bridged.any():
+            zoom.add_collection(PolyCollection(polys[bridged], facecolors="none", edgecolors="#808080",
+                                               linewidths=0.4, linestyles="dashed"))
+            handles.append(Patch(facecolor="white", edgecolor="#808080", linestyle="dashed",
+                                 label=f"edge > max_edge {max_edge:g} m: no DEM ({int(bridged.sum()):,})"))
+        zoom.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+        zoom.set_xlim(x0, x1)
+        zoom.set_ylim(y0, y1)
+        zoom.set_aspect("equal")
+        zlen = _nice_length(x1 - x0)
+        zoom.add_artist(AnchoredSizeBar(zoom.transData, zlen, f"{zlen:g} m", "lower left", pad=0.5,
+                                        color="black", frameon=True, size_vertical=(x1 - x0) / 250))
+        zoom.set_title("combined mesh in the red box", fontsize=10)
+        zoom.ticklabel_format(useOffset=False, style="plain")
+        zoom.tick_params(labelsize=8)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
