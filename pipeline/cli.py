@@ -96,6 +96,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
     run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
+    run.add_argument("--skip-bad-files", action="store_true", default=None,
+                     help="skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     demo = sub.add_parser(
@@ -164,6 +166,7 @@ def _run_config(args: argparse.Namespace):
         "scratch_dir": args.scratch_dir,
         "max_cells": args.max_cells,
         "overwrite": args.overwrite,
+        "skip_bad_files": args.skip_bad_files,
     }
     data.update({k: v for k, v in flags.items() if v is not None})
     if args.inputs:

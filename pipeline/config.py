@@ -87,6 +87,7 @@ class RunConfig:
     scratch_dir: str | None = None
     overwrite: bool = False
     max_cells: int = 4_000_000_000
+    skip_bad_files: bool = False
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:

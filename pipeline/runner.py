@@ -34,7 +34,7 @@ import numpy as np
 
 from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
-from .errors import PipelineError, UsageError
+from .errors import InputFileError, PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
@@ -61,6 +61,8 @@ class RunReport:
     tiles_uncertified: int = 0
     tile_expansions: int = 0
     files: list[dict[str, Any]] = field(default_factory=list)
+    skipped_files: list[dict[str, Any]] = field(default_factory=list)
+    """Inputs left out with ``skip_bad_files``: path, reason, points their header claims."""
     notes: list[str] = field(default_factory=list)
     stages: dict[str, float] = field(default_factory=dict)
 
@@ -87,6 +89,8 @@ class RunReport:
         ]
         if self.tiles_uncertified:
             rows.append(("tiles not certified", f"{self.tiles_uncertified}"))
+        for skipped in self.skipped_files:
+            rows.append(("skipped file", f"{skipped['reason']}"))
         for stage, seconds in self.stages.items():
             rows.append((f"time: {stage}", f"{seconds:.2f} s"))
         width = max(len(r[0]) for r in rows)
@@ -177,16 +181,36 @@ class _RouteJob:
     classes: tuple[int, ...] | None
     keep_withheld: bool
     bbox: tuple[float, float, float, float] | None
+    skip_bad: bool = False
 
 
 def route_source(job: _RouteJob) -> dict[str, Any]:
-    """Stream one file into the tiles' spill files; returns its counts."""
+    """Stream one file into the tiles' spill files; returns its counts.
+
+    With ``job.skip_bad`` a file found broken while reading is dropped whole
+    (its spilled points removed) and the counts say why (``"skipped"``).
+    """
+    try:
+        return _route(job)
+    except InputFileError as exc:
+        if not job.skip_bad:
+            raise
+        _drop_spill(Path(job.scratch), job.index)
+        return {"path": job.path, "skipped": str(exc), "read": 0, "filtered_class": 0, "filtered_withheld": 0,
+                "outside_bbox": 0, "kept": 0, "hull": np.empty((0, 3))}
+
+
+def _drop_spill(scratch: Path, index: int) -> None:
+    for part in (scratch / "tiles").glob(f"*/{index:06d}_*.npy"):
+        part.unlink()
+
+
+def _route(job: _RouteJob) -> dict[str, Any]:
     from .crs import Reprojector
     from .sources import PointFilter, file_digest, iter_points
 
     t0 = time.perf_counter()
-    for part in (Path(job.scratch) / "tiles").glob(f"*/{job.index:06d}_*.npy"):
-        part.unlink()  # left by a stopped run: this file is routed again from the start
+    _drop_spill(Path(job.scratch), job.index)  # left by a stopped run: routed again from the start
     spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
     reproject = Reprojector(job.source_wkt, job.target_wkt)
     point_filter = PointFilter(
@@ -294,8 +318,17 @@ def execute(
     t_start = time.perf_counter()
 
     t0 = time.perf_counter()
-    paths = discover_inputs(config.inputs)
-    infos = [read_info(p) for p in paths]
+    paths, infos = [], []
+    for p in discover_inputs(config.inputs):
+        try:
+            infos.append(read_info(p))
+            paths.append(p)
+        except InputFileError as exc:
+            if not config.skip_bad_files:
+                raise
+            report.skipped_files.append({"path": str(p), "reason": str(exc), "points": None})
+    if not paths:
+        raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in report.skipped_files))
     plan = resolve_crs(infos, config.in_crs, config.out_crs)
     report.notes.extend(plan.notes)
     bounds = _target_bounds(infos, plan)
@@ -380,7 +413,7 @@ def execute(
         jobs = [
             _RouteJob(
                 i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt,
-                config.classes, config.keep_withheld, config.bbox,
+                config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
             )
             for i, p in enumerate(paths)
             if counts[i] is None
@@ -391,8 +424,11 @@ def execute(
             counts[job.index] = result
 
         _map(client, route_source, jobs, _Progress("read", len(jobs), show), lambda c: c["read"], routed)
-        for c in counts:
+        for i, c in enumerate(counts):
             assert c is not None
+            if "skipped" in c:
+                report.skipped_files.append({"path": c["path"], "reason": c["skipped"], "points": infos[i].point_count})
+                continue
             report.points_read += c["read"]
             report.filtered_class += c["filtered_class"]
             report.filtered_withheld += c["filtered_withheld"]
@@ -400,7 +436,11 @@ def execute(
             report.points_kept += c["kept"]
             if c["kept"] == 0:
                 report.notes.append(f"{c['path']}: no points of the chosen classes")
-        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None]
+        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None and "skipped" not in c]
+        if report.skipped_files:
+            report.notes.append(
+                f"{len(report.skipped_files)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
+            )
         hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
         moved = _tiles_whose_hull_moved(work, grid, buffer, hull)
         if moved:
@@ -562,8 +602,7 @@ def _forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: lis
 
 
 def _drop_source(work: WorkDir, index: int) -> None:
-    for part in (work.path / "tiles").glob(f"*/{index:06d}_*.npy"):
-        part.unlink()
+    _drop_spill(work.path, index)
     work.forget_record("route", f"{index:06d}")
 
 
