@@ -41,10 +41,10 @@ def configure(verbosity: int = 0, as_json: bool = False) -> None:
     LOGGER.handlers[:] = [handler]
     LOGGER.propagate = False
     LOGGER.setLevel({-1: logging.ERROR, 0: logging.INFO}.get(verbosity, logging.DEBUG))
-    # Dask's cluster chatter (and asyncio's notes about futures left behind at
-    # shutdown) only with -v
+    # Dask's cluster chatter, asyncio's notes about futures left behind at
+    # shutdown and laspy's own reports of the errors we report: only with -v
     quiet = logging.WARNING if verbosity > 0 else logging.CRITICAL
-    for name in ("distributed", "asyncio", "tornado"):
+    for name in ("distributed", "asyncio", "tornado", "laspy"):
         logging.getLogger(name).setLevel(quiet)
     # distributed sets its loggers' levels from the Dask config when imported
     level = logging.getLevelName(quiet).lower()

@@ -51,6 +51,9 @@ __all__ = [
     "read_info",
 ]
 
+#: Largest buffer of raw point records read at once (bytes).
+CHUNK_BYTES = 64 * 2**20
+
 #: File name endings (compared case-insensitively) picked up from directories and globs.
 LAS_SUFFIXES = frozenset({".las", ".laz"})
 
@@ -167,7 +170,42 @@ def _sniff(path: Path) -> int:
         raise InputFileError(f"{path}: empty file (0 bytes)")
     if head != _SIGNATURE:
         raise InputFileError(f"{path}: not a LAS/LAZ file (bad signature {head!r})")
+    _check_layout(path, size)
     return size
+
+
+def _check_layout(path: Path, size: int) -> None:
+    """Refuse headers whose counts would make a reader allocate far more than
+    the file holds (VLR, EVLR and LAZ chunk counts), before any reader sees them."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(375)
+            if len(head) < 227:
+                return  # too short for a header: the reader reports the truncation
+            header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+            room = max(0, offset - header_size)
+            if n_vlrs * 54 > room:
+                raise InputFileError(
+                    f"{path}: corrupt header: it claims {n_vlrs:,} VLRs, but only {room:,} bytes lie "
+                    "between the header and the point data"
+                )
+            if head[25] >= 4 and len(head) >= 247:
+                start, count = struct.unpack_from("<QI", head, 235)
+                if count and (start > size or count * 60 > size - start):
+                    raise InputFileError(
+                        f"{path}: corrupt header: it claims {count:,} extended VLRs at byte {start:,} "
+                        f"of a {size:,}-byte file"
+                    )
+            if head[104] & 0xC0 and offset + 8 <= size:  # LAZ: the chunk table's place and size
+                fh.seek(offset)
+                (table,) = struct.unpack("<q", fh.read(8))
+                if offset < table <= size - 8:
+                    fh.seek(table)
+                    _, chunks = struct.unpack("<II", fh.read(8))
+                    if chunks > size:
+                        raise InputFileError(f"{path}: corrupt LAZ chunk table (it claims {chunks:,} chunks)")
+    except OSError as exc:
+        raise InputFileError(f"{path}: {_os_reason(exc)}") from exc
 
 
 def _os_reason(exc: OSError) -> str:
@@ -262,6 +300,8 @@ def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> 
             f"{path}: point data is truncated: the file holds {available:,} of the "
             f"{total:,} points its header announces"
         )
+    # a chunk never takes more than CHUNK_BYTES, whatever record length the header claims
+    chunk_size = max(1, min(chunk_size, CHUNK_BYTES // max(1, header.point_format.size)))
     done = 0
     iterator = reader.chunk_iterator(chunk_size)
     while done < total:
@@ -408,7 +448,9 @@ def read_info(path: str | os.PathLike[str]) -> SourceInfo:
         header = reader.header
         try:
             return _info_from_header(path, size, header)
-        except (laspy.errors.LaspyException, ValueError, struct.error) as exc:
+        except InputFileError:
+            raise
+        except Exception as exc:  # laspy trips over corrupt VLRs in many ways (e.g. ZeroDivisionError)
             raise _header_error(path, size, exc) from exc
 
 
