@@ -7,7 +7,7 @@ Messages are one line; errors about a file start with the file's path.
 
 from __future__ import annotations
 
-__all__ = ["CrsError", "InputFileError", "PipelineError", "UsageError"]
+__all__ = ["CrsError", "InputFileError", "OutputWriteError", "PipelineError", "UsageError"]
 
 
 class PipelineError(Exception):
@@ -39,3 +39,12 @@ class InputFileError(PipelineError, OSError):
 
 class CrsError(PipelineError, ValueError):
     """A coordinate reference system is missing, unparsable, inconsistent or unsuitable."""
+
+
+class OutputWriteError(PipelineError, OSError):
+    """Writing the output failed (disk full, read-only target, ...).  The store
+    is left incomplete and resumable: the same command resumes once the cause
+    is fixed."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)

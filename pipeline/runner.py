@@ -34,7 +34,7 @@ import numpy as np
 
 from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
-from .errors import InputFileError, PipelineError, UsageError
+from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
 
@@ -492,8 +492,14 @@ def execute(
 
         def dem_and_write(job: TileJob) -> int:
             layers = dem_tile(job)
-            store.write_tile(config.output, spec, job.row, job.col, layers)
-            store.mark_tile_done(config.output, job.row, job.col)
+            try:
+                store.write_tile(config.output, spec, job.row, job.col, layers)
+                store.mark_tile_done(config.output, job.row, job.col)
+            except OSError as exc:
+                raise OutputWriteError(
+                    f"{config.output}: cannot write tile ({job.row}, {job.col}): {exc.strerror or exc}; "
+                    "the store is incomplete: run the same command again to resume once this is fixed"
+                ) from None
             return 0
 
         _map(client, dem_and_write, todo, _Progress("dem", len(todo), show), lambda _: 0)

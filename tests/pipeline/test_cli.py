@@ -82,3 +82,28 @@ def test_ctrl_c_is_exit_130_quiet_and_resumable(tmp_path):
     again = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
     assert "resumed" in again.stdout
+
+
+def test_a_full_disk_is_one_line_exit_1_and_resumable(survey, tmp_path, capsys, monkeypatch):
+    import errno
+
+    from pipeline import store
+
+    real = store.write_tile
+    calls = []
+
+    def full(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(store, "write_tile", full)
+    out = tmp_path / "full.zarr"
+    assert _run(survey, out, "--no-progress") == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith(f"terrain: error: {out}: cannot write tile") and "No space left on device" in err[-1]
+    assert store.read_attrs(out)["complete"] is False
+    monkeypatch.setattr(store, "write_tile", real)
+    assert _run(survey, out, "--no-progress") == 0
+    assert "resumed" in capsys.readouterr().out

@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,12 @@ DASK = Path(sys.executable).with_name("dask")
 
 def _dask_command() -> list[str]:
     return [str(DASK)]
+
+
+@dataclass
+class Cluster:
+    address: str
+    workers: list[subprocess.Popen]
 
 
 @pytest.fixture
@@ -56,7 +64,7 @@ def cluster(tmp_path):
     with Client(address, timeout="30s") as client:
         client.wait_for_workers(2, timeout=60)
     try:
-        yield address
+        yield Cluster(address, procs[1:])
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -72,7 +80,7 @@ def test_distributed_run_equals_local_run(cluster, tmp_path):
     write_survey(folder, SurveySpec(points=30_000, files=2, width=200.0, height=150.0, seed=7))
     common = dict(inputs=(str(folder),), resolution=2.0, tile_size=64.0, scratch_dir=str(tmp_path))
     local = run(RunConfig(output=str(tmp_path / "local.zarr"), workers=2, **common), progress=False)
-    remote = run(RunConfig(output=str(tmp_path / "remote.zarr"), scheduler=cluster, **common), progress=False)
+    remote = run(RunConfig(output=str(tmp_path / "remote.zarr"), scheduler=cluster.address, **common), progress=False)
     assert remote.tiles == local.tiles > 4
     assert remote.faces == local.faces and remote.vertices == local.vertices
     a = xr.open_zarr(tmp_path / "local.zarr")["elevation"].values
@@ -80,3 +88,24 @@ def test_distributed_run_equals_local_run(cluster, tmp_path):
     np.testing.assert_array_equal(a, b)
     for x, y in zip(store.read_mesh(tmp_path / "local.zarr"), store.read_mesh(tmp_path / "remote.zarr")):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_worker_killed_mid_job_changes_nothing(cluster, tmp_path):
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=120_000, files=4, width=300.0, height=200.0, seed=17))
+    common = dict(inputs=(str(folder),), resolution=1.0, tile_size=40.0, scratch_dir=str(tmp_path))
+    started = time.perf_counter()
+    local = run(RunConfig(output=str(tmp_path / "local.zarr"), workers=2, **common), progress=False)
+    whole = time.perf_counter() - started
+    victim = cluster.workers[0]
+    killer = threading.Timer(0.5 * whole, victim.kill)  # SIGKILL, half way through
+    killer.start()
+    try:
+        remote = run(RunConfig(output=str(tmp_path / "remote.zarr"), scheduler=cluster.address, **common), progress=False)
+    finally:
+        killer.cancel()
+    assert victim.poll() is not None, "the worker was not killed before the job ended"
+    assert remote.faces == local.faces and remote.vertices == local.vertices
+    from .store_checks import assert_same_store
+
+    assert_same_store(tmp_path / "remote.zarr", tmp_path / "local.zarr")
