@@ -116,6 +116,23 @@ def _fail(message: str) -> None:
     raise InvalidMeshError(message)
 
 
+@njit
+def _off_line(x, y) -> int:
+    """A vertex off the line through the first two distinct vertices (exact), or -1."""
+    n = x.shape[0]
+    b = -1
+    for i in range(1, n):
+        if x[i] != x[0] or y[i] != y[0]:
+            b = i
+            break
+    if b < 0:
+        return -1
+    for i in range(n):
+        if orient2d(x[0], y[0], x[b], y[b], x[i], y[i]) != 0.0:
+            return i
+    return -1
+
+
 def validate(mesh: Mesh) -> None:
     """Raise :class:`InvalidMeshError` unless ``mesh`` is a valid combined mesh.
 
@@ -173,10 +190,9 @@ def validate(mesh: Mesh) -> None:
     used[src] = True
     hull = convex_hull(x, y)
     if f.shape[0] == 0:
-        if n_v >= 3 and hull.shape[0] >= 3:
-            area = 0.5 * np.abs(np.dot(x[hull], np.roll(y[hull], -1)) - np.dot(y[hull], np.roll(x[hull], -1)))
-            if area > 0:
-                _fail("the mesh has no faces but its vertices are not collinear")
+        if n_v >= 3 and _off_line(x, y) >= 0:
+            # exact: a float area of collinear points is rarely exactly zero
+            _fail("the mesh has no faces but its vertices are not collinear")
     else:
         if not used.all():
             _fail(f"vertex {int(np.flatnonzero(~used)[0])} is not used by any face")

@@ -78,3 +78,20 @@ def test_int32_faces_of_a_large_mesh_validate(rng):
     mesh = build_mesh(rng.random((300_000, 2)), "s3", "s4")
     narrow = Mesh(mesh.vertices, mesh.faces.astype(np.int32), mesh.input_to_vertex)
     validate(narrow)
+
+
+def test_collinear_points_whose_float_area_is_not_zero_are_collinear():
+    # exactly collinear (orient2d is 0 for every triple) although the float
+    # shoelace area of their hull is not: found by the adversarial test
+    xy = np.array([
+        [0.04674148043662851, 1.093482960873257], [0.08053119038818957, 1.1610623807763791],
+        [0.10412289585691503, 1.20824579171383], [0.22833551552463582, 1.4566710310492716],
+        [0.29013934364158933, 1.5802786872831787], [0.2972145121285025, 1.594429024257005],
+        [0.41233497710091194, 1.8246699542018239], [0.6280502591366341, 2.2561005182732683],
+        [0.7149367656275474, 2.4298735312550948], [0.9600955699629214, 2.920191139925843],
+    ])
+    mesh = build_mesh(xy, "s3", None)
+    assert mesh.faces.shape[0] == 0
+    validate(mesh)
+    with pytest.raises(InvalidMeshError, match="not collinear"):
+        validate(Mesh(np.vstack([xy, [[0.5, 0.0]]]), np.empty((0, 4), dtype=np.int64), np.arange(len(xy) + 1)))
