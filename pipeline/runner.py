@@ -478,6 +478,12 @@ def execute(
             report.quads += s.quads
             report.tile_expansions += s.expansions
             report.tiles_uncertified += 0 if s.certified else 1
+        if report.faces == 0:
+            names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+            raise PipelineError(
+                f"{names}: no surface: the {report.vertices:,} distinct kept point(s) are fewer than three "
+                "or all on one line"
+            )
         if report.tiles_uncertified:
             report.notes.append(
                 f"{report.tiles_uncertified} tile(s) could not load every point their seams depend on; "
