@@ -816,7 +816,8 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
                 if not np.isfinite(values).all():
                     raise InputFileError(
                         f"{path}: non-finite {axis} coordinate after scaling "
-                        f"(scales {tuple(reader.header.scales)}, offsets {tuple(reader.header.offsets)})"
+                        f"(scales {[float(v) for v in reader.header.scales]}, "
+                        f"offsets {[float(v) for v in reader.header.offsets]})"
                     )
                 xyz.append(values)
             yield PointChunk(

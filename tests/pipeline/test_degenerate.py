@@ -68,3 +68,17 @@ def test_coordinates_at_the_int32_limits(tmp_path):
     assert _run(path, tmp_path / "o.zarr") == 0
     elevation = xr.open_zarr(tmp_path / "o.zarr")["elevation"].values
     assert np.isfinite(elevation).sum() > 2000
+
+
+def test_a_nan_scale_is_one_readable_line(tmp_path, capsys):
+    import struct
+
+    path = _write(tmp_path / "nan.las", np.array([500_000.0, 500_001.0, 500_000.0]),
+                  np.array([4_000_000.0, 4_000_000.0, 4_000_001.0]), np.zeros(3))
+    data = bytearray(path.read_bytes())
+    data[131:139] = struct.pack("<d", float("nan"))  # the x scale
+    path.write_bytes(bytes(data))
+    assert _run(path, tmp_path / "o.zarr") == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == (f"terrain: error: {path}: non-finite x coordinate after scaling "
+                   "(scales [nan, 0.01, 0.01], offsets [500000.0, 4000000.0, 0.0])")
