@@ -36,7 +36,8 @@ from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
 from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
-from .tiling import TileGrid, TileSpiller, check_cells, hull_candidates, load_tile_points
+from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
+from .tiling import TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -195,14 +196,9 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
     except InputFileError as exc:
         if not job.skip_bad:
             raise
-        _drop_spill(Path(job.scratch), job.index)
+        drop_source_spill(Path(job.scratch), job.index)
         return {"path": job.path, "skipped": str(exc), "read": 0, "filtered_class": 0, "filtered_withheld": 0,
                 "outside_bbox": 0, "kept": 0, "hull": np.empty((0, 3))}
-
-
-def _drop_spill(scratch: Path, index: int) -> None:
-    for part in (scratch / "tiles").glob(f"*/{index:06d}_*.npy"):
-        part.unlink()
 
 
 def _route(job: _RouteJob) -> dict[str, Any]:
@@ -210,7 +206,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     from .sources import PointFilter, file_digest, iter_points
 
     t0 = time.perf_counter()
-    _drop_spill(Path(job.scratch), job.index)  # left by a stopped run: routed again from the start
+    drop_source_spill(Path(job.scratch), job.index)  # left by a stopped run: routed again from the start
     spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
     reproject = Reprojector(job.source_wkt, job.target_wkt)
     point_filter = PointFilter(
@@ -393,9 +389,9 @@ def execute(
         work.reset()
         report.notes.append("the work folder was missing: every tile was computed again")
     elif not same_inputs:
-        changed = _forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
-        tiles = _tiles_depending_on(work, grid, changed)
-        _forget_tiles(work, config.output, grid, tiles)
+        changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
+        tiles = tiles_depending_on(work, grid, changed)
+        forget_tiles(work, config.output, grid, tiles)
         report.notes.append(
             f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again"
         )
@@ -442,9 +438,9 @@ def execute(
                 f"{len(report.skipped_files)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
             )
         hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
-        moved = _tiles_whose_hull_moved(work, grid, buffer, hull)
+        moved = tiles_whose_hull_moved(work, grid, buffer, hull)
         if moved:
-            _forget_tiles(work, config.output, grid, moved)
+            forget_tiles(work, config.output, grid, moved)
             report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
         np.save(work.path / "hull.npy", hull)
         report.stages["route"] = time.perf_counter() - t0
@@ -573,111 +569,6 @@ def _existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_input
             f"gone or changed: {gone or 'none'}); pass --overwrite, or use 'terrain workflow' for incremental runs"
         )
     return attrs
-
-
-def _forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> list[tuple]:
-    """Drop the spilled points and records of inputs that changed or went away,
-    renumber the spill files of the others to their new place in the input
-    list, and return the regions (boxes) whose points changed."""
-    from .sources import file_digest
-
-    old_index = {i["path"]: k for k, i in enumerate(before)}
-    regions: list[tuple] = []
-    keep: dict[int, int] = {}  # old index -> new index
-    for k, item in enumerate(now):
-        j = old_index.get(item["path"])
-        if j is not None:
-            old = before[j]
-            rec = work.recorded("route", f"{j:06d}")
-            same = (old["size"], old["mtime"]) == (item["size"], item["mtime"])
-            if not same and rec is not None and old["size"] == item["size"]:
-                same = rec.get("sha256") == file_digest(item["path"])  # touched, not changed
-            if same and rec is not None:
-                keep[j] = k
-                continue
-        if item.get("bounds"):
-            regions.append(tuple(item["bounds"]))
-    for j, old in enumerate(before):
-        if j in keep:
-            continue
-        rec = work.recorded("route", f"{j:06d}")
-        box = (rec or {}).get("bounds") or old.get("bounds")
-        if box:
-            regions.append(tuple(box))
-        _drop_source(work, j)
-    # renumber in two steps, so no new name meets an old one still in use
-    for j in keep:
-        _rename_source(work, j, f"tmp{j:06d}")
-    for j, k in keep.items():
-        _rename_source(work, f"tmp{j:06d}", f"{k:06d}")
-    return regions
-
-
-def _drop_source(work: WorkDir, index: int) -> None:
-    _drop_spill(work.path, index)
-    work.forget_record("route", f"{index:06d}")
-
-
-def _rename_source(work: WorkDir, old: int | str, new: str) -> None:
-    old = f"{old:06d}" if isinstance(old, int) else old
-    for part in (work.path / "tiles").glob(f"*/{old}_*.npy"):
-        part.rename(part.with_name(new + part.name[len(old):]))
-    work.rename_record("route", old, new)
-
-
-def _tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> set[tuple[int, int]]:
-    """Tiles whose recorded piece held points in any of ``regions`` (all tiles
-    without a record count too: they are computed anyway)."""
-    out = set()
-    for r, c in grid.tiles():
-        rec = work.recorded("mesh", f"{r:05d}_{c:05d}")
-        if rec is None:
-            out.add((r, c))
-            continue
-        for held in rec.get("held", ()):
-            if any(h[0] <= b[2] and b[0] <= h[2] and h[1] <= b[3] and b[1] <= h[3] for h in [held] for b in regions):
-                out.add((r, c))
-                break
-    return out
-
-
-def _tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: np.ndarray) -> set[tuple[int, int]]:
-    """Tiles with a recorded piece whose nearby part of the global hull changed."""
-    from .tiles import _hull_near
-
-    path = work.path / "hull.npy"
-    if not path.exists():
-        return set()
-    before = np.load(path)
-    if before.shape == hull.shape and np.array_equal(before, hull):
-        return set()
-    out = set()
-    for r, c in grid.tiles():
-        if work.recorded("mesh", f"{r:05d}_{c:05d}") is None:
-            continue
-        bx = grid.box(r, c)
-        box = (bx[0] - buffer, bx[1] - buffer, bx[2] + buffer, bx[3] + buffer)
-        a, b = _hull_near(before, box), _hull_near(hull, box)
-        if a.shape != b.shape or not np.array_equal(a, b):
-            out.add((r, c))
-    return out
-
-
-def _forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[int, int]]) -> None:
-    """Mesh these tiles again, and write the DEM of them and their neighbours
-    (whose DEM reads their border faces) and the whole mesh again."""
-    from . import store
-
-    dem = set()
-    for r, c in tiles:
-        work.forget_record("mesh", f"{r:05d}_{c:05d}")
-        dem.update(
-            (rr, cc)
-            for rr in range(max(0, r - 1), min(grid.n_rows, r + 2))
-            for cc in range(max(0, c - 1), min(grid.n_cols, c + 2))
-        )
-    store.reset_tiles_done(output, sorted(dem))
-    work.forget("write")
 
 
 def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: str) -> np.ndarray:

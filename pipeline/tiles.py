@@ -29,7 +29,7 @@ import meshcore
 
 from .tiling import TileGrid, load_tile_points, points_in_box, tile_dir
 
-__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece"]
+__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "hull_near"]
 
 MAX_EXPANSIONS = 6
 """Rounds of loading missing points before a tile is reported uncertified."""
@@ -90,7 +90,7 @@ def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.
     return out
 
 
-def _hull_near(hull: NDArray[np.float64], box) -> NDArray[np.float64]:
+def hull_near(hull: NDArray[np.float64], box) -> NDArray[np.float64]:
     """The hull points (in order) that end a hull edge whose bounding box meets ``box``."""
     nxt = np.roll(hull, -1, axis=0)
     meets = (np.maximum(hull[:, 0], nxt[:, 0]) >= box[0]) & (np.minimum(hull[:, 0], nxt[:, 0]) <= box[2])
@@ -216,7 +216,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         # the ends of the global hull's edges that pass the tile make the tile's
         # hull the global one where it matters, so no part of its window is
         # left outside its triangulation
-        hull = _hull_near(job.hull, held[0])
+        hull = hull_near(job.hull, held[0])
         points = np.concatenate([own, hull[~points_in_box(hull, held[0])]])
     bands = _edge_bands(job, held[0])
     if bands:

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from .errors import UsageError
 
-__all__ = ["TileGrid", "TileSpiller", "load_tile_points", "points_in_box", "hull_candidates"]
+__all__ = ["TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "points_in_box", "hull_candidates"]
 
 
 @dataclass(frozen=True)
@@ -188,6 +188,12 @@ class TileSpiller:
             self._parts[key] = part + 1
         self._pending.clear()
         self._held = 0
+
+
+def drop_source_spill(scratch: Path, source: int) -> None:
+    """Delete every spill file of one source (it is routed again, or left out)."""
+    for part in (Path(scratch) / "tiles").glob(f"*/{source:06d}_*.npy"):
+        part.unlink()
 
 
 def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:

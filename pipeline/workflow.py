@@ -153,7 +153,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
 
 def _pending_after_changes(attrs, work, touched: list[str], gone: list[str], before, shape) -> int | str:
     """Tiles the next run would mesh again (an estimate from the files' header bounds)."""
-    from .runner import _tiles_depending_on
+    from .changes import tiles_depending_on
     from .sources import read_info
     from .tiling import TileGrid
 
@@ -167,7 +167,7 @@ def _pending_after_changes(attrs, work, touched: list[str], gone: list[str], bef
     for p in gone:
         if before[p].get("bounds"):
             regions.append(tuple(before[p]["bounds"]))
-    return len(_tiles_depending_on(work, grid, regions))
+    return len(tiles_depending_on(work, grid, regions))
 
 
 def status_text(status: dict[str, Any]) -> str:

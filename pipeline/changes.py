@@ -1,0 +1,124 @@
+"""What changed since a store's last run, and which tiles that touches.
+
+An incremental run (``pipeline.workflow``) compares the inputs with those the
+store was made from: the spilled points of files that changed or went away are
+dropped, the others renumbered to their place in the new input list, and every
+tile whose piece held points in a changed region (its recorded held boxes), or
+near a part of the convex hull that moved, is meshed again, with the DEM of
+its neighbours and the whole mesh.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .checkpoint import WorkDir
+from .tiles import hull_near
+from .tiling import TileGrid, drop_source_spill
+
+__all__ = ["forget_changed_inputs", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
+
+
+def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> list[tuple]:
+    """Drop the spilled points and records of inputs that changed or went away,
+    renumber the spill files of the others to their new place in the input
+    list, and return the regions (boxes) whose points changed."""
+    from .sources import file_digest
+
+    old_index = {i["path"]: k for k, i in enumerate(before)}
+    regions: list[tuple] = []
+    keep: dict[int, int] = {}  # old index -> new index
+    for k, item in enumerate(now):
+        j = old_index.get(item["path"])
+        if j is not None:
+            old = before[j]
+            rec = work.recorded("route", f"{j:06d}")
+            same = (old["size"], old["mtime"]) == (item["size"], item["mtime"])
+            if not same and rec is not None and old["size"] == item["size"]:
+                same = rec.get("sha256") == file_digest(item["path"])  # touched, not changed
+            if same and rec is not None:
+                keep[j] = k
+                continue
+        if item.get("bounds"):
+            regions.append(tuple(item["bounds"]))
+    for j, old in enumerate(before):
+        if j in keep:
+            continue
+        rec = work.recorded("route", f"{j:06d}")
+        box = (rec or {}).get("bounds") or old.get("bounds")
+        if box:
+            regions.append(tuple(box))
+        drop_source(work, j)
+    # renumber in two steps, so no new name meets an old one still in use
+    for j in keep:
+        rename_source(work, j, f"tmp{j:06d}")
+    for j, k in keep.items():
+        rename_source(work, f"tmp{j:06d}", f"{k:06d}")
+    return regions
+
+
+def drop_source(work: WorkDir, index: int) -> None:
+    drop_source_spill(work.path, index)
+    work.forget_record("route", f"{index:06d}")
+
+
+def rename_source(work: WorkDir, old: int | str, new: str) -> None:
+    old = f"{old:06d}" if isinstance(old, int) else old
+    for part in (work.path / "tiles").glob(f"*/{old}_*.npy"):
+        part.rename(part.with_name(new + part.name[len(old):]))
+    work.rename_record("route", old, new)
+
+
+def tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> set[tuple[int, int]]:
+    """Tiles whose recorded piece held points in any of ``regions`` (all tiles
+    without a record count too: they are computed anyway)."""
+    out = set()
+    for r, c in grid.tiles():
+        rec = work.recorded("mesh", f"{r:05d}_{c:05d}")
+        if rec is None:
+            out.add((r, c))
+            continue
+        for held in rec.get("held", ()):
+            if any(h[0] <= b[2] and b[0] <= h[2] and h[1] <= b[3] and b[1] <= h[3] for h in [held] for b in regions):
+                out.add((r, c))
+                break
+    return out
+
+
+def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: np.ndarray) -> set[tuple[int, int]]:
+    """Tiles with a recorded piece whose nearby part of the global hull changed."""
+    path = work.path / "hull.npy"
+    if not path.exists():
+        return set()
+    before = np.load(path)
+    if before.shape == hull.shape and np.array_equal(before, hull):
+        return set()
+    out = set()
+    for r, c in grid.tiles():
+        if work.recorded("mesh", f"{r:05d}_{c:05d}") is None:
+            continue
+        bx = grid.box(r, c)
+        box = (bx[0] - buffer, bx[1] - buffer, bx[2] + buffer, bx[3] + buffer)
+        a, b = hull_near(before, box), hull_near(hull, box)
+        if a.shape != b.shape or not np.array_equal(a, b):
+            out.add((r, c))
+    return out
+
+
+def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[int, int]]) -> None:
+    """Mesh these tiles again, and write the DEM of them and their neighbours
+    (whose DEM reads their border faces) and the whole mesh again."""
+    from . import store
+
+    dem = set()
+    for r, c in tiles:
+        work.forget_record("mesh", f"{r:05d}_{c:05d}")
+        dem.update(
+            (rr, cc)
+            for rr in range(max(0, r - 1), min(grid.n_rows, r + 2))
+            for cc in range(max(0, c - 1), min(grid.n_cols, c + 2))
+        )
+    store.reset_tiles_done(output, sorted(dem))
+    work.forget("write")
