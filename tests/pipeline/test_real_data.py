@@ -12,7 +12,7 @@ import meshcore
 from pipeline import store
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.errors import CrsError
+from pipeline.errors import CrsError, PipelineError
 from pipeline.runner import run
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -96,7 +96,7 @@ def test_duplicates_are_counted(tmp_path):
 def test_single_point(tmp_path):
     path = sample("single_point.laz")
     out = tmp_path / "one.zarr"
-    report = _run(path, out, classes=None, in_crs="EPSG:2154")
-    assert report.points_kept == 1 and report.vertices == 1 and report.faces == 0
-    xy, z, faces = store.read_mesh(out)
-    assert len(xy) == 1 and len(faces) == 0
+    # one point makes no surface: a clear error naming the file, never a complete store
+    with pytest.raises(PipelineError, match=r"single_point\.laz: no surface: the 1 distinct kept point"):
+        _run(path, out, classes=None, in_crs="EPSG:2154")
+    assert store.read_attrs(out)["complete"] is False
