@@ -460,13 +460,13 @@ def execute(
             if rec is not None:
                 rec["held"] = tuple(tuple(box) for box in rec.get("held", ()))
                 summaries[(job.row, job.col)] = TileSummary(**rec)
-        todo = [job for job in tile_jobs if (job.row, job.col) not in summaries]
+        pending = [job for job in tile_jobs if (job.row, job.col) not in summaries]
 
         def meshed(job: TileJob, summary: TileSummary) -> None:
             work.record("mesh", _tile_key(job), asdict(summary))
             summaries[(job.row, job.col)] = summary
 
-        _map(client, mesh_tile, todo, _Progress("mesh", len(todo), show), lambda s: s.points_owned, meshed)
+        _map(client, mesh_tile, pending, _Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
         for s in summaries.values():
             report.duplicates += s.duplicates
             report.vertices += s.vertices_owned
@@ -490,7 +490,7 @@ def execute(
         t0 = time.perf_counter()
         node_offsets, face_offsets = _offsets(grid, list(summaries.values()))
         written = store.tiles_done(config.output)
-        todo = [job for job in tile_jobs if not written[job.row, job.col]]
+        pending = [job for job in tile_jobs if not written[job.row, job.col]]
 
         def dem_and_write(job: TileJob) -> int:
             layers = dem_tile(job)
@@ -504,7 +504,7 @@ def execute(
                 ) from None
             return 0
 
-        _map(client, dem_and_write, todo, _Progress("dem", len(todo), show), lambda _: 0)
+        _map(client, dem_and_write, pending, _Progress("dem", len(pending), show), lambda _: 0)
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -693,9 +693,9 @@ def _write_mesh(
     (tiles renumbered and blocks written before a stop are kept)."""
     from . import store
 
-    todo = [job for job in tile_jobs if work.recorded("write", f"faces_{_tile_key(job)}") is None]
+    pending = [job for job in tile_jobs if work.recorded("write", f"faces_{_tile_key(job)}") is None]
     _map(
-        client, partial(global_faces, node_offsets=node_offsets), todo, _Progress("number", len(todo), show),
+        client, partial(global_faces, node_offsets=node_offsets), pending, _Progress("number", len(pending), show),
         lambda _: 0, lambda job, _: work.record("write", f"faces_{_tile_key(job)}", {}),
     )
     order = tuple(grid.tiles())

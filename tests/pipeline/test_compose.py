@@ -20,6 +20,8 @@ import yaml
 
 from pipeline.synthetic import SurveySpec, write_survey
 
+from .processes import stop_all
+
 REPO = Path(__file__).parents[2]
 BIN = Path(sys.executable).parent
 
@@ -100,10 +102,4 @@ def test_compose_commands_run_natively_on_loopback(compose, tmp_path):
         assert ds.attrs["complete"] is True
         assert int(ds["elevation"].notnull().sum()) > 0.95 * 600 * 300  # the survey's cells (1 m)
     finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_all(procs)

@@ -19,6 +19,8 @@ from pipeline.config import RunConfig
 from pipeline.runner import run
 from pipeline.synthetic import SurveySpec, write_survey
 
+from .processes import stop_all
+
 
 DASK = Path(sys.executable).with_name("dask")
 
@@ -66,13 +68,7 @@ def cluster(tmp_path):
     try:
         yield Cluster(address, procs[1:])
     finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_all(procs)
 
 
 def test_distributed_run_equals_local_run(cluster, tmp_path):
