@@ -16,7 +16,7 @@ import numpy as np
 
 from .checkpoint import WorkDir
 from .tiles import hull_near
-from .tiling import TileGrid, drop_source_spill
+from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
 
 __all__ = ["forget_changed_inputs", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
 
@@ -76,14 +76,12 @@ def tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> s
     without a record count too: they are computed anyway)."""
     out = set()
     for r, c in grid.tiles():
-        rec = work.recorded("mesh", f"{r:05d}_{c:05d}")
+        rec = work.recorded("mesh", tile_key(r, c))
         if rec is None:
             out.add((r, c))
             continue
-        for held in rec.get("held", ()):
-            if any(h[0] <= b[2] and b[0] <= h[2] and h[1] <= b[3] and b[1] <= h[3] for h in [held] for b in regions):
-                out.add((r, c))
-                break
+        if any(intersect_boxes(held, b) is not None for held in rec.get("held", ()) for b in regions):
+            out.add((r, c))
     return out
 
 
@@ -97,7 +95,7 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
         return set()
     out = set()
     for r, c in grid.tiles():
-        if work.recorded("mesh", f"{r:05d}_{c:05d}") is None:
+        if work.recorded("mesh", tile_key(r, c)) is None:
             continue
         bx = grid.box(r, c)
         box = (bx[0] - buffer, bx[1] - buffer, bx[2] + buffer, bx[3] + buffer)
@@ -114,7 +112,7 @@ def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[in
 
     dem = set()
     for r, c in tiles:
-        work.forget_record("mesh", f"{r:05d}_{c:05d}")
+        work.forget_record("mesh", tile_key(r, c))
         dem.update(
             (rr, cc)
             for rr in range(max(0, r - 1), min(grid.n_rows, r + 2))

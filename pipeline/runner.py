@@ -37,7 +37,9 @@ from .checkpoint import WorkDir, work_dir_for
 from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
 from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
-from .tiling import TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points
+from .tiling import (
+    TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, tile_key,
+)
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -253,12 +255,11 @@ def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, 
     return float(x0), float(y0), float(x1), float(y1)
 
 
-def _target_bounds(infos, plan) -> tuple[float, float, float, float]:
-    """Union of the files' header bounds, in the target CRS."""
+def _union_bounds(boxes) -> tuple[float, float, float, float]:
+    """Union of boxes (None ones skipped); infinite when there are none."""
     xmin = ymin = math.inf
     xmax = ymax = -math.inf
-    for info, src in zip(infos, plan.source_wkts):
-        b = _file_bounds(info, src, plan.target_wkt)
+    for b in boxes:
         if b is None:
             continue
         xmin, ymin = min(xmin, b[0]), min(ymin, b[1])
@@ -327,7 +328,8 @@ def execute(
         raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in report.skipped_files))
     plan = resolve_crs(infos, config.in_crs, config.out_crs)
     report.notes.extend(plan.notes)
-    bounds = _target_bounds(infos, plan)
+    file_bounds = [_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)]
+    bounds = _union_bounds(file_bounds)
     if config.bbox is not None:
         b = config.bbox
         bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
@@ -346,9 +348,9 @@ def execute(
         "inputs": [
             {
                 "path": str(i.path), "size": i.size_bytes, "points": i.point_count, "mtime": _mtime(i.path),
-                "bounds": _file_bounds(i, src, plan.target_wkt),
+                "bounds": b,
             }
-            for i, src in zip(infos, plan.source_wkts)
+            for i, b in zip(infos, file_bounds)
         ],
         "crs_wkt": plan.target_wkt,
         "grid": grid.to_dict(),
@@ -527,7 +529,7 @@ def execute(
 
 
 def _tile_key(job: TileJob) -> str:
-    return f"{job.row:05d}_{job.col:05d}"
+    return tile_key(job.row, job.col)
 
 
 def _mtime(path) -> float:

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from .tiling import TileGrid, load_tile_points, points_in_box, tile_dir
+from .tiling import TileGrid, intersect_boxes, load_tile_points, points_in_box, tile_dir
 
 __all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "hull_near"]
 
@@ -116,19 +116,13 @@ def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float,
     return out
 
 
-def _intersect(a, b):
-    """The intersection of two closed boxes, or None."""
-    out = (max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3]))
-    return out if out[0] <= out[2] and out[1] <= out[3] else None
-
-
 def _uncovered(box, held: list) -> list:
     """The parts of ``box`` (as boxes) outside every box of ``held``."""
     parts = [box]
     for h in held:
         rest = []
         for p in parts:
-            cut = _intersect(p, h)
+            cut = intersect_boxes(p, h)
             if cut is None:
                 rest.append(p)
                 continue
@@ -244,7 +238,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
             if not rest:
                 continue
             circles.append((cx, cy, r))
-            requests.extend(b for b in (_intersect(p, near) for p in rest) if b is not None)
+            requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
         if not circles or expansions >= MAX_EXPANSIONS:
             break
         expansions += 1

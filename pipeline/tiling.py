@@ -19,7 +19,10 @@ from numpy.typing import NDArray
 
 from .errors import UsageError
 
-__all__ = ["TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "points_in_box", "hull_candidates"]
+__all__ = [
+    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "points_in_box", "intersect_boxes",
+    "hull_candidates", "tile_key",
+]
 
 
 @dataclass(frozen=True)
@@ -123,8 +126,19 @@ class TileGrid:
         return cls(**data)
 
 
+def tile_key(row: int, col: int) -> str:
+    """A tile's name in the work folder and its records: ``RRRRR_CCCCC``."""
+    return f"{row:05d}_{col:05d}"
+
+
 def tile_dir(scratch: Path, row: int, col: int) -> Path:
-    return Path(scratch) / "tiles" / f"{row:05d}_{col:05d}"
+    return Path(scratch) / "tiles" / tile_key(row, col)
+
+
+def intersect_boxes(a, b):
+    """The intersection of two closed boxes (xmin, ymin, xmax, ymax), or None."""
+    out = (max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3]))
+    return out if out[0] <= out[2] and out[1] <= out[3] else None
 
 
 class TileSpiller:
