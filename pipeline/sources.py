@@ -38,6 +38,7 @@ from pyproj.exceptions import CRSError
 
 from .crs import crs_label, same_crs
 from .errors import InputFileError, UsageError
+from .layout import check_header, check_point_data
 
 __all__ = [
     "LAS_SUFFIXES",
@@ -170,42 +171,8 @@ def _sniff(path: Path) -> int:
         raise InputFileError(f"{path}: empty file (0 bytes)")
     if head != _SIGNATURE:
         raise InputFileError(f"{path}: not a LAS/LAZ file (bad signature {head!r})")
-    _check_layout(path, size)
+    check_header(path, size)
     return size
-
-
-def _check_layout(path: Path, size: int) -> None:
-    """Refuse headers whose counts would make a reader allocate far more than
-    the file holds (VLR, EVLR and LAZ chunk counts), before any reader sees them."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(375)
-            if len(head) < 227:
-                return  # too short for a header: the reader reports the truncation
-            header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
-            room = max(0, offset - header_size)
-            if n_vlrs * 54 > room:
-                raise InputFileError(
-                    f"{path}: corrupt header: it claims {n_vlrs:,} VLRs, but only {room:,} bytes lie "
-                    "between the header and the point data"
-                )
-            if head[25] >= 4 and len(head) >= 247:
-                start, count = struct.unpack_from("<QI", head, 235)
-                if count and (start > size or count * 60 > size - start):
-                    raise InputFileError(
-                        f"{path}: corrupt header: it claims {count:,} extended VLRs at byte {start:,} "
-                        f"of a {size:,}-byte file"
-                    )
-            if head[104] & 0xC0 and offset + 8 <= size:  # LAZ: the chunk table's place and size
-                fh.seek(offset)
-                (table,) = struct.unpack("<q", fh.read(8))
-                if offset < table <= size - 8:
-                    fh.seek(table)
-                    _, chunks = struct.unpack("<II", fh.read(8))
-                    if chunks > size:
-                        raise InputFileError(f"{path}: corrupt LAZ chunk table (it claims {chunks:,} chunks)")
-    except OSError as exc:
-        raise InputFileError(f"{path}: {_os_reason(exc)}") from exc
 
 
 def _os_reason(exc: OSError) -> str:
@@ -271,13 +238,6 @@ def _open(
     except Exception as exc:
         raise _header_error(path, size, exc) from exc
     with reader:
-        start = int(reader.header.offset_to_point_data)
-        if size < start:
-            # laspy reads what it can of cut VLRs without complaint; the CRS or LAZ VLR may be lost.
-            raise InputFileError(
-                f"{path}: truncated header/VLRs (the file is {size:,} bytes but its point data "
-                f"should start at byte {start:,})"
-            )
         yield reader, size
 
 
@@ -291,6 +251,7 @@ def _records_available(header: laspy.LasHeader, size: int) -> int | None:
 
 def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
     """Yield laspy point records of at most ``chunk_size`` points, checking for short data."""
+    check_point_data(path, size)
     header = reader.header
     total = int(header.point_count)
     compressed = bool(header.are_points_compressed)
@@ -472,6 +433,10 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
     available = _records_available(header, size)
     if available is not None and available < total:
         notes.append(f"point data is truncated: the file holds {available:,} of the {total:,} points announced")
+    try:
+        check_point_data(path, size)
+    except InputFileError as exc:
+        notes.append(str(exc).removeprefix(f"{path}: "))
     scales = tuple(float(s) for s in header.scales)
     if not all(np.isfinite(scales)) or any(s == 0 for s in scales):
         notes.append(f"unusable scale factors {scales}")

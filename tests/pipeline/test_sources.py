@@ -368,7 +368,10 @@ def test_truncated_point_data(tmp_path: Path, suffix: str) -> None:
     data = w.path.read_bytes()
     cut = tmp_path / f"cut{suffix}"
     cut.write_bytes(data[: len(data) - len(data) // 3])
-    assert read_info(cut).point_count == 5000  # the header is intact
+    info = read_info(cut)
+    assert info.point_count == 5000  # the header is intact
+    if suffix == ".laz":  # the cut took the chunk table: a note, not an error, until points are read
+        assert any("chunk table should start" in note for note in info.notes), info.notes
     for call in (class_counts, lambda p: list(iter_points(p, chunk_size=1000))):
         with pytest.raises(InputFileError) as exc:
             call(cut)
