@@ -31,7 +31,7 @@ from .errors import InputFileError
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
 
 #: Largest decompressed LAZ chunk accepted (bytes): chunk size times point record length.
-MAX_CHUNK_BYTES = 256 * 2**20
+MAX_CHUNK_BYTES = 64 * 2**20
 
 _VLR_HEADER_BYTES = 54
 _EVLR_HEADER_BYTES = 60
@@ -219,7 +219,7 @@ def _laszip_record(fh: BinaryIO, head: _Head) -> bytes | None:
         raw = fh.read(_VLR_HEADER_BYTES)
         if len(raw) < _VLR_HEADER_BYTES:
             return None
-        user_id = raw[2:18].rstrip(b"\0")
+        user_id = raw[2:18].split(b"\0", 1)[0]  # as laspy reads it: up to the first NUL
         record_id, length = struct.unpack_from("<HH", raw, 18)
         at += _VLR_HEADER_BYTES
         if user_id == _LASZIP_USER_ID and record_id == _LASZIP_RECORD_ID and at + length <= offset:
