@@ -304,7 +304,34 @@ def execute(
 ) -> RunReport:
     """:func:`run`, or with ``incremental`` an update of the store after its
     inputs changed: the work folder is kept after the run, and only the tiles
-    whose points (or hull) changed are computed again (see :mod:`pipeline.workflow`)."""
+    whose points (or hull) changed are computed again (see :mod:`pipeline.workflow`).
+
+    Raises
+    ------
+    OutputWriteError
+        When the store or the work folder cannot be written (read-only, full,
+        ...): one line naming the file; the run resumes once the cause is fixed.
+    """
+    try:
+        return _execute(config, progress=progress, log=log, incremental=incremental)
+    except PipelineError:  # input errors are OSErrors too; their messages are already clear
+        raise
+    except OSError as exc:
+        if exc.filename is None:
+            raise
+        raise OutputWriteError(
+            f"{config.output}: cannot write {exc.filename} ({exc.strerror or exc}); "
+            "run the same command again once this is fixed: finished work is kept"
+        ) from exc
+
+
+def _execute(
+    config: RunConfig,
+    *,
+    progress: bool | None,
+    log: Callable[[str], None] | None,
+    incremental: bool,
+) -> RunReport:
     from . import store
     from .crs import resolve_crs
     from .sources import discover_inputs, read_info
@@ -318,12 +345,15 @@ def execute(
     paths, infos = [], []
     for p in discover_inputs(config.inputs):
         try:
-            infos.append(read_info(p))
-            paths.append(p)
+            info = read_info(p)
         except InputFileError as exc:
             if not config.skip_bad_files:
                 raise
             report.skipped_files.append({"path": str(p), "reason": str(exc), "points": None})
+            continue
+        infos.append(info)
+        paths.append(p)
+        report.notes.extend(f"{p}: {note}" for note in info.notes)
     if not paths:
         raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in report.skipped_files))
     plan = resolve_crs(infos, config.in_crs, config.out_crs)

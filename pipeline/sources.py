@@ -246,7 +246,15 @@ def _records_available(header: laspy.LasHeader, size: int) -> int | None:
     if header.are_points_compressed:
         return None
     record = header.point_format.size
-    return max(0, size - header.offset_to_point_data) // record if record else None
+    start = int(header.offset_to_point_data)
+    end = size
+    # what follows the point records: EVLRs (1.4), waveform packets kept in the file (1.3+)
+    if header.version.minor >= 4 and int(getattr(header, "number_of_evlrs", 0) or 0) > 0:
+        end = min(end, max(start, int(header.start_of_first_evlr)))
+    waveform = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)
+    if header.version.minor >= 3 and start < waveform < end and header.global_encoding.waveform_data_packets_internal:
+        end = waveform
+    return max(0, end - start) // record if record else None
 
 
 def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
@@ -433,6 +441,11 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
     available = _records_available(header, size)
     if available is not None and available < total:
         notes.append(f"point data is truncated: the file holds {available:,} of the {total:,} points announced")
+    elif available is not None and available > total:
+        notes.append(
+            f"the file holds {available:,} point records but its header announces {total:,}: "
+            f"only the announced ones are read ({available - total:,} left out)"
+        )
     try:
         check_point_data(path, size)
     except InputFileError as exc:

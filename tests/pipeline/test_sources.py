@@ -399,6 +399,32 @@ def test_header_count_larger_than_data(
     assert_names(exc, w.path)
 
 
+def test_header_count_smaller_than_data_is_a_note_in_the_run_report(tmp_path: Path) -> None:
+    from pipeline.config import RunConfig
+    from pipeline.runner import run
+
+    w = write_las(tmp_path / "long.las", point_format=6, version="1.4", n=1000, crs="EPSG:2154", classes=(2,))
+    patch(w.path, _POINT_COUNT_14, "<Q", 700)
+    info = read_info(w.path)
+    assert info.point_count == 700
+    assert any("holds 1,000 point records but its header announces 700" in note for note in info.notes), info.notes
+    assert sum(chunk.read for chunk in iter_points(w.path)) == 700
+    report = run(RunConfig(inputs=(str(w.path),), output=str(tmp_path / "o.zarr"), resolution=5.0), progress=False)
+    assert report.points_read == 700
+    assert any(note.startswith(f"{w.path}: ") and "300 left out" in note for note in report.notes), report.notes
+
+
+def test_evlrs_after_the_points_are_not_counted_as_records(tmp_path: Path) -> None:
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.add_crs(pyproj.CRS("EPSG:2154"))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.arange(50.0), np.arange(50.0) * 2, np.zeros(50)
+    las.evlrs = laspy.vlrs.vlrlist.VLRList([laspy.VLR("test", 1, "a trailing record", bytes(3000))])
+    las.write(tmp_path / "evlr.las")
+    info = read_info(tmp_path / "evlr.las")
+    assert info.point_count == 50 and not any("point records" in note for note in info.notes), info.notes
+
+
 def test_corrupt_laz_chunk(tmp_path: Path) -> None:
     w = write_las(tmp_path / "c.laz", point_format=6, version="1.4", n=120_000)
     data = bytearray(w.path.read_bytes())
