@@ -425,6 +425,43 @@ def test_evlrs_after_the_points_are_not_counted_as_records(tmp_path: Path) -> No
     assert info.point_count == 50 and not any("point records" in note for note in info.notes), info.notes
 
 
+def _write_variable_chunks(path: Path, sizes: tuple[int, ...]) -> Written:
+    """A LAZ file whose chunks hold different numbers of points, as COPC writes them."""
+    import io
+
+    import lazrs
+
+    w = write_las(path, point_format=6, version="1.4", n=sum(sizes), crs="EPSG:2154")
+    data = w.path.read_bytes()
+    (offset,) = struct.unpack_from("<I", data, 96)
+    head = bytearray(data[:offset])
+    vlr = lazrs.LazVlr.new_for_compression(6, 0, True)
+    at = head.find(b"laszip encoded") - 2
+    head[at + 54 : at + 54 + len(vlr.record_data())] = vlr.record_data()
+    raw = laspy.read(w.path).points.array.tobytes()
+    size = len(raw) // sum(sizes)
+    out = io.BytesIO()
+    out.write(bytes(head))
+    compressor = lazrs.LasZipCompressor(out, vlr)
+    compressor.reserve_offset_to_chunk_table()
+    start = 0
+    for n in sizes:
+        compressor.compress_many(raw[start * size : (start + n) * size])
+        compressor.finish_current_chunk()
+        start += n
+    compressor.done()
+    w.path.write_bytes(out.getvalue())
+    return w
+
+
+def test_variable_sized_laz_chunks_are_read(tmp_path: Path) -> None:
+    w = _write_variable_chunks(tmp_path / "copc-like.laz", (7000, 13000, 10000))
+    assert read_info(w.path).notes == ()
+    chunks = list(iter_points(w.path, chunk_size=4000, point_filter=PointFilter(classes=None)))
+    assert_allclose(np.concatenate([c.x for c in chunks]), w.x, rtol=0, atol=1e-6)
+    assert_allclose(np.concatenate([c.z for c in chunks]), w.z, rtol=0, atol=1e-6)
+
+
 def test_corrupt_laz_chunk(tmp_path: Path) -> None:
     w = write_las(tmp_path / "c.laz", point_format=6, version="1.4", n=120_000)
     data = bytearray(w.path.read_bytes())
