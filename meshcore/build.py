@@ -27,8 +27,8 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise InvalidInputError(f"{name} must be numeric, got dtype {arr.dtype}")
     arr = np.ascontiguousarray(arr, dtype=np.float64)
-    finite = np.isfinite(arr).all(axis=1)
-    if not finite.all():
+    if not np.isfinite(arr).all():
+        finite = np.isfinite(arr).all(axis=1)
         bad = int(np.flatnonzero(~finite)[0])
         raise InvalidInputError(
             f"{name} has {int((~finite).sum())} point(s) with NaN or infinite coordinates "

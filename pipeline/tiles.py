@@ -321,7 +321,7 @@ def _border(vertex_xyz, faces, box):
         return vertex_xyz[:0], faces
     x, y = vertex_xyz[:, 0], vertex_xyz[:, 1]
     outside = (x < box[0]) | (x > box[2]) | (y < box[1]) | (y > box[3])
-    out = outside[faces[:, :3]].any(axis=1) | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
+    out = outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
     f = faces[out]
     used, inverse = np.unique(f, return_inverse=True)  # -1 first when present
     has_gap = used.size > 0 and used[0] < 0
