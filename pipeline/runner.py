@@ -216,7 +216,9 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     )
     counts: dict[str, Any] = {
         "path": job.path, "read": 0, "filtered_class": 0, "filtered_withheld": 0, "outside_bbox": 0, "kept": 0,
+        "beyond_grid": 0,
     }
+    gx0, gy0, gx1, gy1 = job.grid.extent
     hull = np.empty((0, 3))
     for chunk in iter_points(job.path, point_filter):
         counts["read"] += chunk.read
@@ -228,6 +230,8 @@ def _route(job: _RouteJob) -> dict[str, Any]:
             counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
             x, y, z = x[inside], y[inside], z[inside]
         counts["kept"] += int(x.size)
+        # a stale header: kept points (in the mesh) where the DEM has no cells
+        counts["beyond_grid"] += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
         if x.size:
             b = counts.setdefault("bounds", [math.inf, math.inf, -math.inf, -math.inf])
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
@@ -464,6 +468,11 @@ def _execute(
             report.points_kept += c["kept"]
             if c["kept"] == 0:
                 report.notes.append(f"{c['path']}: no points of the chosen classes")
+            if c.get("beyond_grid", 0):
+                report.notes.append(
+                    f"{c['path']}: {c['beyond_grid']:,} point(s) lie beyond the bounds its header announces "
+                    "(a stale header?): the mesh holds them, the DEM stops at the header's extent"
+                )
         report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None and "skipped" not in c]
         if report.skipped_files:
             report.notes.append(
@@ -478,7 +487,9 @@ def _execute(
         report.stages["route"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        extent = bounds
+        # where the points are: the headers' extent, grown where a stale header
+        # understates it (the tiles' search for missing points must reach them)
+        extent = _union_bounds([bounds, *(tuple(c["bounds"]) for c in counts if c is not None and "bounds" in c)])
         tile_jobs = [
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,

@@ -202,9 +202,10 @@ def mesh_tile(job: TileJob) -> TileSummary:
     window = g.window(job.row, job.col)
     own = load_tile_points(Path(job.scratch), job.row, job.col)
     bx = g.box(job.row, job.col)
-    # the tile holds every point of its core plus buffer; outside the data
-    # extent there are none (circles are clipped to it below)
-    held = [(bx[0] - job.buffer, bx[1] - job.buffer, bx[2] + job.buffer, bx[3] + job.buffer)]
+    # the tile holds every point of its window plus buffer, as routed: an outer
+    # tile's window, and so what it holds, reaches to infinity on its outer
+    # sides (past the grid lie only the points a stale header left out of it)
+    held = [(window[0] - job.buffer, window[1] - job.buffer, window[2] + job.buffer, window[3] + job.buffer)]
     points = own
     if job.hull is not None and job.hull.shape[0]:
         # the ends of the global hull's edges that pass the tile make the tile's
@@ -260,7 +261,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
     owned = (orow == job.row) & (ocol == job.col)
-    porow, pocol = g.owner(points[:, 0], points[:, 1])
+    # counted in the tile's own points: a hull point can be added twice, and
+    # every point the tile owns is among its own
+    porow, pocol = g.owner(own[:, 0], own[:, 1])
     points_owned = int(np.count_nonzero((porow == job.row) & (pocol == job.col)))
     vertices_owned = int(np.count_nonzero(owned))
 

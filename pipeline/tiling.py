@@ -68,6 +68,11 @@ class TileGrid:
         return self.tile_cells * self.resolution
 
     @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """The box its cells cover (xmin, ymin, xmax, ymax)."""
+        return (self.x0, self.y0, self.x0 + self.nx * self.resolution, self.y0 + self.ny * self.resolution)
+
+    @property
     def n_cols(self) -> int:
         return -(-self.nx // self.tile_cells)
 

@@ -174,3 +174,29 @@ def test_cli_demo_and_zarr_format_2(tmp_path):
     assert code == 0
     assert (out / ".zgroup").exists()
     assert np.isfinite(xr.open_zarr(out)["elevation"].values).any()
+
+
+def test_a_stale_header_keeps_every_point_in_one_conforming_mesh(tmp_path):
+    """Header bounds that understate the points (edited files): the mesh holds
+    every point, the report adds up and says which file, the DEM keeps the
+    header's extent."""
+    import struct
+
+    folder = tmp_path / "survey"
+    paths = write_survey(folder, SurveySpec(points=30_000, files=2, width=300.0, height=200.0, seed=5))
+    stale = paths[0]
+    data = bytearray(stale.read_bytes())
+    (min_x,) = struct.unpack_from("<d", data, 187)
+    struct.pack_into("<d", data, 187, min_x + 60.0)  # the west strip: 60 m of points beyond its header's min x
+    stale.write_bytes(bytes(data))
+    out = tmp_path / "dem.zarr"
+    report = _run(folder, out, tile_size=64.0)
+    assert report.vertices + report.duplicates == report.points_kept
+    assert any(note.startswith(f"{stale}: ") and "beyond the bounds its header announces" in note
+               for note in report.notes), report.notes
+    node_xy, _, faces = store.read_mesh(out)
+    meshcore.validate(meshcore.Mesh(np.asarray(node_xy), np.asarray(faces), np.arange(len(node_xy))))
+    assert len(node_xy) == report.vertices
+    reference = tmp_path / "whole.zarr"
+    whole = _run(folder, reference, tile_size=1024.0)
+    assert whole.vertices == report.vertices
