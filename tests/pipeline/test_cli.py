@@ -67,6 +67,9 @@ def test_ctrl_c_is_exit_130_quiet_and_resumable(tmp_path):
     out = tmp_path / "c.zarr"
     command = [sys.executable, "-m", "pipeline.cli", "run", str(folder), "-o", str(out),
                "--resolution", "1", "--tile-size", "50", "--no-progress"]
+    # a whole run first, so that the kernels are compiled and cached before the
+    # interrupted one (a fresh environment compiles them on first use)
+    assert subprocess.run(command + ["-o", str(tmp_path / "warm.zarr")], capture_output=True, timeout=600).returncode == 0
     meshed = tmp_path / ".c.zarr.work" / "records" / "mesh"
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
