@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .checkpoint import WorkDir
-from .tiles import hull_near
+from .tiles import held_box, hull_near
 from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
 
 __all__ = ["forget_changed_inputs", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
@@ -97,8 +97,7 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
     for r, c in grid.tiles():
         if work.recorded("mesh", tile_key(r, c)) is None:
             continue
-        bx = grid.box(r, c)
-        box = (bx[0] - buffer, bx[1] - buffer, bx[2] + buffer, bx[3] + buffer)
+        box = held_box(grid, r, c, buffer)  # where the tile took hull points from
         a, b = hull_near(before, box), hull_near(hull, box)
         if a.shape != b.shape or not np.array_equal(a, b):
             out.add((r, c))

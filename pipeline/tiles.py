@@ -29,7 +29,7 @@ import meshcore
 
 from .tiling import TileGrid, intersect_boxes, load_tile_points, points_in_box, tile_dir
 
-__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "hull_near"]
+__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near"]
 
 MAX_EXPANSIONS = 6
 """Rounds of loading missing points before a tile is reported uncertified."""
@@ -88,6 +88,16 @@ def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.
         np.minimum.at(first, input_to_vertex, np.arange(z.size))
         out = z[first]
     return out
+
+
+def held_box(grid: TileGrid, row: int, col: int, buffer: float) -> tuple[float, float, float, float]:
+    """The box in which a tile holds every point, as routed: its window plus buffer.
+
+    An outer tile's window, and so this box, reaches to infinity on its outer
+    sides (past the grid lie only the points a stale header left out of it).
+    """
+    w = grid.window(row, col)
+    return (w[0] - buffer, w[1] - buffer, w[2] + buffer, w[3] + buffer)
 
 
 def hull_near(hull: NDArray[np.float64], box) -> NDArray[np.float64]:
@@ -202,10 +212,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     window = g.window(job.row, job.col)
     own = load_tile_points(Path(job.scratch), job.row, job.col)
     bx = g.box(job.row, job.col)
-    # the tile holds every point of its window plus buffer, as routed: an outer
-    # tile's window, and so what it holds, reaches to infinity on its outer
-    # sides (past the grid lie only the points a stale header left out of it)
-    held = [(window[0] - job.buffer, window[1] - job.buffer, window[2] + job.buffer, window[3] + job.buffer)]
+    held = [held_box(g, job.row, job.col, job.buffer)]
     points = own
     if job.hull is not None and job.hull.shape[0]:
         # the ends of the global hull's edges that pass the tile make the tile's
