@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .checkpoint import WorkDir
+from .checkpoint import WorkDir, load_array
 from .tiles import held_box, hull_near
 from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
 
@@ -90,7 +90,7 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
     path = work.path / "hull.npy"
     if not path.exists():
         return set()
-    before = np.load(path)
+    before = load_array(path)
     if before.shape == hull.shape and np.array_equal(before, hull):
         return set()
     out = set()

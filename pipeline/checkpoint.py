@@ -14,12 +14,30 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 __all__ = ["WorkDir", "work_dir_for"]
+
+
+_NPY_HEADER_LOCK = threading.Lock()
+
+
+def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
+    """``np.load`` of a work file, safe in threads.
+
+    numpy parses a ``.npy`` header with ``ast.literal_eval``, and CPython 3.11
+    builds ASTs with interpreter-wide state: two threads parsing at once can
+    fail with a spurious "AST constructor recursion depth mismatch"
+    SystemError (CPython gh-106905).  Headers are parsed one at a time (a
+    memory map costs only its header); the data is read outside the lock.
+    """
+    with _NPY_HEADER_LOCK:
+        mapped = np.load(path, mmap_mode="r")
+    return mapped if mmap else np.array(mapped)
 
 
 def work_dir_for(output: str, scratch_dir: str | None) -> Path:
@@ -69,7 +87,7 @@ class WorkDir:
         except (OSError, ValueError):
             return None
         for name in arrays:
-            payload[name] = np.load(target.with_name(f"{key}.{name}.npy"))
+            payload[name] = load_array(target.with_name(f"{key}.{name}.npy"))
         return payload
 
     def forget_record(self, stage: str, key: str) -> None:

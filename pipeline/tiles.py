@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 import meshcore
 
+from .checkpoint import load_array
 from .tiling import TileGrid, intersect_boxes, load_tile_points, points_in_box, tile_dir
 
 __all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near"]
@@ -350,7 +351,7 @@ def save_piece(scratch: Path, row: int, col: int, name: str, **arrays: NDArray) 
 def load_piece(scratch: Path, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
     """Arrays saved by :func:`save_piece`, memory-mapped (read only)."""
     folder = tile_dir(scratch, row, col) / name
-    return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in keys}
+    return {k: load_array(folder / f"{k}.npy", mmap=True) for k in keys}
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8]]:

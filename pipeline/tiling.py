@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .checkpoint import load_array
 from .errors import UsageError
 
 __all__ = [
@@ -221,7 +222,7 @@ def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []
     if not parts:
         return np.empty((0, 3))
-    return np.concatenate([np.load(p) for p in parts])
+    return np.concatenate([load_array(p) for p in parts])
 
 
 def points_in_box(
