@@ -7,7 +7,7 @@ Messages are one line; errors about a file start with the file's path.
 
 from __future__ import annotations
 
-__all__ = ["CrsError", "InputFileError", "OutputWriteError", "PipelineError", "UsageError"]
+__all__ = ["CrsError", "InputFileError", "OutputWriteError", "PipelineError", "UsageError", "os_error_reason"]
 
 
 class PipelineError(Exception):
@@ -48,3 +48,14 @@ class OutputWriteError(PipelineError, OSError):
 
     def __init__(self, message: str) -> None:
         super().__init__(message)
+
+
+def os_error_reason(exc: OSError) -> str:
+    """What an OSError met while reading an input file means, for a one-line message."""
+    if isinstance(exc, FileNotFoundError):
+        return "no such file"
+    if isinstance(exc, IsADirectoryError):
+        return "is a directory, not a LAS/LAZ file"
+    if isinstance(exc, PermissionError):
+        return "permission denied (cannot read the file)"
+    return f"cannot read the file ({exc.strerror or exc})"

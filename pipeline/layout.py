@@ -26,7 +26,7 @@ from typing import BinaryIO
 
 import lazrs
 
-from .errors import InputFileError
+from .errors import InputFileError, os_error_reason
 
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
 
@@ -141,7 +141,7 @@ def _reading(path: Path) -> Iterator[BinaryIO]:
     except InputFileError:
         raise
     except OSError as exc:
-        raise InputFileError(f"{path}: cannot read the file ({exc.strerror or exc})") from exc
+        raise InputFileError(f"{path}: {os_error_reason(exc)}") from exc
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
 from .crs import crs_label, same_crs
-from .errors import InputFileError, UsageError
+from .errors import InputFileError, UsageError, os_error_reason
 from .layout import check_header, check_point_data
 
 __all__ = [
@@ -166,23 +166,13 @@ def _sniff(path: Path) -> int:
             head = fh.read(len(_SIGNATURE))
             size = os.fstat(fh.fileno()).st_size
     except OSError as exc:
-        raise InputFileError(f"{path}: {_os_reason(exc)}") from exc
+        raise InputFileError(f"{path}: {os_error_reason(exc)}") from exc
     if not head:
         raise InputFileError(f"{path}: empty file (0 bytes)")
     if head != _SIGNATURE:
         raise InputFileError(f"{path}: not a LAS/LAZ file (bad signature {head!r})")
     check_header(path, size)
     return size
-
-
-def _os_reason(exc: OSError) -> str:
-    if isinstance(exc, FileNotFoundError):
-        return "no such file"
-    if isinstance(exc, IsADirectoryError):
-        return "is a directory, not a LAS/LAZ file"
-    if isinstance(exc, PermissionError):
-        return "permission denied (cannot read the file)"
-    return f"cannot read the file ({exc.strerror or exc})"
 
 
 def _one_line(exc: BaseException) -> str:
@@ -194,7 +184,7 @@ def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy raised while reading the header and VLRs into one clear line."""
     msg = _one_line(exc)
     if isinstance(exc, OSError):
-        reason = _os_reason(exc)
+        reason = os_error_reason(exc)
     elif isinstance(exc, laspy.errors.FileVersionNotSupported):
         reason = f"unsupported LAS version ({msg})"
     elif isinstance(exc, laspy.errors.PointFormatNotSupported):
@@ -217,7 +207,7 @@ def _points_error(path: Path, compressed: bool, done: int, total: int, exc: Exce
     msg = _one_line(exc)
     where = f"after {done:,} of {total:,} points"
     if isinstance(exc, OSError):
-        reason = _os_reason(exc)
+        reason = os_error_reason(exc)
     elif compressed:
         reason = f"corrupt or truncated LAZ data {where} ({msg})"
     elif isinstance(exc, ValueError) and "buffer size" in msg:
