@@ -13,6 +13,7 @@ and rasterization.  No I/O.
 
 from __future__ import annotations
 
+from ._order import lexicographic_order
 from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
@@ -29,6 +30,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Mesh",
     "build_mesh",
+    "lexicographic_order",
     "interpolate",
     "gradient",
     "rasterize",

@@ -4,11 +4,13 @@ triangulation fixed by the geometry alone."""
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .delaunay import Triangulation
+from .errors import InvalidInputError
 
-__all__ = ["order_ties_by", "morton_keys", "geometric_order"]
+__all__ = ["order_ties_by", "morton_keys", "geometric_order", "lexicographic_order"]
 
 
 @njit
@@ -37,6 +39,54 @@ def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
                 order[j + 1] = order[j]
                 j -= 1
             order[j + 1] = v
+        k = m
+
+
+def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
+    """Indices that sort points by x, then by y (equal points keep no particular order).
+
+    The table of a tile's points in this order is searchable by coordinates
+    (``numpy.searchsorted`` on ``x + 1j * y``), at a fraction of the cost of
+    sorting complex keys.
+
+    >>> lexicographic_order([[1.0, 0.0], [0.0, 2.0], [0.0, 1.0]]).tolist()
+    [2, 1, 0]
+    """
+    arr = np.asarray(xy, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] < 2:
+        raise InvalidInputError(f"xy must have shape (n, 2), got {arr.shape}")
+    x = np.ascontiguousarray(arr[:, 0])
+    order = np.argsort(x)
+    _order_ties_gathered(order, x[order], arr[:, 1][order])
+    return order
+
+
+@njit
+def _order_ties_gathered(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
+    """:func:`order_ties_by` with ``key`` and ``tie`` already in ``order``'s order
+    (contiguous, so the short insertion sorts stay in cache)."""
+    n = order.shape[0]
+    k = 0
+    while k < n:
+        m = k + 1
+        while m < n and key[m] == key[k]:
+            m += 1
+        if m - k > 32:
+            perm = np.argsort(tie[k:m], kind="mergesort")
+            order[k:m] = order[k:m][perm]
+            tie[k:m] = tie[k:m][perm]
+            k = m
+            continue
+        for i in range(k + 1, m):
+            v = order[i]
+            t = tie[i]
+            j = i - 1
+            while j >= k and tie[j] > t:
+                order[j + 1] = order[j]
+                tie[j + 1] = tie[j]
+                j -= 1
+            order[j + 1] = v
+            tie[j + 1] = t
         k = m
 
 

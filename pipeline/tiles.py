@@ -275,16 +275,18 @@ def mesh_tile(job: TileJob) -> TileSummary:
     points_owned = int(np.count_nonzero((porow == job.row) & (pocol == job.col)))
     vertices_owned = int(np.count_nonzero(owned))
 
-    used_mask = np.zeros(xy.shape[0], dtype=bool)
-    used_mask[mesh.faces[mesh.faces >= 0]] = True
-    used = np.flatnonzero(used_mask)
-    remap = np.full(xy.shape[0], -1, dtype=np.int64)
-    remap[used] = np.arange(used.size)
-    faces = np.where(mesh.faces >= 0, remap[np.maximum(mesh.faces, 0)], -1)
+    # one slot past the vertices stands for the -1 of a triangle's 4th corner
+    n = xy.shape[0]
+    used_mask = np.zeros(n + 1, dtype=bool)
+    used_mask[mesh.faces.ravel()] = True
+    used = np.flatnonzero(used_mask[:n])
+    remap = np.full(n + 1, -1, dtype=np.int32)
+    remap[used] = np.arange(used.size, dtype=np.int32)
+    faces = remap[mesh.faces]
     owned_order = np.flatnonzero(owned)
-    owned_order = owned_order[np.argsort(xy[owned_order, 0] + 1j * xy[owned_order, 1])]
-    rank = np.full(xy.shape[0], -1, dtype=np.int64)
-    rank[owned_order] = np.arange(owned_order.size)
+    owned_order = owned_order[meshcore.lexicographic_order(xy[owned_order])]
+    rank = np.full(n, -1, dtype=np.int32)
+    rank[owned_order] = np.arange(owned_order.size, dtype=np.int32)
     counts = None
     if "point_count" in job.layers:
         counts = _point_counts(job, own)

@@ -331,3 +331,15 @@ def test_meets_box_is_exact_up_to_its_slack(rng):
     # a sliver whose bounding box covers the box but which passes beside it
     assert not _meets_box(0.0, 0.0, 10.0, 9.0, 0.0, 1.0, 8.0, 0.0, 10.0, 2.0, 0.0)
     assert _meets_box(0.0, 0.0, 10.0, 9.0, 0.0, 1.0, -np.inf, -np.inf, np.inf, 0.5, 0.0)
+
+
+def test_lexicographic_order_sorts_by_x_then_y(rng):
+    from meshcore import lexicographic_order
+
+    # survey-like coordinates on a 1 cm lattice: long runs of equal x, and
+    # runs longer than the insertion-sorted ones
+    pts = np.round(rng.random((20000, 2)) * [3.0, 50.0] + 651000.0, 2)
+    pts = np.vstack([pts, np.column_stack([np.full(100, 651001.5), rng.random(100)])])
+    order = lexicographic_order(pts)
+    assert np.array_equal(pts[order], pts[np.lexsort((pts[:, 1], pts[:, 0]))])
+    assert np.array_equal(np.sort(order), np.arange(len(pts)))
