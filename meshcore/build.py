@@ -38,35 +38,40 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
 
 
 @njit
-def _centroid_coordinate(points, i, j, k, axis) -> float:
-    """Centroid coordinate of three input points, summed in lexicographic point order.
+def _centroid_coordinate(x, y, ox, oy, i, j, k, axis) -> float:
+    """Centroid coordinate of three points, in the input frame (local + origin,
+    which is exact), summed in lexicographic point order.
 
     The order of the sum is fixed by the points themselves, so every run that
     holds the same three points computes the same float, whatever its vertex
-    numbering: tiles decide ownership of a shared triangle identically.
+    numbering or local origin: tiles decide ownership of a shared triangle
+    identically.
     """
-    if points[j, 0] < points[i, 0] or (points[j, 0] == points[i, 0] and points[j, 1] < points[i, 1]):
+    if x[j] < x[i] or (x[j] == x[i] and y[j] < y[i]):
         i, j = j, i
-    if points[k, 0] < points[j, 0] or (points[k, 0] == points[j, 0] and points[k, 1] < points[j, 1]):
+    if x[k] < x[j] or (x[k] == x[j] and y[k] < y[j]):
         j, k = k, j
-        if points[j, 0] < points[i, 0] or (points[j, 0] == points[i, 0] and points[j, 1] < points[i, 1]):
+        if x[j] < x[i] or (x[j] == x[i] and y[j] < y[i]):
             i, j = j, i
-    return ((points[i, axis] + points[j, axis]) + points[k, axis]) / 3.0
+    if axis == 0:
+        return ((x[i] + ox) + (x[j] + ox) + (x[k] + ox)) / 3.0
+    return ((y[i] + oy) + (y[j] + oy) + (y[k] + oy)) / 3.0
 
 
 @njit
-def _window_mask(points, order, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
+def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
     nt = tri.shape[0] // 3
     active = np.zeros(nt, dtype=np.uint8)
     for t in range(nt):
-        i = order[tri[3 * t]]
-        j = order[tri[3 * t + 1]]
-        k = order[tri[3 * t + 2]]
-        cx = _centroid_coordinate(points, i, j, k, 0)
-        cy = _centroid_coordinate(points, i, j, k, 1)
-        if x_lo <= cx < x_hi and y_lo <= cy < y_hi:
-            active[t] = 1
+        i = tri[3 * t]
+        j = tri[3 * t + 1]
+        k = tri[3 * t + 2]
+        cx = _centroid_coordinate(x, y, ox, oy, i, j, k, 0)
+        if x_lo <= cx < x_hi:
+            cy = _centroid_coordinate(x, y, ox, oy, i, j, k, 1)
+            if y_lo <= cy < y_hi:
+                active[t] = 1
     return active
 
 
@@ -302,9 +307,11 @@ def build_mesh(
     if bounds is None:
         active = np.ones(nt, dtype=np.uint8)
     else:
-        active = _window_mask(points, triangulation.order, triangulation.triangles, *bounds)
-        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
         o = triangulation.origin
+        active = _window_mask(
+            triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles, *bounds
+        )
+        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
         escapes = _escaping_circles(
             triangulation.x, triangulation.y, triangulation.triangles, np.array(bounds), float(o[0]), float(o[1]), *box
         )
