@@ -337,7 +337,39 @@ def incircle_sos(
     >>> incircle_sos(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
     1
     """
-    s = incircle(ax, ay, bx, by, cx, cy, dx, dy)
+    # the filter inline (the hot path of the sweep); the rest out of line
+    adx = ax - dx
+    bdx = bx - dx
+    cdx = cx - dx
+    ady = ay - dy
+    bdy = by - dy
+    cdy = cy - dy
+    bdxcdy = bdx * cdy
+    cdxbdy = cdx * bdy
+    cdxady = cdx * ady
+    adxcdy = adx * cdy
+    adxbdy = adx * bdy
+    bdxady = bdx * ady
+    alift = adx * adx + ady * ady
+    blift = bdx * bdx + bdy * bdy
+    clift = cdx * cdx + cdy * cdy
+    det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady)
+    permanent = (
+        (abs(bdxcdy) + abs(cdxbdy)) * alift
+        + (abs(cdxady) + abs(adxcdy)) * blift
+        + (abs(adxbdy) + abs(bdxady)) * clift
+    )
+    errbound = _ICC_ERRBOUND_A * permanent
+    if det > errbound:
+        return 1
+    if -det > errbound:
+        return -1
+    return _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy)
+
+
+@njit
+def _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
+    s = _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
     if s != 0:
         return s
     xs = np.array([ax, bx, cx, dx])
