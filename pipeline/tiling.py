@@ -173,23 +173,28 @@ class TileSpiller:
         r_lo = np.searchsorted(ey, y - self.buffer, side="right")
         r_hi = np.searchsorted(ey, y + self.buffer, side="right")
         orow, ocol = g.owner(x, y)
-        owned_keys, owned_counts = np.unique(orow * g.n_cols + ocol, return_counts=True)
-        for k, n in zip(owned_keys.tolist(), owned_counts.tolist()):
+        owned_counts = np.bincount(orow * g.n_cols + ocol, minlength=g.n_tiles)
+        for k in np.flatnonzero(owned_counts).tolist():
             key = (k // g.n_cols, k % g.n_cols)
-            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + n
+            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + int(owned_counts[k])
         xyz = np.column_stack([x, y, z])
         span_c = int((c_hi - c_lo).max()) + 1
         span_r = int((r_hi - r_lo).max()) + 1
+        # small tile numbers sort by radix (numpy's stable sort of 16-bit integers)
+        key_type = np.int16 if g.n_tiles < 2**15 else np.int64
         for dr in range(span_r):
             for dc in range(span_c):
-                sel = (r_lo + dr <= r_hi) & (c_lo + dc <= c_hi)
-                if not sel.any():
-                    continue
-                keys = (r_lo[sel] + dr) * g.n_cols + (c_lo[sel] + dc)
-                pts = xyz[sel]
+                if dr == 0 and dc == 0:
+                    sel = None  # every point is in its lowest row and column
+                    keys = (r_lo * g.n_cols + c_lo).astype(key_type)
+                else:
+                    sel = np.flatnonzero((r_lo + dr <= r_hi) & (c_lo + dc <= c_hi))
+                    if sel.size == 0:
+                        continue
+                    keys = ((r_lo[sel] + dr) * g.n_cols + (c_lo[sel] + dc)).astype(key_type)
                 order = np.argsort(keys, kind="stable")
                 keys = keys[order]
-                pts = pts[order]
+                pts = xyz[order] if sel is None else xyz[sel[order]]
                 starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
                 ends = np.r_[starts[1:], keys.size]
                 for s, e in zip(starts.tolist(), ends.tolist()):
