@@ -266,18 +266,8 @@ def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
 
 
 @njit
-def incircle(
-    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
-) -> int:
-    """In-circle test: +1 when ``d`` is inside the circle of CCW ``a, b, c`` (exact).
-
-    Examples
-    --------
-    >>> incircle(0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.5, 0.5)
-    1
-    >>> incircle(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
-    0
-    """
+def _incircle_estimate(ax, ay, bx, by, cx, cy, dx, dy) -> tuple[float, float]:
+    """The in-circle determinant in floating point and its error bound (stage A)."""
     adx = ax - dx
     bdx = bx - dx
     cdx = cx - dx
@@ -303,7 +293,23 @@ def incircle(
         + (abs(cdxady) + abs(adxcdy)) * blift
         + (abs(adxbdy) + abs(bdxady)) * clift
     )
-    errbound = _ICC_ERRBOUND_A * permanent
+    return det, _ICC_ERRBOUND_A * permanent
+
+
+@njit
+def incircle(
+    ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float
+) -> int:
+    """In-circle test: +1 when ``d`` is inside the circle of CCW ``a, b, c`` (exact).
+
+    Examples
+    --------
+    >>> incircle(0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.5, 0.5)
+    1
+    >>> incircle(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
+    0
+    """
+    det, errbound = _incircle_estimate(ax, ay, bx, by, cx, cy, dx, dy)
     if det > errbound or -det > errbound:
         return _sign(det)
     return _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
@@ -337,29 +343,8 @@ def incircle_sos(
     >>> incircle_sos(0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 1.0)
     1
     """
-    # the filter inline (the hot path of the sweep); the rest out of line
-    adx = ax - dx
-    bdx = bx - dx
-    cdx = cx - dx
-    ady = ay - dy
-    bdy = by - dy
-    cdy = cy - dy
-    bdxcdy = bdx * cdy
-    cdxbdy = cdx * bdy
-    cdxady = cdx * ady
-    adxcdy = adx * cdy
-    adxbdy = adx * bdy
-    bdxady = bdx * ady
-    alift = adx * adx + ady * ady
-    blift = bdx * bdx + bdy * bdy
-    clift = cdx * cdx + cdy * cdy
-    det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady)
-    permanent = (
-        (abs(bdxcdy) + abs(cdxbdy)) * alift
-        + (abs(cdxady) + abs(adxcdy)) * blift
-        + (abs(adxbdy) + abs(bdxady)) * clift
-    )
-    errbound = _ICC_ERRBOUND_A * permanent
+    # the filter (the hot path of the sweep) inline; the exact and symbolic path out of line
+    det, errbound = _incircle_estimate(ax, ay, bx, by, cx, cy, dx, dy)
     if det > errbound:
         return 1
     if -det > errbound:
