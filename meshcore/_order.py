@@ -15,56 +15,15 @@ __all__ = ["order_ties_by", "morton_keys", "geometric_order", "lexicographic_ord
 
 @njit
 def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
-    """Within runs of equal ``key[order]``, reorder ``order`` by increasing ``tie``.
+    """Within runs of equal ``key``, reorder ``order`` (and ``tie``) by increasing ``tie``.
 
-    ``order`` must already sort ``key``.  Short runs (the usual case for float
-    keys of geometric data) are insertion-sorted; long ones (a grid, where many
-    keys are equal) are sorted with a stable merge sort.
+    ``key`` and ``tie`` are given in ``order``'s order (``key[order]``,
+    ``tie[order]``): contiguous, so the sorts of the runs stay in cache.
+    ``key`` must be sorted; ``tie`` is reordered along with ``order``.  Short
+    runs (the usual case for float keys of geometric data) are
+    insertion-sorted; long ones (a grid, where many keys are equal) are sorted
+    with a stable merge sort.
     """
-    n = order.shape[0]
-    k = 0
-    while k < n:
-        m = k + 1
-        while m < n and key[order[m]] == key[order[k]]:
-            m += 1
-        if m - k > 32:
-            run = order[k:m].copy()
-            order[k:m] = run[np.argsort(tie[run], kind="mergesort")]
-            k = m
-            continue
-        for i in range(k + 1, m):
-            v = order[i]
-            j = i - 1
-            while j >= k and tie[order[j]] > tie[v]:
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-        k = m
-
-
-def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
-    """Indices that sort points by x, then by y (equal points keep no particular order).
-
-    The table of a tile's points in this order is searchable by coordinates
-    (``numpy.searchsorted`` on ``x + 1j * y``), at a fraction of the cost of
-    sorting complex keys.
-
-    >>> lexicographic_order([[1.0, 0.0], [0.0, 2.0], [0.0, 1.0]]).tolist()
-    [2, 1, 0]
-    """
-    arr = np.asarray(xy, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] < 2:
-        raise InvalidInputError(f"xy must have shape (n, 2), got {arr.shape}")
-    x = np.ascontiguousarray(arr[:, 0])
-    order = np.argsort(x)
-    _order_ties_gathered(order, x[order], arr[:, 1][order])
-    return order
-
-
-@njit
-def _order_ties_gathered(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
-    """:func:`order_ties_by` with ``key`` and ``tie`` already in ``order``'s order
-    (contiguous, so the short insertion sorts stay in cache)."""
     n = order.shape[0]
     k = 0
     while k < n:
@@ -88,6 +47,25 @@ def _order_ties_gathered(order: np.ndarray, key: np.ndarray, tie: np.ndarray) ->
             order[j + 1] = v
             tie[j + 1] = t
         k = m
+
+
+def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
+    """Indices that sort points by x, then by y (equal points keep no particular order).
+
+    The table of a tile's points in this order is searchable by coordinates
+    (``numpy.searchsorted`` on ``x + 1j * y``), at a fraction of the cost of
+    sorting complex keys.
+
+    >>> lexicographic_order([[1.0, 0.0], [0.0, 2.0], [0.0, 1.0]]).tolist()
+    [2, 1, 0]
+    """
+    arr = np.asarray(xy, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] < 2:
+        raise InvalidInputError(f"xy must have shape (n, 2), got {arr.shape}")
+    x = np.ascontiguousarray(arr[:, 0])
+    order = np.argsort(x)
+    order_ties_by(order, x[order], arr[:, 1][order])
+    return order
 
 
 @njit
@@ -149,7 +127,7 @@ def _point_ranks(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     high, low = morton_keys(x.view(np.uint64), y.view(np.uint64))
     lead = _leading_word(high, low)
     order = np.argsort(lead)
-    order_ties_by(order, lead, low)
+    order_ties_by(order, lead[order], low[order])
     rank = np.empty(order.shape[0], dtype=np.int32)  # half the cache of int64
     rank[order] = np.arange(order.shape[0], dtype=np.int32)
     return rank

@@ -106,7 +106,7 @@ def _order_by_gain(gains: np.ndarray) -> np.ndarray:
     """Indices by decreasing gain; equal gains keep increasing index (half-edge) order."""
     key = -gains
     order = np.argsort(key)
-    order_ties_by(order, key, np.arange(gains.shape[0], dtype=np.float64))
+    order_ties_by(order, key[order], order.astype(np.float64))  # ties by index
     return order
 
 
