@@ -29,5 +29,10 @@ def assert_same_store(path: Path, reference: Path) -> None:
         a, b = got[name][...], want[name][...]
         assert a.dtype == b.dtype and a.shape == b.shape, name
         assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
-    assert chunk_files(path) == chunk_files(reference)  # byte for byte
+    got_files, want_files = chunk_files(path), chunk_files(reference)
+    differ = sorted(k for k in set(got_files) & set(want_files) if got_files[k] != want_files[k])
+    assert got_files == want_files, (  # byte for byte
+        f"chunk files: only in {path.name}: {sorted(set(got_files) - set(want_files))}, "
+        f"only in the reference: {sorted(set(want_files) - set(got_files))}, different bytes: {differ}"
+    )
     assert got.attrs["complete"] is True
