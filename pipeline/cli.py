@@ -77,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("-o", "--output", help="the Zarr store to write (e.g. dem.zarr)")
     run.add_argument("--config", type=Path, help="a TOML job file; flags given here override it")
     run.add_argument("--resolution", type=float, help="DEM cell size in CRS units")
-    run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~1.5M points a tile)")
+    run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile)")
     run.add_argument("--buffer", type=float, help="overlap around each tile in CRS units (default: 12 point spacings)")
     run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground)")
     run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
