@@ -60,6 +60,7 @@ import json
 import math
 import numbers
 import os
+import re
 import shutil
 import warnings
 from collections.abc import Mapping, Sequence
@@ -641,9 +642,12 @@ def finalize_store(
     ``attrs_update`` replaces or adds root attributes (e.g. the run report);
     ``history`` (e.g. the run's parameters and time) is appended to the
     ``run_history`` list attribute.  Both must be JSON-serialisable.
+    Writes that a stopped run left unfinished are removed (call it only while
+    no other process writes to the store).
     """
     update = _json_attrs(attrs_update or {}, "attrs_update")
     root = _open_group(path, mode="r+")
+    _remove_partial_writes(path)
     if history is not None:
         entry = _json_attrs(history, "history")
         update[HISTORY_ATTR] = [*root.attrs.get(HISTORY_ATTR, []), entry]
@@ -716,6 +720,27 @@ def read_tile_mesh(
 # --------------------------------------------------------------------------
 # Helpers
 # --------------------------------------------------------------------------
+
+
+_PARTIAL_WRITE = re.compile(r"\.[0-9a-f]{32}\.partial$")
+"""A file zarr's local store writes a chunk or metadata document to before
+renaming it into place: ``<name>.<uuid4 hex>.partial``."""
+
+
+def _remove_partial_writes(path: StorePath) -> None:
+    """Delete the temporary files of writes a killed process never finished.
+
+    zarr renames a finished write into place, so the store's data is whole,
+    but a process killed mid-write leaves its temporary file behind; a resumed
+    run would otherwise end with a store that holds stray files.
+    """
+    for root, _, files in os.walk(os.fspath(path)):
+        for name in files:
+            if _PARTIAL_WRITE.search(name):
+                try:
+                    os.remove(os.path.join(root, name))
+                except FileNotFoundError:
+                    pass
 
 
 def _is_zarr_store(path: StorePath) -> bool:

@@ -332,3 +332,18 @@ def test_finalize_updates_attrs_appends_history_and_consolidates(tmp_path, grid)
     metadata = json.loads((path / "zarr.json").read_text())["consolidated_metadata"]["metadata"]
     assert {"elevation", "mesh", "mesh/face_nodes"} <= set(metadata)
     assert json.loads((path / "zarr.json").read_text())["attributes"]["run_history"][-1] == {"run": 2}
+
+
+def test_finalize_removes_writes_a_killed_process_left_unfinished(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation",))
+    chunk = next(p for p in (path / "x").rglob("*") if p.is_file() and p.name != "zarr.json")
+    # what zarr's local store leaves when killed between writing and renaming
+    stray = [path / f"zarr.{'a1' * 16}.partial", chunk.with_name(f"{chunk.name}.{'0f' * 16}.partial")]
+    for p in stray:
+        p.write_bytes(b"half")
+    kept = path / "elevation" / "notes.partial"  # not zarr's pattern: not ours to delete
+    kept.write_bytes(b"x")
+    finalize_store(path, {"complete": True})
+    assert not any(p.exists() for p in stray)
+    assert kept.exists()
+    assert open_dem(path).attrs["complete"] is True
