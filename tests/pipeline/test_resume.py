@@ -103,6 +103,14 @@ def test_changed_inputs_are_an_error(survey, tmp_path):
     assert store.read_attrs(out)["complete"] is True
 
 
+def _units_done(out: Path) -> int:
+    """Units of work a stopped run leaves recorded: the work folder's records
+    (files routed, tiles meshed and renumbered, mesh blocks written) and the
+    tiles the store marks written."""
+    records = out.with_name(f".{out.name}.work") / "records"
+    return len(list(records.glob("*/*.json"))) + len(list((out / "status" / "tile_done" / "c").glob("*/*")))
+
+
 def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, reference, tmp_path):
     out = tmp_path / "dem.zarr"
     command = [
@@ -111,24 +119,25 @@ def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, referenc
     ]
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     rng = np.random.default_rng(7)
-    started = time.perf_counter()
-    subprocess.run(command, env=env, capture_output=True, timeout=600)  # how long a whole run takes
-    whole = time.perf_counter() - started
-    store_path = Path(out)
-    import shutil
-
-    shutil.rmtree(store_path)
-    shutil.rmtree(tmp_path / ".dem.zarr.work", ignore_errors=True)
-    kills = 0
-    for delay in rng.uniform(0.15, 0.7, 5) * whole:
+    # kill moments are drawn in units of work, not seconds, so that every
+    # stage can be hit however fast the machine is: a file routed, a tile
+    # meshed, a tile written, a tile renumbered (blocks and the store come on top)
+    tiles = int(np.asarray(store.tiles_done(reference)).size)
+    units = SPEC.files + 3 * tiles
+    targets = np.sort(rng.choice(np.arange(1, units - 2), size=5, replace=False))
+    kills = []
+    for target in targets.tolist():
         proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
-            proc.wait(timeout=delay)
-        except subprocess.TimeoutExpired:
+        deadline = time.monotonic() + 300  # a run that stops making progress is killed too, and fails below
+        while proc.poll() is None and _units_done(out) < target and time.monotonic() < deadline:
+            time.sleep(0.005)
+        time.sleep(rng.uniform(0.0, 0.02))  # anywhere in the next unit, a write included
+        if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
-            proc.wait()
-            kills += 1
-    assert kills >= 3
+            kills.append(_units_done(out))
+        proc.wait()
+    # a run stopped before its last units of work cannot have finished
+    assert len(kills) == len(targets) and all(k >= t for k, t in zip(kills, targets)), (targets, kills)
     final = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert final.returncode == 0, final.stderr
-    assert_same_store(store_path, reference)
+    assert_same_store(out, reference)
