@@ -4,7 +4,9 @@
     python bench/bench_pipeline.py memory [--small 5000000] [--large 50000000]
     python bench/bench_pipeline.py seams [--points 4000000] [--tile-size 256]
 
-throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage.
+throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage,
+    and the wall time scaled to a machine that decodes LAZ at 3.3M points/s on
+    one core (decoding measured here just before and after the run).
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
 seams: the same archive tiled and untiled: share of identical faces and DEM cells.
 Archives are generated once into --cache (default /tmp/terrain-bench).
@@ -60,6 +62,24 @@ def run_once(folder: Path, out: Path) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+#: the issue's yardstick: LAZ decoding alone runs at about this many points per second on one core
+ANCHOR_DECODE_RATE = 3.3e6
+
+
+def decode_rate(folder: Path) -> float:
+    """Points per second of decoding every LAZ file in ``folder`` on one core
+    (every field, lazrs without threads): how fast this machine is, right now."""
+    import laspy
+
+    points = 0
+    t0 = time.perf_counter()
+    for path in sorted(folder.glob("*.laz")):
+        with laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as reader:
+            for chunk in reader.chunk_iterator(2_000_000):
+                points += len(chunk)
+    return points / (time.perf_counter() - t0)
+
+
 def seams(folder: Path, cache: Path, tile_size: float) -> None:
     import numpy as np
     import xarray as xr
@@ -110,7 +130,9 @@ def main() -> None:
         return
     if args.what == "throughput":
         folder = archive(args.cache, args.points, args.files)
+        before = decode_rate(folder)
         res = run_once(folder, args.cache / "out.zarr")
+        rate = (before + decode_rate(folder)) / 2  # the machine's speed drifts: decode before and after
         rep = res["report"]
         print(f"\n{args.points:,} points, {args.files} LAZ files -> DEM + mesh")
         print(f"{'stage':12} {'seconds':>8}")
@@ -118,6 +140,9 @@ def main() -> None:
             print(f"{stage:12} {sec:8.2f}")
         print(f"{'wall':12} {res['wall']:8.2f}   ({args.points / res['wall'] / 1e6:.2f} M points/s)")
         print(f"tiles {rep['tiles']}, faces {rep['faces']:,}, quads {100 * rep['quad_share']:.1f} %, peak RSS {res['peak'] / 2**30:.2f} GiB")
+        scale = rate / ANCHOR_DECODE_RATE
+        print(f"LAZ decode alone here: {rate / 1e6:.2f} M points/s on one core ({scale:.2f}x the "
+              f"{ANCHOR_DECODE_RATE / 1e6:.1f} M/s yardstick): wall on a yardstick machine ~ {res['wall'] * scale:.1f} s")
     else:
         rows = []
         for n in (args.small, args.large):
