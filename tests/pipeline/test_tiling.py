@@ -25,6 +25,26 @@ def test_every_point_has_one_owner_consistent_with_windows(rng):
         assert x_lo <= xi < x_hi and y_lo <= yi < y_hi
 
 
+@pytest.mark.parametrize(
+    "bounds, resolution, cells",
+    [
+        ((0.0, 0.0, 99.0, 77.0), 1.0, 16),
+        ((651000.37, 6861000.9, 655600.2, 6864400.0), 0.5, 100),
+        ((-1234.5, -98765.4, 2345.6, -95000.0), 1 / 3, 7),  # edges that are not exact sums
+        ((5e6, 5e6, 5.0001e6, 5.0001e6), 0.1, 1),
+    ],
+)
+def test_bins_count_the_edges_at_or_below_each_value_exactly(bounds, resolution, cells, rng):
+    g = TileGrid.covering(bounds, resolution, cells)
+    for axis, (lo, hi) in enumerate(((g.extent[0], g.extent[2]), (g.extent[1], g.extent[3]))):
+        edges = g._inner_edges(axis)
+        values = np.concatenate([
+            rng.uniform(lo - 50, hi + 50, 5000), edges, np.nextafter(edges, -np.inf), np.nextafter(edges, np.inf),
+            [lo - 1e12, hi + 1e12],
+        ])
+        assert np.array_equal(g.bins(values, axis), np.searchsorted(edges, values, side="right"))
+
+
 def test_spilled_points_reach_every_tile_within_the_buffer(tmp_path, rng):
     g = TileGrid.covering((0.0, 0.0, 100.0, 100.0), 1.0, 25)
     pts = rng.random((5000, 3)) * 100
