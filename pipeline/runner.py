@@ -677,7 +677,10 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
     faces = piece["faces"]
     rank = piece["vertex_rank"]
     here = job.row * grid.n_cols + job.col
-    gid = node_offsets[here] + rank
+    # the slot past the vertices stands for the -1 of a triangle's 4th corner
+    gid = np.empty(rank.size + 1, dtype=store.face_index_dtype(int(node_offsets[-1])))
+    gid[:-1] = node_offsets[here] + rank
+    gid[-1] = -1
     foreign = np.flatnonzero(rank < 0)
     if foreign.size:
         orow, ocol = grid.owner(v[foreign, 0], v[foreign, 1])
@@ -692,8 +695,7 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
             if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
             gid[foreign[sel]] = node_offsets[number] + idx
-    dtype = store.face_index_dtype(int(node_offsets[-1]))
-    save_piece(scratch, job.row, job.col, "piece", faces_global=np.where(faces >= 0, gid[np.maximum(faces, 0)], -1).astype(dtype))
+    save_piece(scratch, job.row, job.col, "piece", faces_global=gid[faces])
 
 
 @dataclass(frozen=True)
