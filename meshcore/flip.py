@@ -27,11 +27,18 @@ _S3 = 3
 
 
 @njit
-def triangle_score_kernel(measure: int, x, y, a: int, b: int, c: int) -> float:
-    """Score of the triangle with vertex ids a, b, c: S1, or S3 cubed."""
+def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
+    """Score of the triangle with these corners: S1, or S3 cubed."""
     if measure == _S1:
-        return s1_kernel(x[a], y[a], x[b], y[b], x[c], y[c])
-    return s3_cubed_kernel(x[a], y[a], x[b], y[b], x[c], y[c])
+        return s1_kernel(ax, ay, bx, by, cx, cy)
+    return s3_cubed_kernel(ax, ay, bx, by, cx, cy)
+
+
+@njit
+def flippable(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float) -> bool:
+    """True when the triangles (a, b, c) and (b, a, d) sharing the diagonal ab
+    form a strictly convex quadrangle: a and b lie strictly on either side of cd."""
+    return orient2d(cx, cy, dx, dy, ax, ay) < 0 and orient2d(cx, cy, dx, dy, bx, by) > 0
 
 
 @njit
@@ -40,22 +47,11 @@ def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
     nt = tri.shape[0] // 3
     q = np.empty(nt)
     for t in range(nt):
-        q[t] = triangle_score_kernel(measure, x, y, tri[3 * t], tri[3 * t + 1], tri[3 * t + 2])
+        a = tri[3 * t]
+        b = tri[3 * t + 1]
+        c = tri[3 * t + 2]
+        q[t] = triangle_score(measure, x[a], y[a], x[b], y[b], x[c], y[c])
     return q
-
-
-@njit
-def is_strictly_convex_pair(x, y, tri, he, e: int) -> bool:
-    """True when the two triangles sharing half-edge ``e`` form a strictly convex quadrangle."""
-    f = he[e]
-    a = tri[e]
-    b = tri[_next(e)]
-    c = tri[_prev(e)]
-    d = tri[_prev(f)]
-    return (
-        orient2d(x[c], y[c], x[d], y[d], x[a], y[a]) < 0
-        and orient2d(x[c], y[c], x[d], y[d], x[b], y[b]) > 0
-    )
 
 
 @njit
@@ -85,13 +81,15 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
         b = tri[_next(e)]
         c = tri[_prev(e)]
         d = tri[_prev(f)]
-        qa = triangle_score_kernel(measure, x, y, a, d, c)
+        # each corner's coordinates read once (scores and the convexity test share them)
+        xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
+        qa = triangle_score(measure, xa, ya, xd, yd, xc, yc)
         if qa <= current * (1.0 + tolerance):
             continue
-        qb = triangle_score_kernel(measure, x, y, b, c, d)
+        qb = triangle_score(measure, xb, yb, xc, yc, xd, yd)
         if qb <= current * (1.0 + tolerance):
             continue
-        if not is_strictly_convex_pair(x, y, tri, he, e):
+        if not flippable(xa, ya, xb, yb, xc, yc, xd, yd):
             continue
         _flip(tri, he, e)
         q[t1] = qa

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from ._jit import njit
 from ._order import order_ties_by
 from .delaunay import Triangulation, _next, _prev
-from .flip import is_strictly_convex_pair, triangle_score_kernel, triangle_scores
+from .flip import flippable, triangle_score, triangle_scores
 from .quality import s2_kernel, s4_cubed_kernel
 
 __all__ = ["merge_candidates", "merge_triangles"]
@@ -31,11 +31,12 @@ _QUAD_CODE = {"s2": 2, "s4": 4}
 
 
 @njit
-def _quad_score_kernel(measure: int, x, y, a: int, b: int, c: int, d: int) -> float:
-    """Score of a quadrangle: S2, or S4 cubed (paired with the triangle scores S1, S3 cubed)."""
+def _quad_score(measure: int, ax, ay, bx, by, cx, cy, dx, dy) -> float:
+    """Score of the quadrangle with these corners: S2, or S4 cubed (paired with the
+    triangle scores S1, S3 cubed)."""
     if measure == 2:
-        return s2_kernel(x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d])
-    return s4_cubed_kernel(x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d])
+        return s2_kernel(ax, ay, bx, by, cx, cy, dx, dy)
+    return s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy)
 
 
 @njit
@@ -59,18 +60,20 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
         b = tri[_next(e)]
         c = tri[_prev(e)]
         d = tri[_prev(f)]
-        sq = _quad_score_kernel(quad_measure, x, y, a, d, b, c)
+        # each corner's coordinates read once (every score and the convexity test share them)
+        xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
+        sq = _quad_score(quad_measure, xa, ya, xd, yd, xb, yb, xc, yc)
         best = min(q[e // 3], q[f // 3])
         if sq <= best:
             continue
         best = max(
             best,
             min(
-                triangle_score_kernel(triangle_measure, x, y, a, d, c),
-                triangle_score_kernel(triangle_measure, x, y, b, c, d),
+                triangle_score(triangle_measure, xa, ya, xd, yd, xc, yc),
+                triangle_score(triangle_measure, xb, yb, xc, yc, xd, yd),
             ),
         )
-        if sq <= best or not is_strictly_convex_pair(x, y, tri, he, e):
+        if sq <= best or not flippable(xa, ya, xb, yb, xc, yc, xd, yd):
             continue
         gain = _score_to_measure(quad_measure, sq) - _score_to_measure(quad_measure, best)
         if gain > 0.0:
