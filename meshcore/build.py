@@ -38,24 +38,22 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
 
 
 @njit
-def _centroid_coordinate(x, y, ox, oy, i, j, k, axis) -> float:
-    """Centroid coordinate of three points, in the input frame (local + origin,
-    which is exact), summed in lexicographic point order.
+def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
+    """Centroid of three points, in the input frame (local + origin, which is
+    exact), summed in lexicographic point order.
 
     The order of the sum is fixed by the points themselves, so every run that
-    holds the same three points computes the same float, whatever its vertex
+    holds the same three points computes the same floats, whatever its vertex
     numbering or local origin: tiles decide ownership of a shared triangle
     identically.
     """
-    if x[j] < x[i] or (x[j] == x[i] and y[j] < y[i]):
-        i, j = j, i
-    if x[k] < x[j] or (x[k] == x[j] and y[k] < y[j]):
-        j, k = k, j
-        if x[j] < x[i] or (x[j] == x[i] and y[j] < y[i]):
-            i, j = j, i
-    if axis == 0:
-        return ((x[i] + ox) + (x[j] + ox) + (x[k] + ox)) / 3.0
-    return ((y[i] + oy) + (y[j] + oy) + (y[k] + oy)) / 3.0
+    if bx < ax or (bx == ax and by < ay):
+        ax, ay, bx, by = bx, by, ax, ay
+    if cx < bx or (cx == bx and cy < by):
+        bx, by, cx, cy = cx, cy, bx, by
+        if bx < ax or (bx == ax and by < ay):
+            ax, ay, bx, by = bx, by, ax, ay
+    return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
 
 
 @njit
@@ -67,11 +65,9 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
         i = tri[3 * t]
         j = tri[3 * t + 1]
         k = tri[3 * t + 2]
-        cx = _centroid_coordinate(x, y, ox, oy, i, j, k, 0)
-        if x_lo <= cx < x_hi:
-            cy = _centroid_coordinate(x, y, ox, oy, i, j, k, 1)
-            if y_lo <= cy < y_hi:
-                active[t] = 1
+        cx, cy = _centroid(x[i], y[i], x[j], y[j], x[k], y[k], ox, oy)
+        if x_lo <= cx < x_hi and y_lo <= cy < y_hi:
+            active[t] = 1
     return active
 
 
