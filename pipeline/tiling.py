@@ -210,7 +210,7 @@ class TileSpiller:
                     keys = ((r_lo[sel] + dr) * g.n_cols + (c_lo[sel] + dc)).astype(key_type)
                 order = np.argsort(keys, kind="stable")
                 keys = keys[order]
-                pts = xyz[order] if sel is None else xyz[sel[order]]
+                pts = np.take(xyz, order if sel is None else sel[order], axis=0)
                 starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
                 ends = np.r_[starts[1:], keys.size]
                 for s, e in zip(starts.tolist(), ends.tolist()):
