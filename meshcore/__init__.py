@@ -23,7 +23,7 @@ from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
-from .validate import validate
+from .validate import convex_hull, validate
 
 __version__ = "0.1.0"
 
@@ -35,6 +35,7 @@ __all__ = [
     "gradient",
     "rasterize",
     "validate",
+    "convex_hull",
     "s1",
     "s2",
     "s3",

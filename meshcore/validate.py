@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .delaunay import bbox_origin
-from .errors import InvalidMeshError
+from .errors import InvalidInputError, InvalidMeshError
 from .mesh import Mesh
 from .predicates import orient2d
 
@@ -101,8 +101,19 @@ def _hull_filter(x, y) -> np.ndarray:
     return keep[:count]
 
 
-def convex_hull(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
-    """Indices of the convex hull, counter-clockwise, with points on hull edges included."""
+def convex_hull(x: ArrayLike, y: ArrayLike) -> NDArray[np.int64]:
+    """Indices of the points on the convex hull, counter-clockwise, points on hull
+    edges included (exact predicates).
+
+    >>> convex_hull([0.0, 1.0, 0.5, 1.0, 0.0], [0.0, 0.0, 0.5, 1.0, 1.0]).tolist()
+    [0, 1, 3, 4]
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    if x.ndim != 1 or x.shape != y.shape:
+        raise InvalidInputError(f"x and y must be 1-D arrays of one length, got shapes {x.shape} and {y.shape}")
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise InvalidInputError("x and y must be finite (no NaN or inf)")
     if x.shape[0] < 3:
         return np.arange(x.shape[0], dtype=np.int64)
     candidates = _hull_filter(x, y) if x.shape[0] > 64 else np.arange(x.shape[0], dtype=np.int64)

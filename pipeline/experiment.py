@@ -62,8 +62,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from meshcore import MergeMethod, Mesh, build_mesh, s1, s2, s3, s4
-from meshcore.quadrature import face_quadrature, l2_errors
+from meshcore import MergeMethod, Mesh, build_mesh, face_quadrature, l2_errors, s1, s2, s3, s4
 
 from .errors import UsageError
 

@@ -266,7 +266,7 @@ def check_cells(grid: TileGrid, max_cells: int) -> None:
 
 def hull_candidates(points: NDArray[np.float64]) -> NDArray[np.float64]:
     """The points of ``points`` (n, 3) on their convex hull (exact; collinear ones kept)."""
-    from meshcore.validate import convex_hull
+    from meshcore import convex_hull
 
     if points.shape[0] == 0:
         return points.copy()

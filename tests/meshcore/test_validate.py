@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+import meshcore
 from meshcore import InvalidMeshError, Mesh, build_mesh, validate
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
@@ -95,3 +96,24 @@ def test_collinear_points_whose_float_area_is_not_zero_are_collinear():
     validate(mesh)
     with pytest.raises(InvalidMeshError, match="not collinear"):
         validate(Mesh(np.vstack([xy, [[0.5, 0.0]]]), np.empty((0, 4), dtype=np.int64), np.arange(len(xy) + 1)))
+
+
+def test_convex_hull_matches_qhull_and_keeps_points_on_hull_edges():
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(5)
+    xy = rng.normal(size=(5000, 2)) + 6.5e5  # survey-sized coordinates
+    hull = meshcore.convex_hull(xy[:, 0], xy[:, 1])
+    assert sorted(hull.tolist()) == sorted(ConvexHull(xy).vertices.tolist())
+    u = xy[np.roll(hull, -1)] - xy[hull]
+    v = xy[np.roll(hull, -2)] - xy[np.roll(hull, -1)]
+    ccw = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    assert (ccw > 0).all()  # counter-clockwise, strictly convex at the qhull vertices
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0], [1.0, 0.0], [1.0, 1.0]])
+    assert sorted(meshcore.convex_hull(square[:, 0], square[:, 1]).tolist()) == [0, 1, 2, 3, 4]
+
+
+@pytest.mark.parametrize("x, y, message", [([0.0, np.nan, 1.0], [0.0, 1.0, 1.0], "finite"), ([0.0, 1.0], [0.0], "one length")])
+def test_convex_hull_rejects_bad_coordinates(x, y, message):
+    with pytest.raises(meshcore.InvalidInputError, match=message):
+        meshcore.convex_hull(x, y)
