@@ -339,11 +339,15 @@ def _border(vertex_xyz, faces, box):
     x, y = vertex_xyz[:, 0], vertex_xyz[:, 1]
     outside = (x < box[0]) | (x > box[2]) | (y < box[1]) | (y > box[3])
     out = outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
-    f = np.compress(out, faces, axis=0)
-    used, inverse = np.unique(f, return_inverse=True)  # -1 first when present
+    return _compact(vertex_xyz, np.compress(out, faces, axis=0))
+
+
+def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
+    """The vertices that ``faces`` use (kept in index order) and the faces
+    renumbered to them; a missing fourth corner (-1) stays -1."""
+    used, inverse = np.unique(faces, return_inverse=True)  # -1 first when present
     has_gap = used.size > 0 and used[0] < 0
-    f = inverse.reshape(f.shape) - int(has_gap)
-    return np.take(vertex_xyz, used[int(has_gap):], axis=0), f
+    return np.take(vertices, used[int(has_gap):], axis=0), inverse.reshape(faces.shape) - int(has_gap)
 
 
 def save_piece(scratch: Path, row: int, col: int, name: str, **arrays: NDArray) -> None:
@@ -380,12 +384,7 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
                 fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
                 hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
                 hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
-                f = np.compress(hit, f, axis=0)
-                used = np.unique(f[f >= 0])
-                remap = np.full(v.shape[0], -1, dtype=np.int64)
-                remap[used] = np.arange(used.size)
-                f = np.where(f >= 0, remap[np.maximum(f, 0)], -1)
-                v = np.take(v, used, axis=0)
+                v, f = _compact(v, np.compress(hit, f, axis=0))
             verts.append(v)
             faces.append(np.where(f >= 0, f + offset, -1))
             kinds.append(np.where(f[:, 3] >= 0, 2, 1).astype(np.int8))

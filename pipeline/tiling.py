@@ -120,8 +120,8 @@ class TileGrid:
         return self.bins(y, 1).astype(np.int64), self.bins(x, 0).astype(np.int64)
 
     def bins(self, values: NDArray[np.float64], axis: int) -> NDArray[np.intp]:
-        """Tile column (axis 0, of x) or row (axis 1, of y) of every value: the
-        number of inner tile edges at or below it, as ``np.searchsorted(edges,
+        """Tile column (axis 0, of x) or row (axis 1, of y) of every (finite)
+        value: the number of inner tile edges at or below it, as ``np.searchsorted(edges,
         values, side="right")`` counts them, at a third of its cost.
 
         Division by the tile size guesses the bin to within one (the edges are
