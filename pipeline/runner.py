@@ -12,7 +12,7 @@ Stages (each timed in the run report):
    written straight into its own Zarr chunk (no locks);
 5. *write mesh*: one task per tile renumbers its piece's faces to global node
    ids, then one task per block of whole chunks writes the nodes and faces
-   into the store's UGRID group.
+   into the store's UGRID group (the tasks: :mod:`pipeline.assemble`).
 
 Every finished unit is recorded (:mod:`pipeline.checkpoint`), so a stopped run
 resumes, and :func:`execute` can update a store after its inputs changed.
@@ -35,7 +35,8 @@ import numpy as np
 from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
 from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
-from .tiles import TileJob, TileSummary, dem_tile, load_piece, mesh_tile, save_piece
+from .assemble import MeshBlock, global_faces, mesh_offsets, write_mesh_block
+from .tiles import TileJob, TileSummary, dem_tile, mesh_tile
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
     TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, tile_key,
@@ -537,7 +538,7 @@ def _execute(
         report.stages["mesh"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        node_offsets, face_offsets = _offsets(grid, list(summaries.values()))
+        node_offsets, face_offsets = mesh_offsets(grid, list(summaries.values()))
         written = store.tiles_done(config.output)
         pending = [job for job in tile_jobs if not written[job.row, job.col]]
 
@@ -648,94 +649,6 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: 
     return hull
 
 
-def _offsets(grid: TileGrid, summaries: list[TileSummary]) -> tuple[np.ndarray, np.ndarray]:
-    """Where each tile's nodes and faces start in the global arrays (tiles in row-major order)."""
-    by_tile = {(s.row, s.col): s for s in summaries}
-    order = grid.tiles()
-    node_offsets = np.zeros(len(order) + 1, dtype=np.int64)
-    face_offsets = np.zeros(len(order) + 1, dtype=np.int64)
-    for k, key in enumerate(order):
-        node_offsets[k + 1] = node_offsets[k] + by_tile[key].vertices_owned
-        face_offsets[k + 1] = face_offsets[k] + by_tile[key].faces
-    return node_offsets, face_offsets
-
-
-def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
-    """Renumber a piece's face corners to global node ids and save them for the writer.
-
-    A node's id is its owner tile's offset plus its rank in that tile's sorted
-    table of owned points; every tile computes the same id for a shared node.
-    The piece knows the ranks of the corners it owns; the others (near its
-    edges) are looked up in their owners' tables.
-    """
-    from . import store
-
-    grid = job.grid
-    scratch = Path(job.scratch)
-    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank", "faces"))
-    v = piece["vertex_xyz"]
-    faces = piece["faces"]
-    rank = piece["vertex_rank"]
-    here = job.row * grid.n_cols + job.col
-    # the slot past the vertices stands for the -1 of a triangle's 4th corner
-    gid = np.empty(rank.size + 1, dtype=store.face_index_dtype(int(node_offsets[-1])))
-    gid[:-1] = node_offsets[here] + rank
-    gid[-1] = -1
-    foreign = np.flatnonzero(rank < 0)
-    if foreign.size:
-        orow, ocol = grid.owner(v[foreign, 0], v[foreign, 1])
-        owner = orow * grid.n_cols + ocol
-        vkey = v[foreign, 0] + 1j * v[foreign, 1]
-        for number in np.unique(owner).tolist():
-            sel = owner == number
-            r, c = divmod(number, grid.n_cols)
-            table = load_piece(scratch, r, c, ("owned_xy",))["owned_xy"]
-            table = table[:, 0] + 1j * table[:, 1]
-            idx = np.searchsorted(table, vkey[sel])
-            if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
-                raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
-            gid[foreign[sel]] = node_offsets[number] + idx
-    save_piece(scratch, job.row, job.col, "piece", faces_global=gid[faces])
-
-
-@dataclass(frozen=True)
-class _MeshBlock:
-    """Rows ``[start, stop)`` of the mesh's node or face arrays, gathered from
-    the tiles' pieces (whole chunks, so blocks write in parallel without locks)."""
-
-    output: str
-    scratch: str
-    tiles: tuple[tuple[int, int], ...]
-    offsets: tuple[int, ...]
-    what: str
-    start: int
-    stop: int
-
-
-def write_mesh_block(block: _MeshBlock) -> tuple[str, int, int]:
-    from . import store
-
-    offsets = np.asarray(block.offsets)
-    first = int(np.searchsorted(offsets, block.start, side="right")) - 1
-    parts = []
-    for k in range(first, len(block.tiles)):
-        lo, hi = max(block.start, int(offsets[k])), min(block.stop, int(offsets[k + 1]))
-        if lo >= block.stop:
-            break
-        if lo >= hi:
-            continue
-        keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces_global",)
-        piece = load_piece(Path(block.scratch), *block.tiles[k], keys)
-        parts.append({key: np.asarray(a[lo - offsets[k] : hi - offsets[k]]) for key, a in piece.items()})
-    writer = store.MeshWriter.attach(block.output)
-    if block.what == "nodes":
-        xy = np.concatenate([p["owned_xy"] for p in parts])
-        writer.write_nodes(block.start, xy[:, 0], xy[:, 1], np.concatenate([p["owned_z"] for p in parts]))
-    else:
-        writer.write_faces(block.start, np.concatenate([p["faces_global"] for p in parts]))
-    return block.what, block.start, block.stop
-
-
 def _write_mesh(
     client, config: RunConfig, grid: TileGrid, work: WorkDir, tile_jobs: list[TileJob], node_offsets, face_offsets, show: bool
 ) -> None:
@@ -764,9 +677,9 @@ def _write_mesh(
             if work.recorded("write", f"{what}_{start}") is not None:
                 writer.record(what, start, stop)
                 continue
-            blocks.append(_MeshBlock(config.output, str(work.path), order, tuple(int(v) for v in offsets), what, start, stop))
+            blocks.append(MeshBlock(config.output, str(work.path), order, tuple(int(v) for v in offsets), what, start, stop))
 
-    def written(block: _MeshBlock, result: tuple[str, int, int]) -> None:
+    def written(block: MeshBlock, result: tuple[str, int, int]) -> None:
         writer.record(*result)
         work.record("write", f"{block.what}_{block.start}", {"stop": block.stop})
 
