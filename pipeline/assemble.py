@@ -86,6 +86,8 @@ class MeshBlock:
 
 
 def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
+    """Gather the block's rows from the pieces of the tiles they span and write
+    them; returns (what, start, stop) for the runner to record."""
     offsets = np.asarray(block.offsets)
     first = int(np.searchsorted(offsets, block.start, side="right")) - 1
     parts = []
