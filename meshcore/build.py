@@ -15,6 +15,7 @@ from .flip import flip_edges
 from .merge import merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
+from .predicates import lex_before
 
 __all__ = ["build_mesh", "as_points"]
 
@@ -47,11 +48,11 @@ def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
     numbering or local origin: tiles decide ownership of a shared triangle
     identically.
     """
-    if bx < ax or (bx == ax and by < ay):
+    if lex_before(bx, by, ax, ay):
         ax, ay, bx, by = bx, by, ax, ay
-    if cx < bx or (cx == bx and cy < by):
+    if lex_before(cx, cy, bx, by):
         bx, by, cx, cy = cx, cy, bx, by
-        if bx < ax or (bx == ax and by < ay):
+        if lex_before(bx, by, ax, ay):
             ax, ay, bx, by = bx, by, ax, ay
     return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
 
@@ -150,7 +151,7 @@ def _emit(faces, k, x, y, vertex_of, a, b, c, d) -> None:
         v = b if i == 1 else (c if i == 2 else d)
         xv = x[v]
         yv = y[v]
-        if xv < xm or (xv == xm and yv < ym):
+        if lex_before(xv, yv, xm, ym):
             first = i
             xm = xv
             ym = yv

@@ -316,7 +316,8 @@ def incircle(
 
 
 @njit
-def _lex_before(ax: float, ay: float, bx: float, by: float) -> bool:
+def lex_before(ax: float, ay: float, bx: float, by: float) -> bool:
+    """True when point a comes before point b in lexicographic (x, then y) order."""
     return ax < bx or (ax == bx and ay < by)
 
 
@@ -363,7 +364,7 @@ def _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     for _ in range(4):
         k = -1
         for j in range(4):
-            if not done[j] and (k < 0 or _lex_before(xs[j], ys[j], xs[k], ys[k])):
+            if not done[j] and (k < 0 or lex_before(xs[j], ys[j], xs[k], ys[k])):
                 k = j
         done[k] = True
         if k == 0:
