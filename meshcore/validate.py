@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -51,6 +53,42 @@ def _hull_kernel(x, y, order) -> np.ndarray:
 
 
 @njit
+def _inner_box(x, y, poly, m):
+    """An axis-aligned box strictly inside the convex polygon ``poly[:m]`` (CCW):
+    its bounding box shrunk about its centre until all four corners are inside.
+    Returns (x_lo, y_lo, x_hi, y_hi); an empty box when none is found."""
+    x_lo = x_hi = x[poly[0]]
+    y_lo = y_hi = y[poly[0]]
+    for k in range(1, m):
+        x_lo = min(x_lo, x[poly[k]])
+        x_hi = max(x_hi, x[poly[k]])
+        y_lo = min(y_lo, y[poly[k]])
+        y_hi = max(y_hi, y[poly[k]])
+    cx = 0.5 * (x_lo + x_hi)
+    cy = 0.5 * (y_lo + y_hi)
+    for shrink in (0.9, 0.75, 0.5, 0.25):
+        bx_lo = cx + shrink * (x_lo - cx)
+        bx_hi = cx + shrink * (x_hi - cx)
+        by_lo = cy + shrink * (y_lo - cy)
+        by_hi = cy + shrink * (y_hi - cy)
+        inside = True
+        for k in range(m):
+            a = poly[k]
+            b = poly[(k + 1) % m]
+            if (
+                orient2d(x[a], y[a], x[b], y[b], bx_lo, by_lo) <= 0
+                or orient2d(x[a], y[a], x[b], y[b], bx_hi, by_lo) <= 0
+                or orient2d(x[a], y[a], x[b], y[b], bx_hi, by_hi) <= 0
+                or orient2d(x[a], y[a], x[b], y[b], bx_lo, by_hi) <= 0
+            ):
+                inside = False
+                break
+        if inside:
+            return bx_lo, by_lo, bx_hi, by_hi
+    return math.inf, math.inf, -math.inf, -math.inf
+
+
+@njit
 def _hull_filter(x, y) -> np.ndarray:
     """Indices of the points not strictly inside the polygon of the extreme points
     in eight directions (Akl-Toussaint): a superset of the hull, found in one pass."""
@@ -58,23 +96,10 @@ def _hull_filter(x, y) -> np.ndarray:
     ext = np.zeros(8, dtype=np.int64)
     best = np.full(8, -np.inf)
     for i in range(n):
-        for k in range(8):
-            if k == 0:
-                v = x[i]
-            elif k == 1:
-                v = x[i] + y[i]
-            elif k == 2:
-                v = y[i]
-            elif k == 3:
-                v = y[i] - x[i]
-            elif k == 4:
-                v = -x[i]
-            elif k == 5:
-                v = -x[i] - y[i]
-            elif k == 6:
-                v = -y[i]
-            else:
-                v = x[i] - y[i]
+        xi = x[i]
+        yi = y[i]
+        # the eight directions: E, NE, N, NW, W, SW, S, SE
+        for k, v in enumerate((xi, xi + yi, yi, yi - xi, -xi, -xi - yi, -yi, xi - yi)):
             if v > best[k]:
                 best[k] = v
                 ext[k] = i
@@ -84,9 +109,13 @@ def _hull_filter(x, y) -> np.ndarray:
         if m == 0 or (ext[k] != poly[m - 1] and ext[k] != poly[0]):
             poly[m] = ext[k]
             m += 1
+    # a box inside the polygon settles most points with four comparisons
+    bx_lo, by_lo, bx_hi, by_hi = _inner_box(x, y, poly, m) if m >= 3 else (math.inf, math.inf, -math.inf, -math.inf)
     keep = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
+        if bx_lo <= x[i] <= bx_hi and by_lo <= y[i] <= by_hi:
+            continue
         inside = m >= 3
         if inside:
             for k in range(m):

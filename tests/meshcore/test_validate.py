@@ -117,3 +117,15 @@ def test_convex_hull_matches_qhull_and_keeps_points_on_hull_edges():
 def test_convex_hull_rejects_bad_coordinates(x, y, message):
     with pytest.raises(meshcore.InvalidInputError, match=message):
         meshcore.convex_hull(x, y)
+
+
+def test_convex_hull_of_a_grid_is_its_boundary_and_of_a_square_cloud_matches_qhull():
+    from scipy.spatial import ConvexHull
+
+    gx, gy = np.meshgrid(np.arange(100.0), np.arange(80.0))
+    x, y = gx.ravel() + 4.1e5, gy.ravel() + 5.2e6
+    on_edge = (gx.ravel() == 0) | (gx.ravel() == 99) | (gy.ravel() == 0) | (gy.ravel() == 79)
+    assert sorted(meshcore.convex_hull(x, y).tolist()) == np.flatnonzero(on_edge).tolist()
+    xy = np.random.default_rng(8).uniform(0.0, 500.0, size=(50_000, 2)) + 6.5e5
+    hull = meshcore.convex_hull(xy[:, 0], xy[:, 1])
+    assert sorted(hull.tolist()) == sorted(ConvexHull(xy).vertices.tolist())
