@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -128,16 +129,19 @@ class TileGrid:
         rounded sums of the origin and multiples of the size); one comparison
         with each edge of the guessed bin makes it exact.
         """
-        edges = self._inner_edges(axis)
-        origin = self.x0 if axis == 0 else self.y0
-        guess = np.floor((values - origin) * (1.0 / self.tile_size))
-        np.clip(guess, 0, edges.size, out=guess)
+        below, above = self.bin_bounds(axis)
+        guess = np.floor((values - (self.x0 if axis == 0 else self.y0)) * (1.0 / self.tile_size))
+        np.clip(guess, 0, above.size - 1, out=guess)
         k = guess.astype(np.intp)
-        below = np.concatenate([[-np.inf], edges])  # bin k is [below[k], above[k])
-        above = np.concatenate([edges, [np.inf]])
         k += values >= above[k]
         k -= values < below[k]
         return k
+
+    def bin_bounds(self, axis: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Lower and upper bounds of every tile column (axis 0) or row (axis 1):
+        the inner edges, with -inf and +inf at the ends."""
+        edges = self._inner_edges(axis)
+        return np.concatenate([[-np.inf], edges]), np.concatenate([edges, [np.inf]])
 
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.n_rows) for c in range(self.n_cols)]
@@ -184,39 +188,16 @@ class TileSpiller:
         if x.size == 0:
             return
         g = self.grid
-        c_lo = g.bins(x - self.buffer, 0)
-        c_hi = g.bins(x + self.buffer, 0)
-        r_lo = g.bins(y - self.buffer, 1)
-        r_hi = g.bins(y + self.buffer, 1)
-        orow, ocol = g.bins(y, 1), g.bins(x, 0)
-        owned_counts = np.bincount(orow * g.n_cols + ocol, minlength=g.n_tiles)
-        for k in np.flatnonzero(owned_counts).tolist():
+        owned, offsets, pts = _route_kernel(
+            x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer, g.n_cols, g.n_tiles
+        )
+        for k in np.flatnonzero(owned).tolist():
             key = (k // g.n_cols, k % g.n_cols)
-            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + int(owned_counts[k])
-        xyz = np.column_stack([x, y, z])
-        span_c = int((c_hi - c_lo).max()) + 1
-        span_r = int((r_hi - r_lo).max()) + 1
-        # small tile numbers sort by radix (numpy's stable sort of 16-bit integers)
-        key_type = np.int16 if g.n_tiles < 2**15 else np.int64
-        for dr in range(span_r):
-            for dc in range(span_c):
-                if dr == 0 and dc == 0:
-                    sel = None  # every point is in its lowest row and column
-                    keys = (r_lo * g.n_cols + c_lo).astype(key_type)
-                else:
-                    sel = np.flatnonzero((r_lo + dr <= r_hi) & (c_lo + dc <= c_hi))
-                    if sel.size == 0:
-                        continue
-                    keys = ((r_lo[sel] + dr) * g.n_cols + (c_lo[sel] + dc)).astype(key_type)
-                order = np.argsort(keys, kind="stable")
-                keys = keys[order]
-                pts = np.take(xyz, order if sel is None else sel[order], axis=0)
-                starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-                ends = np.r_[starts[1:], keys.size]
-                for s, e in zip(starts.tolist(), ends.tolist()):
-                    k = int(keys[s])
-                    self._pending.setdefault((k // g.n_cols, k % g.n_cols), []).append(pts[s:e])
-                    self._held += e - s
+            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + int(owned[k])
+        for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
+            s, e = int(offsets[k]), int(offsets[k + 1])
+            self._pending.setdefault((k // g.n_cols, k % g.n_cols), []).append(pts[s:e])
+            self._held += e - s
         if self._held > self.budget:
             self.flush()
 
@@ -229,6 +210,80 @@ class TileSpiller:
             self._parts[key] = part + 1
         self._pending.clear()
         self._held = 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _bin(v: float, origin: float, inv_size: float, below: NDArray[np.float64], above: NDArray[np.float64]) -> int:
+    """:meth:`TileGrid.bins` of one value: bin ``k`` is ``[below[k], above[k])``
+    (the inner edges with -inf and +inf at the ends); no branch."""
+    k = int(min(max((v - origin) * inv_size, 0.0), float(above.shape[0] - 1)))
+    k += v >= above[k]
+    k -= v < below[k]
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
+    """Points owned per tile, and every point copied to each tile whose core
+    grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
+    tile ``t``.  Within a tile, points for which it is the lowest row and
+    column of their reach come first, then the next column, row, ...; each
+    group in input order (a counting sort, stable)."""
+    n = x.shape[0]
+    c_lo = np.empty(n, dtype=np.int32)
+    r_lo = np.empty(n, dtype=np.int32)
+    c_span = np.empty(n, dtype=np.int8)
+    r_span = np.empty(n, dtype=np.int8)
+    owned = np.zeros(n_tiles, dtype=np.int64)
+    span_c = 1
+    span_r = 1
+    for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        c0 = _bin(xi - buffer, x0, inv_size, below_x, above_x)
+        r0 = _bin(yi - buffer, y0, inv_size, below_y, above_y)
+        sc = _bin(xi + buffer, x0, inv_size, below_x, above_x) - c0 + 1
+        sr = _bin(yi + buffer, y0, inv_size, below_y, above_y) - r0 + 1
+        c_lo[i] = c0
+        r_lo[i] = r0
+        c_span[i] = sc
+        r_span[i] = sr
+        span_c = max(span_c, sc)
+        span_r = max(span_r, sr)
+        owned[_bin(yi, y0, inv_size, below_y, above_y) * n_cols + _bin(xi, x0, inv_size, below_x, above_x)] += 1
+    groups = span_r * span_c
+    start = np.zeros(n_tiles * groups + 1, dtype=np.int64)
+    for i in range(n):
+        if r_span[i] == 1 and c_span[i] == 1:  # most points: one tile
+            start[(r_lo[i] * n_cols + c_lo[i]) * groups + 1] += 1
+            continue
+        for dr in range(r_span[i]):
+            for dc in range(c_span[i]):
+                start[((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc + 1] += 1
+    for k in range(n_tiles * groups):
+        start[k + 1] += start[k]
+    pts = np.empty((start[n_tiles * groups], 3))
+    offsets = np.empty(n_tiles + 1, dtype=np.int64)
+    for t in range(n_tiles + 1):
+        offsets[t] = start[t * groups]
+    for i in range(n):
+        if r_span[i] == 1 and c_span[i] == 1:
+            slot = (r_lo[i] * n_cols + c_lo[i]) * groups
+            at = start[slot]
+            start[slot] = at + 1
+            pts[at, 0] = x[i]
+            pts[at, 1] = y[i]
+            pts[at, 2] = z[i]
+            continue
+        for dr in range(r_span[i]):
+            for dc in range(c_span[i]):
+                slot = ((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc
+                at = start[slot]
+                start[slot] = at + 1
+                pts[at, 0] = x[i]
+                pts[at, 1] = y[i]
+                pts[at, 2] = z[i]
+    return owned, offsets, pts
 
 
 def drop_source_spill(scratch: Path, source: int) -> None:

@@ -57,10 +57,15 @@ def test_spilled_points_reach_every_tile_within_the_buffer(tmp_path, rng):
         got = load_tile_points(tmp_path, r, c)
         x0, y0, x1, y1 = g.box(r, c)
         expect = (pts[:, 0] >= x0 - 3) & (pts[:, 0] < x1 + 3) & (pts[:, 1] >= y0 - 3) & (pts[:, 1] < y1 + 3)
-        # every point of core + buffer is there, once, in reading order
-        assert got.shape[0] >= expect.sum()
-        assert {tuple(p) for p in pts[expect]} <= {tuple(p) for p in got}
-        assert len({tuple(p) for p in got}) == got.shape[0]
+        # every point of core + buffer is there, once, and no other
+        assert got.shape[0] == expect.sum()
+        assert {tuple(p) for p in pts[expect]} == {tuple(p) for p in got}
+        # in reading order within each group: the points whose reach starts at
+        # this tile, those whose reach starts one column to the west, ...
+        group = (r - g.bins(got[:, 1] - 3, 1)) * 2 + c - g.bins(got[:, 0] - 3, 0)
+        group_of = (r - g.bins(pts[:, 1] - 3, 1)) * 2 + c - g.bins(pts[:, 0] - 3, 0)
+        for k in range(4):
+            assert np.array_equal(got[group == k], pts[expect & (group_of == k)])
         total_owned += spill.owned_per_tile.get((r, c), 0)
     assert total_owned == len(pts)
 
