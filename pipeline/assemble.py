@@ -4,8 +4,9 @@ Every tile owns the nodes in its half-open window; a node's global id is its
 owner tile's offset (tiles in row-major order) plus its rank in that tile's
 table of owned points, sorted by coordinates.  Each task here works on the
 scratch folder and the store alone, so the runner can spread them over Dask
-workers: :func:`global_faces` renumbers one piece's faces, and
-:func:`write_mesh_block` writes rows of whole chunks of the nodes or faces.
+workers: :func:`global_node_ids` finds the global id of every vertex of one
+piece, and :func:`write_mesh_block` writes rows of whole chunks of the nodes
+or faces (renumbering the faces' corners on the way).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from .errors import PipelineError
 from .tiles import TileJob, TileSummary, load_piece, save_piece
 from .tiling import TileGrid
 
-__all__ = ["mesh_offsets", "global_faces", "MeshBlock", "write_mesh_block"]
+__all__ = ["mesh_offsets", "global_node_ids", "MeshBlock", "write_mesh_block"]
 
 
 def mesh_offsets(grid: TileGrid, summaries: list[TileSummary]) -> tuple[np.ndarray, np.ndarray]:
@@ -35,8 +36,9 @@ def mesh_offsets(grid: TileGrid, summaries: list[TileSummary]) -> tuple[np.ndarr
     return node_offsets, face_offsets
 
 
-def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
-    """Renumber a piece's face corners to global node ids and save them for the writer.
+def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
+    """Save the global node id of every vertex of a piece, for the writer to
+    renumber the piece's face corners with.
 
     A node's id is its owner tile's offset plus its rank in that tile's sorted
     table of owned points; every tile computes the same id for a shared node.
@@ -45,9 +47,8 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
     """
     grid = job.grid
     scratch = Path(job.scratch)
-    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank", "faces"))
+    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank"))
     v = piece["vertex_xyz"]
-    faces = piece["faces"]
     rank = piece["vertex_rank"]
     here = job.row * grid.n_cols + job.col
     # the slot past the vertices stands for the -1 of a triangle's 4th corner
@@ -68,7 +69,7 @@ def global_faces(job: TileJob, node_offsets: np.ndarray) -> None:
             if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
             gid[foreign[sel]] = node_offsets[number] + idx
-    save_piece(scratch, job.row, job.col, "piece", faces_global=gid[faces])
+    save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
 
 
 @dataclass(frozen=True)
@@ -97,13 +98,18 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
             break
         if lo >= hi:
             continue
-        keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces_global",)
+        keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces", "node_ids")
         piece = load_piece(Path(block.scratch), *block.tiles[k], keys)
-        parts.append({key: np.asarray(a[lo - offsets[k] : hi - offsets[k]]) for key, a in piece.items()})
+        rows = slice(lo - offsets[k], hi - offsets[k])
+        if block.what == "nodes":
+            parts.append({key: np.asarray(a[rows]) for key, a in piece.items()})
+        else:
+            # the slot past the vertices (id -1) stands for a triangle's missing 4th corner
+            parts.append({"faces": np.take(piece["node_ids"], piece["faces"][rows])})
     writer = store.MeshWriter.attach(block.output)
     if block.what == "nodes":
         xy = np.concatenate([p["owned_xy"] for p in parts])
         writer.write_nodes(block.start, xy[:, 0], xy[:, 1], np.concatenate([p["owned_z"] for p in parts]))
     else:
-        writer.write_faces(block.start, np.concatenate([p["faces_global"] for p in parts]))
+        writer.write_faces(block.start, np.concatenate([p["faces"] for p in parts]))
     return block.what, block.start, block.stop

@@ -35,7 +35,7 @@ import numpy as np
 from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
 from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
-from .assemble import MeshBlock, global_faces, mesh_offsets, write_mesh_block
+from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
@@ -659,7 +659,7 @@ def _write_mesh(
 
     pending = [job for job in tile_jobs if work.recorded("write", f"faces_{_tile_key(job)}") is None]
     _map(
-        client, partial(global_faces, node_offsets=node_offsets), pending, _Progress("number", len(pending), show),
+        client, partial(global_node_ids, node_offsets=node_offsets), pending, _Progress("number", len(pending), show),
         lambda _: 0, lambda job, _: work.record("write", f"faces_{_tile_key(job)}", {}),
     )
     order = tuple(grid.tiles())
