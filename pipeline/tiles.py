@@ -370,25 +370,31 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     box = g.box(job.row, job.col)
     verts, faces, kinds = [], [], []
     offset = 0
-    for r in range(max(0, job.row - 1), min(g.n_rows, job.row + 2)):
-        for c in range(max(0, job.col - 1), min(g.n_cols, job.col + 2)):
-            own = (r, c) == (job.row, job.col)
-            piece = load_piece(Path(job.scratch), r, c, ("vertex_xyz", "faces"), "piece" if own else "border")
-            v = piece["vertex_xyz"]
-            f = piece["faces"]
-            if f.shape[0] == 0:
-                continue
-            if not own:
-                corner = np.maximum(f, 0)
-                fx = np.where(f >= 0, np.take(v[:, 0], corner), np.nan)
-                fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
-                hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
-                hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
-                v, f = _compact(v, np.compress(hit, f, axis=0))
-            verts.append(v)
-            faces.append(np.where(f >= 0, f + offset, -1))
-            kinds.append(np.where(f[:, 3] >= 0, 2, 1).astype(np.int8))
-            offset += v.shape[0]
+    # the tile's own piece first: its faces need no shift
+    neighbours = [
+        (r, c)
+        for r in range(max(0, job.row - 1), min(g.n_rows, job.row + 2))
+        for c in range(max(0, job.col - 1), min(g.n_cols, job.col + 2))
+        if (r, c) != (job.row, job.col)
+    ]
+    for r, c in [(job.row, job.col), *neighbours]:
+        own = (r, c) == (job.row, job.col)
+        piece = load_piece(Path(job.scratch), r, c, ("vertex_xyz", "faces"), "piece" if own else "border")
+        v = piece["vertex_xyz"]
+        f = piece["faces"]
+        if f.shape[0] == 0:
+            continue
+        if not own:
+            corner = np.maximum(f, 0)
+            fx = np.where(f >= 0, np.take(v[:, 0], corner), np.nan)
+            fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
+            hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
+            hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
+            v, f = _compact(v, np.compress(hit, f, axis=0))
+        verts.append(v)
+        faces.append(np.where(f >= 0, f + offset, -1) if offset else f)
+        kinds.append((f[:, 3] >= 0).astype(np.int8) + 1)
+        offset += v.shape[0]
     if not faces:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
         return empty, np.empty(0), np.empty(0, dtype=np.int8)
