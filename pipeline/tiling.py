@@ -123,19 +123,15 @@ class TileGrid:
     def bins(self, values: NDArray[np.float64], axis: int) -> NDArray[np.intp]:
         """Tile column (axis 0, of x) or row (axis 1, of y) of every (finite)
         value: the number of inner tile edges at or below it, as ``np.searchsorted(edges,
-        values, side="right")`` counts them, at a third of its cost.
+        values, side="right")`` counts them, at a fraction of its cost.
 
         Division by the tile size guesses the bin to within one (the edges are
         rounded sums of the origin and multiples of the size); one comparison
         with each edge of the guessed bin makes it exact.
         """
-        below, above = self.bin_bounds(axis)
-        guess = np.floor((values - (self.x0 if axis == 0 else self.y0)) * (1.0 / self.tile_size))
-        np.clip(guess, 0, above.size - 1, out=guess)
-        k = guess.astype(np.intp)
-        k += values >= above[k]
-        k -= values < below[k]
-        return k
+        flat = np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+        k = _bins(flat, self.x0 if axis == 0 else self.y0, 1.0 / self.tile_size, *self.bin_bounds(axis))
+        return k.reshape(np.shape(values))
 
     def bin_bounds(self, axis: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Lower and upper bounds of every tile column (axis 0) or row (axis 1):
@@ -223,6 +219,14 @@ def _bin(v: float, origin: float, inv_size: float, below: NDArray[np.float64], a
 
 
 @numba.njit(cache=True, nogil=True)
+def _bins(values, origin, inv_size, below, above):
+    out = np.empty(values.shape, dtype=np.intp)
+    for i in range(values.shape[0]):
+        out[i] = _bin(values[i], origin, inv_size, below, above)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
     """Points owned per tile, and every point copied to each tile whose core
     grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
@@ -232,8 +236,8 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     n = x.shape[0]
     c_lo = np.empty(n, dtype=np.int32)
     r_lo = np.empty(n, dtype=np.int32)
-    c_span = np.empty(n, dtype=np.int8)
-    r_span = np.empty(n, dtype=np.int8)
+    c_span = np.empty(n, dtype=np.int32)
+    r_span = np.empty(n, dtype=np.int32)
     owned = np.zeros(n_tiles, dtype=np.int64)
     span_c = 1
     span_r = 1
