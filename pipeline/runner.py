@@ -665,10 +665,10 @@ def _write_mesh(
     (tiles renumbered and blocks written before a stop are kept)."""
     from . import store
 
-    pending = [job for job in tile_jobs if work.recorded("write", f"faces_{_tile_key(job)}") is None]
+    pending = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
     _map(
         client, partial(global_node_ids, node_offsets=node_offsets), pending, _Progress("number", len(pending), show),
-        lambda _: 0, lambda job, _: work.record("write", f"faces_{_tile_key(job)}", {}),
+        lambda _: 0, lambda job, _: work.record("write", f"ids_{_tile_key(job)}", {}),
     )
     order = tuple(grid.tiles())
     sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}
