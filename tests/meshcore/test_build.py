@@ -343,3 +343,23 @@ def test_lexicographic_order_sorts_by_x_then_y(rng):
     order = lexicographic_order(pts)
     assert np.array_equal(pts[order], pts[np.lexsort((pts[:, 1], pts[:, 0]))])
     assert np.array_equal(np.sort(order), np.arange(len(pts)))
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda rng: rng.normal(size=(5000, 2)) * [1e6, 1e-3],  # both signs, x spanning far more bits than y
+        lambda rng: np.column_stack([np.full(3000, 2.5), rng.random(3000)]),  # one x: the key is all y
+        lambda rng: np.column_stack([rng.choice([-0.0, 0.0, 1e-300, -1e300, 1e300], 4000), rng.integers(-3, 3, 4000) * 0.5]),
+        lambda rng: np.round(rng.random((8000, 2)) * [1e-9, 1.0], 12) - [0.0, 0.5],
+    ],
+)
+def test_lexicographic_order_is_numpys_order_for_any_coordinates(make, rng):
+    from meshcore import lexicographic_order
+
+    pts = make(rng)
+    order = lexicographic_order(pts)
+    # numpy's order of complex numbers is (real, imaginary), with -0.0 == 0.0
+    key = pts[:, 0] + 1j * pts[:, 1]
+    assert np.all(key[order][1:] >= key[order][:-1])
+    assert np.array_equal(np.sort(order), np.arange(len(pts)))
