@@ -124,21 +124,24 @@ def _rasterize_kernel(
             cy = xy[k, 5]
             dx = xy[k, 6]  # == a for a triangle: the closing edge c -> a
             dy = xy[k, 7]
+            # the box of _face_bbox (min and max are exact: the order does not matter)
+            bx0, by0, bx1, by1 = _grow_bbox(
+                min(min(ax, bx), min(cx, dx)), min(min(ay, by), min(cy, dy)),
+                max(max(ax, bx), max(cx, dx)), max(max(ay, by), max(cy, dy)),
+            )
+            # most faces of a dense survey hold no cell centre: settle them first
+            i0, i1 = _cell_range(bx0, bx1, x0, inv_res, nx)
+            if i0 > i1:
+                continue
+            j0, j1 = _cell_range(by0, by1, y0, inv_res, ny)
+            if j0 > j1:
+                continue
             longest = max(
                 max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
                 max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
             )
             if longest > max_edge2:
                 continue
-            # the box of _face_bbox (min and max are exact: the order does not matter)
-            bx0, by0, bx1, by1 = _grow_bbox(
-                min(min(ax, bx), min(cx, dx)), min(min(ay, by), min(cy, dy)),
-                max(max(ax, bx), max(cx, dx)), max(max(ay, by), max(cy, dy)),
-            )
-            i0, i1 = _cell_range(bx0, bx1, x0, inv_res, nx)
-            if i0 > i1:
-                continue
-            j0, j1 = _cell_range(by0, by1, y0, inv_res, ny)
             for j in range(j0, j1 + 1):
                 qy = _centre(y0, j, resolution)
                 if qy < by0 or qy > by1:
