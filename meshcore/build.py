@@ -103,9 +103,10 @@ def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
 
 
 @njit
-def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
+def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
-    that meet the window (the window's piece is exact once all of these are)."""
+    that meet the window (the window's piece is exact once all of these are).
+    ``active`` marks triangles known to meet it (their centroid is inside)."""
     out = np.empty((16, 3))
     n = 0
     slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
@@ -113,7 +114,9 @@ def _escaping_circles(x, y, tri, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.n
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        if not _meets_box(x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack):
+        if not active[t] and not _meets_box(
+            x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
+        ):
             continue
         ux, uy = circumcenter_offset(x[a], y[a], x[b], y[b], x[c], y[c])
         r = math.sqrt(ux * ux + uy * uy) * (1.0 + 1e-9) + 1e-12
@@ -305,7 +308,8 @@ def build_mesh(
         )
         box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
         escapes = _escaping_circles(
-            triangulation.x, triangulation.y, triangulation.triangles, np.array(bounds), float(o[0]), float(o[1]), *box
+            triangulation.x, triangulation.y, triangulation.triangles, active, np.array(bounds), float(o[0]), float(o[1]),
+            *box,
         )
     if tm is not TriangleMeasure.DELAUNAY:
         flip_edges(triangulation, tm.value, active)
