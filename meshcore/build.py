@@ -62,12 +62,30 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
     nt = tri.shape[0] // 3
     active = np.zeros(nt, dtype=np.uint8)
+    # a triangle well inside the window (its corners farther from the edges
+    # than the rounding of the centroid and of the shift) is in it; the
+    # others take the exact test
+    largest = 0.0
+    for i in range(x.shape[0]):
+        largest = max(largest, max(abs(x[i]), abs(y[i])))
+    margin = 1e-12 * (largest + abs(ox) + abs(oy) + 1.0)
+    in_x_lo = x_lo - ox + margin
+    in_x_hi = x_hi - ox - margin
+    in_y_lo = y_lo - oy + margin
+    in_y_hi = y_hi - oy - margin
     for t in range(nt):
         i = tri[3 * t]
         j = tri[3 * t + 1]
         k = tri[3 * t + 2]
-        cx, cy = _centroid(x[i], y[i], x[j], y[j], x[k], y[k], ox, oy)
-        if x_lo <= cx < x_hi and y_lo <= cy < y_hi:
+        ax, ay, bx, by, cx, cy = x[i], y[i], x[j], y[j], x[k], y[k]
+        if (
+            min(ax, min(bx, cx)) > in_x_lo and max(ax, max(bx, cx)) < in_x_hi
+            and min(ay, min(by, cy)) > in_y_lo and max(ay, max(by, cy)) < in_y_hi
+        ):
+            active[t] = 1
+            continue
+        gx, gy = _centroid(ax, ay, bx, by, cx, cy, ox, oy)
+        if x_lo <= gx < x_hi and y_lo <= gy < y_hi:
             active[t] = 1
     return active
 

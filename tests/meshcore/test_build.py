@@ -363,3 +363,25 @@ def test_lexicographic_order_is_numpys_order_for_any_coordinates(make, rng):
     key = pts[:, 0] + 1j * pts[:, 1]
     assert np.all(key[order][1:] >= key[order][:-1])
     assert np.array_equal(np.sort(order), np.arange(len(pts)))
+
+
+@pytest.mark.parametrize("offset", [0.0, 6.5e5, -3.2e7, 1.0e8])
+def test_window_mask_takes_the_centroid_rule_for_every_triangle(offset, rng):
+    from meshcore.build import _centroid, _window_mask
+    from meshcore.delaunay import delaunay
+
+    # a lattice puts corners on the window's edges and its centroids on them
+    # too; the random points add triangles of every shape near them
+    lattice = np.stack(np.meshgrid(np.arange(0.0, 40.0, 0.5), np.arange(0.0, 30.0, 0.5)), -1).reshape(-1, 2)
+    xy = np.vstack([lattice, rng.random((3000, 2)) * [40.0, 30.0]]) + offset
+    t = delaunay(xy)
+    ox, oy = (float(v) for v in t.origin)
+    tri = t.triangles.reshape(-1, 3)
+    for window in [(offset + 10.0, offset + 5.0, offset + 20.5, offset + 17.0), (-np.inf, offset + 3.0, offset + 7.25, np.inf)]:
+        active = _window_mask(t.x, t.y, ox, oy, t.triangles, *window)
+        expect = []
+        for i, j, k in tri:
+            cx, cy = _centroid(t.x[i], t.y[i], t.x[j], t.y[j], t.x[k], t.y[k], ox, oy)
+            expect.append(window[0] <= cx < window[2] and window[1] <= cy < window[3])
+        assert np.array_equal(active.astype(bool), np.array(expect))
+        assert 0 < active.sum() < len(tri)
