@@ -15,7 +15,7 @@ import numpy as np
 from ._jit import njit
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
-from .quality import s1_kernel, s3_cubed_kernel
+from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
 
 __all__ = ["flip_edges", "FLIP_TOLERANCE"]
 
@@ -83,11 +83,17 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
         d = tri[_prev(f)]
         # each corner's coordinates read once (scores and the convexity test share them)
         xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
+        limit = current * (1.0 + tolerance)
+        # most edges stay: a quick estimate of S3 settles them without divisions
+        if measure == _S3 and s3_cubed_below(xa, ya, xd, yd, xc, yc, limit):
+            continue
         qa = triangle_score(measure, xa, ya, xd, yd, xc, yc)
-        if qa <= current * (1.0 + tolerance):
+        if qa <= limit:
+            continue
+        if measure == _S3 and s3_cubed_below(xb, yb, xc, yc, xd, yd, limit):
             continue
         qb = triangle_score(measure, xb, yb, xc, yc, xd, yd)
-        if qb <= current * (1.0 + tolerance):
+        if qb <= limit:
             continue
         if not flippable(xa, ya, xb, yb, xc, yc, xd, yd):
             continue

@@ -106,6 +106,30 @@ def s3_cubed_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: f
 
 
 @njit
+def s3_cubed_below(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, limit: float) -> bool:
+    """True when :func:`s3_cubed_kernel` of the triangle is surely below ``limit``
+    (``limit >= 1e-3``), decided on raw coordinates without its normalisation
+    and divisions; False means "compute it".
+
+    A triangle whose score is near such a limit has no angle near 0 or 180
+    degrees, so this estimate and the kernel's value agree to about 1e-12
+    relative; the estimate must be below the limit by 1e-9 relative to count.
+    Out-of-range magnitudes (products outside 1e-250..1e250) say False.
+    """
+    if limit < 1e-3:
+        return False
+    ux = bx - ax
+    uy = by - ay
+    vx = cx - ax
+    vy = cy - ay
+    cross = abs(ux * vy - uy * vx)
+    denom = ((vx - ux) ** 2 + (vy - uy) ** 2) * (vx * vx + vy * vy) * (ux * ux + uy * uy)
+    if not 1e-250 < denom < 1e250:
+        return False
+    return _S3_CUBE_FACTOR * cross * cross * cross < limit * denom * (1.0 - 1e-9)
+
+
+@njit
 def s3_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
     """S3 of the triangle ``a, b, c`` = 4/sqrt(3) A / (l1 l2 l3)^(2/3)."""
     return np.cbrt(s3_cubed_kernel(ax, ay, bx, by, cx, cy))

@@ -116,3 +116,27 @@ def test_quality_summary_counts_and_ranges():
     assert by_name["s2"].minimum == pytest.approx(1.0)
     assert by_name["s1"].count == 1 and sum(by_name["s1"].histogram) == 1
     assert "1 triangles, 1 quadrangles" in str(summary)
+
+
+def test_s3_quick_estimate_says_below_only_when_the_kernel_agrees():
+    from meshcore.quality import s3_cubed_below, s3_cubed_kernel
+
+    rng = np.random.default_rng(11)
+    said_below = 0
+    for k in range(4000):
+        scale = 10.0 ** rng.uniform(-3, 4)
+        shift = rng.choice([0.0, 6.5e5, -4e6])
+        tri = rng.random(6) * scale + shift
+        if k % 4 == 0:  # slivers: the third corner near the line of the first two
+            t = rng.random()
+            tri[4] = tri[0] + t * (tri[2] - tri[0]) + scale * 1e-7 * rng.normal()
+            tri[5] = tri[1] + t * (tri[3] - tri[1])
+        exact = s3_cubed_kernel(*tri)
+        # at the kernel's own value it is not below; just above it, it is
+        # (when the limit is in range), and far above it always is
+        assert not s3_cubed_below(*tri, exact)
+        for limit in (exact * (1 + 1e-6), exact + 0.05, 0.5, 1.0):
+            below = s3_cubed_below(*tri, limit)
+            assert not below or exact < limit
+            said_below += below and limit == exact * (1 + 1e-6)
+    assert said_below > 1000  # the quick test settles the common case
