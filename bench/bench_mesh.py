@@ -12,6 +12,9 @@
    kernel's peak resident set is reset right before the call).
 4. Start-up: the first process compiles the kernels and fills the cache, the
    second loads them from it.
+5. Where the time goes: build_mesh of a tile-sized piece (0.5M points, a
+   window over all but a 5 m border, as the pipeline builds its tiles), time
+   per kernel from the profiler, in nanoseconds per point; median of the runs.
 """
 
 from __future__ import annotations
@@ -183,11 +186,54 @@ def bench_startup() -> None:
     )
 
 
+def bench_passes(repeat: int, n: int = 500_000) -> None:
+    import cProfile
+    import pstats
+
+    rng = np.random.default_rng(2)
+    side = (n / 8.0) ** 0.5  # 8 points per square metre, survey coordinates on a 1 cm lattice
+    xy = np.round(rng.random((n, 2)) * side + [651000.0, 6861000.0], 2)
+    window = (651005.0, 6861005.0, 651000.0 + side - 5.0, 6861000.0 + side - 5.0)
+
+    def build() -> None:
+        meshcore.build_mesh(xy, "s3", "s4", window=window, known=window)
+
+    build()  # compile outside the timings
+    per_run: list[dict[str, float]] = []
+    for _ in range(repeat):
+        profile = cProfile.Profile()
+        profile.enable()
+        build()
+        profile.disable()
+        stats = pstats.Stats(profile).stats  # type: ignore[attr-defined]
+        times: dict[str, float] = {}
+        for (path, _, name), (_, _, own, total, _) in stats.items():
+            if name == "build_mesh":
+                times["build_mesh (total)"] = total
+            elif path.endswith(".py") and "meshcore" in path:
+                times[name] = times.get(name, 0.0) + own
+            elif name.startswith("<method 'argsort'"):
+                times["argsort (numpy)"] = times.get("argsort (numpy)", 0.0) + own
+        per_run.append(times)
+    names = sorted({k for t in per_run for k in t}, key=lambda k: -statistics.median(t.get(k, 0.0) for t in per_run))
+    total = statistics.median(t["build_mesh (total)"] for t in per_run)
+    rows = []
+    for name in names:
+        sec = statistics.median(t.get(name, 0.0) for t in per_run)
+        if sec * 1e9 / n >= 1.0:
+            rows.append([name, f"{sec * 1e3:.1f}", f"{sec * 1e9 / n:.0f}", f"{100 * sec / total:.0f}%"])
+    table(
+        f"where build_mesh spends its time: {n:,} points, a tile's window (median of {repeat})",
+        ["kernel", "ms", "ns/point", "share"],
+        rows,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000, 4_000_000])
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--skip", nargs="*", default=[], choices=["build", "rasterize", "memory", "startup"])
+    parser.add_argument("--skip", nargs="*", default=[], choices=["build", "rasterize", "memory", "startup", "passes"])
     args = parser.parse_args()
     if "startup" not in args.skip:
         bench_startup()
@@ -197,6 +243,8 @@ def main() -> None:
         bench_rasterize(args.repeat)
     if "memory" not in args.skip:
         bench_memory(args.sizes)
+    if "passes" not in args.skip:
+        bench_passes(args.repeat)
 
 
 if __name__ == "__main__":
