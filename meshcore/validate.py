@@ -53,38 +53,45 @@ def _hull_kernel(x, y, order) -> np.ndarray:
 
 
 @njit
+def _strictly_inside(x, y, poly, m, px, py) -> bool:
+    """Whether (px, py) lies strictly inside the convex polygon ``poly[:m]``
+    (counter-clockwise, m >= 3; exact)."""
+    a = poly[m - 1]
+    for k in range(m):
+        b = poly[k]
+        if orient2d(x[a], y[a], x[b], y[b], px, py) <= 0:
+            return False
+        a = b
+    return True
+
+
+@njit
 def _inner_box(x, y, poly, m):
     """An axis-aligned box strictly inside the convex polygon ``poly[:m]`` (CCW):
     its bounding box shrunk about its centre until all four corners are inside.
-    Returns (x_lo, y_lo, x_hi, y_hi); an empty box when none is found."""
-    x_lo = x_hi = x[poly[0]]
-    y_lo = y_hi = y[poly[0]]
-    for k in range(1, m):
-        x_lo = min(x_lo, x[poly[k]])
-        x_hi = max(x_hi, x[poly[k]])
-        y_lo = min(y_lo, y[poly[k]])
-        y_hi = max(y_hi, y[poly[k]])
-    cx = 0.5 * (x_lo + x_hi)
-    cy = 0.5 * (y_lo + y_hi)
-    for shrink in (0.9, 0.75, 0.5, 0.25):
-        bx_lo = cx + shrink * (x_lo - cx)
-        bx_hi = cx + shrink * (x_hi - cx)
-        by_lo = cy + shrink * (y_lo - cy)
-        by_hi = cy + shrink * (y_hi - cy)
-        inside = True
-        for k in range(m):
-            a = poly[k]
-            b = poly[(k + 1) % m]
+    Returns (x_lo, y_lo, x_hi, y_hi); an empty box when none is found (or m < 3)."""
+    if m >= 3:
+        x_lo = x_hi = x[poly[0]]
+        y_lo = y_hi = y[poly[0]]
+        for k in range(1, m):
+            x_lo = min(x_lo, x[poly[k]])
+            x_hi = max(x_hi, x[poly[k]])
+            y_lo = min(y_lo, y[poly[k]])
+            y_hi = max(y_hi, y[poly[k]])
+        cx = 0.5 * (x_lo + x_hi)
+        cy = 0.5 * (y_lo + y_hi)
+        for shrink in (0.9, 0.75, 0.5, 0.25):
+            bx_lo = cx + shrink * (x_lo - cx)
+            bx_hi = cx + shrink * (x_hi - cx)
+            by_lo = cy + shrink * (y_lo - cy)
+            by_hi = cy + shrink * (y_hi - cy)
             if (
-                orient2d(x[a], y[a], x[b], y[b], bx_lo, by_lo) <= 0
-                or orient2d(x[a], y[a], x[b], y[b], bx_hi, by_lo) <= 0
-                or orient2d(x[a], y[a], x[b], y[b], bx_hi, by_hi) <= 0
-                or orient2d(x[a], y[a], x[b], y[b], bx_lo, by_hi) <= 0
+                _strictly_inside(x, y, poly, m, bx_lo, by_lo)
+                and _strictly_inside(x, y, poly, m, bx_hi, by_lo)
+                and _strictly_inside(x, y, poly, m, bx_hi, by_hi)
+                and _strictly_inside(x, y, poly, m, bx_lo, by_hi)
             ):
-                inside = False
-                break
-        if inside:
-            return bx_lo, by_lo, bx_hi, by_hi
+                return bx_lo, by_lo, bx_hi, by_hi
     return math.inf, math.inf, -math.inf, -math.inf
 
 
@@ -110,21 +117,13 @@ def _hull_filter(x, y) -> np.ndarray:
             poly[m] = ext[k]
             m += 1
     # a box inside the polygon settles most points with four comparisons
-    bx_lo, by_lo, bx_hi, by_hi = _inner_box(x, y, poly, m) if m >= 3 else (math.inf, math.inf, -math.inf, -math.inf)
+    bx_lo, by_lo, bx_hi, by_hi = _inner_box(x, y, poly, m)
     keep = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
         if bx_lo <= x[i] <= bx_hi and by_lo <= y[i] <= by_hi:
             continue
-        inside = m >= 3
-        if inside:
-            for k in range(m):
-                a = poly[k]
-                b = poly[(k + 1) % m]
-                if orient2d(x[a], y[a], x[b], y[b], x[i], y[i]) <= 0:
-                    inside = False
-                    break
-        if not inside:
+        if not (m >= 3 and _strictly_inside(x, y, poly, m, x[i], y[i])):
             keep[count] = i
             count += 1
     return keep[:count]
