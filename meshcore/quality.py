@@ -92,17 +92,18 @@ def s1_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) 
 @njit
 def s3_cubed_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
     """S3 ** 3 of the triangle ``a, b, c``: the same order as S3 without a cube root."""
-    ux, uy, vx, vy = _normalised(ax, ay, bx, by, cx, cy)
-    cross = abs(ux * vy - uy * vx)
-    if cross == 0.0:
-        return 0.0
-    la = (vx - ux) ** 2 + (vy - uy) ** 2
-    lb = vx * vx + vy * vy
-    lc = ux * ux + uy * uy
-    denom = la * lb * lc
-    if denom == 0.0:  # an edge shorter than 1e-154 of the longest: degenerate
+    cross, denom = _cross_and_sides(*_normalised(ax, ay, bx, by, cx, cy))
+    if cross == 0.0 or denom == 0.0:  # an edge shorter than 1e-154 of the longest: degenerate
         return 0.0
     return min(_S3_CUBE_FACTOR * cross * cross * cross / denom, 1.0)
+
+
+@njit
+def _cross_and_sides(ux: float, uy: float, vx: float, vy: float) -> tuple[float, float]:
+    """|u x v| and the product of the squared sides of the triangle with edge
+    vectors u and v from one corner: S3 cubed is their ratio, scaled."""
+    cross = abs(ux * vy - uy * vx)
+    return cross, ((vx - ux) ** 2 + (vy - uy) ** 2) * (vx * vx + vy * vy) * (ux * ux + uy * uy)
 
 
 @njit
@@ -118,12 +119,7 @@ def s3_cubed_below(ax: float, ay: float, bx: float, by: float, cx: float, cy: fl
     """
     if limit < 1e-3:
         return False
-    ux = bx - ax
-    uy = by - ay
-    vx = cx - ax
-    vy = cy - ay
-    cross = abs(ux * vy - uy * vx)
-    denom = ((vx - ux) ** 2 + (vy - uy) ** 2) * (vx * vx + vy * vy) * (ux * ux + uy * uy)
+    cross, denom = _cross_and_sides(bx - ax, by - ay, cx - ax, cy - ay)
     if not 1e-250 < denom < 1e250:
         return False
     return _S3_CUBE_FACTOR * cross * cross * cross < limit * denom * (1.0 - 1e-9)
