@@ -336,8 +336,7 @@ def _border(vertex_xyz, faces, box):
     """The faces that reach outside the tile's box (its neighbours' DEM needs them)."""
     if faces.shape[0] == 0:
         return vertex_xyz[:0], faces
-    x, y = vertex_xyz[:, 0], vertex_xyz[:, 1]
-    outside = (x < box[0]) | (x > box[2]) | (y < box[1]) | (y > box[3])
+    outside = ~points_in_box(vertex_xyz, box)
     out = outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
     return _compact(vertex_xyz, np.compress(out, faces, axis=0))
 
