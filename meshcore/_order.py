@@ -71,6 +71,16 @@ def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
 
 
 @njit
+def _bit_length(v: np.uint64) -> int:
+    """Number of bits of ``v`` up to its highest set bit (0 for 0)."""
+    bits = 0
+    while v > np.uint64(0):
+        bits += 1
+        v >>= np.uint64(1)
+    return bits
+
+
+@njit
 def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """64-bit keys in lexicographic order of the points, ties only between
     points of equal x whose y agree in their leading bits.
@@ -93,16 +103,8 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         return key
     x_lo = ux.min()
     y_lo = uy.min()
-    x_bits = 0
-    span = ux.max() - x_lo
-    while span > np.uint64(0):
-        x_bits += 1
-        span >>= np.uint64(1)
-    y_bits = 0
-    span = uy.max() - y_lo
-    while span > np.uint64(0):
-        y_bits += 1
-        span >>= np.uint64(1)
+    x_bits = _bit_length(ux.max() - x_lo)
+    y_bits = _bit_length(uy.max() - y_lo)
     room = 64 - x_bits  # bits of the key below x's
     drop = max(0, y_bits - room)  # trailing bits of y that do not fit
     for i in range(n):
