@@ -61,25 +61,44 @@ def test_a_failed_task_is_exit_1_with_one_line(survey, tmp_path, capsys, monkeyp
     assert not any("Traceback" in line for line in err)
 
 
+# Runs ``terrain`` with every DEM tile write slowed down and announced by a
+# marker file, so the test interrupts the DEM stage for sure, however fast the
+# machine finishes the rest of the job.
+_SLOW_DEM = """
+import pathlib, sys, time
+from pipeline import cli, store
+marker, real = pathlib.Path(sys.argv.pop(1)), store.write_tile
+def slow(*args, **kwargs):
+    marker.touch()
+    time.sleep(1.0)
+    return real(*args, **kwargs)
+store.write_tile = slow
+sys.exit(cli.main())
+"""
+
+
 def test_ctrl_c_is_exit_130_quiet_and_resumable(tmp_path):
     folder = tmp_path / "survey"
     write_survey(folder, SurveySpec(points=200_000, files=2, width=500.0, height=400.0, seed=9))
     out = tmp_path / "c.zarr"
-    command = [sys.executable, "-m", "pipeline.cli", "run", str(folder), "-o", str(out),
-               "--resolution", "1", "--tile-size", "50", "--no-progress"]
+    flags = ["run", str(folder), "-o", str(out), "--resolution", "1", "--tile-size", "50", "--no-progress"]
     meshed = tmp_path / ".c.zarr.work" / "records" / "mesh"
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    marker = tmp_path / "dem-started"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SLOW_DEM, str(marker), *flags], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     deadline = time.monotonic() + 300
-    # interrupt once every tile is meshed (9 x 11 tiles), whatever the machine's speed
-    while not (meshed.is_dir() and len(list(meshed.glob("*.json"))) >= 99) and time.monotonic() < deadline:
-        time.sleep(0.05)
+    while not marker.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert marker.exists(), proc.communicate(timeout=60)[1]
+    assert len(list(meshed.glob("*.json"))) == 99  # every one of the 9 x 11 tiles was meshed first
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err  # interrupted after the mesh stage
+    assert proc.returncode == 130, err  # interrupted in the DEM stage
     lines = err.strip().splitlines()
     assert lines[-1] == "terrain: stopped; run the same command again to resume"
     assert not any("distributed" in line or "Traceback" in line for line in lines), err
-    again = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    again = subprocess.run([sys.executable, "-m", "pipeline.cli", *flags], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
     assert "resumed" in again.stdout
 
