@@ -178,18 +178,14 @@ class TileSpiller:
         self._pending: dict[tuple[int, int], list[NDArray[np.float64]]] = {}
         self._held = 0
         self._parts: dict[tuple[int, int], int] = {}
-        self.owned_per_tile: dict[tuple[int, int], int] = {}
 
     def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
         if x.size == 0:
             return
         g = self.grid
-        owned, offsets, pts = _route_kernel(
+        offsets, pts = _route_kernel(
             x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer, g.n_cols, g.n_tiles
         )
-        for k in np.flatnonzero(owned).tolist():
-            key = (k // g.n_cols, k % g.n_cols)
-            self.owned_per_tile[key] = self.owned_per_tile.get(key, 0) + int(owned[k])
         for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
             s, e = int(offsets[k]), int(offsets[k + 1])
             self._pending.setdefault((k // g.n_cols, k % g.n_cols), []).append(pts[s:e])
@@ -228,8 +224,7 @@ def _bins(values, origin, inv_size, below, above):
 
 @numba.njit(cache=True, nogil=True)
 def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
-    """Points owned per tile, and every point copied to each tile whose core
-    grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
+    """Every point copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and
     column of their reach come first, then the next column, row, ...; each
     group in input order (a counting sort, stable)."""
@@ -238,7 +233,6 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     r_lo = np.empty(n, dtype=np.int32)
     c_span = np.empty(n, dtype=np.int32)
     r_span = np.empty(n, dtype=np.int32)
-    owned = np.zeros(n_tiles, dtype=np.int64)
     span_c = 1
     span_r = 1
     for i in range(n):
@@ -254,7 +248,6 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
         r_span[i] = sr
         span_c = max(span_c, sc)
         span_r = max(span_r, sr)
-        owned[_bin(yi, y0, inv_size, below_y, above_y) * n_cols + _bin(xi, x0, inv_size, below_x, above_x)] += 1
     groups = span_r * span_c
     start = np.zeros(n_tiles * groups + 1, dtype=np.int64)
     for i in range(n):
@@ -287,7 +280,7 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
                 pts[at, 0] = x[i]
                 pts[at, 1] = y[i]
                 pts[at, 2] = z[i]
-    return owned, offsets, pts
+    return offsets, pts
 
 
 def drop_source_spill(scratch: Path, source: int) -> None:
