@@ -44,6 +44,27 @@ def _choice(enum: type[Enum], value: object, name: str) -> str:
         raise UsageError(f"{name}={value!r} is not valid; expected one of {valid}") from None
 
 
+def _flag(name: str, value: object) -> bool:
+    if not isinstance(value, bool):
+        raise UsageError(f"{name} must be true or false, got {value!r}")
+    return value
+
+
+def _whole(name: str, value: object, allow_none: bool = False) -> int | None:
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise UsageError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
+#: fields whose default is not None but that accept None, and how a job file says None
+_NONE_WORDS = {"classes": "all", "quad_measure": "none"}
+
+#: fields that do not change a run's result (a store made with other values is resumed)
+_NEUTRAL = {"workers", "scheduler", "overwrite", "scratch_dir", "max_cells", "inputs", "output", "extra"}
+
+
 def _positive(name: str, value: object, allow_none: bool = False) -> float | None:
     if value is None and allow_none:
         return None
@@ -112,14 +133,18 @@ class RunConfig:
         object.__setattr__(self, "tile_size", tile)
         object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True))
         object.__setattr__(self, "max_edge", _positive("max_edge", self.max_edge, allow_none=True))
-        if self.classes is not None:
+        classes = self.classes
+        if isinstance(classes, str):  # "all", or "2,9" as on the command line
+            words = [w.strip() for w in classes.split(",")]
+            classes = None if [w.lower() for w in words] == ["all"] else words
+        if classes is not None:
             try:
-                classes = tuple(sorted({int(c) for c in self.classes}))
+                classes = tuple(sorted({int(c) for c in classes}))
             except (TypeError, ValueError):
-                raise UsageError(f"classes must be integers 0-255 or None (all), got {self.classes!r}") from None
+                raise UsageError(f"classes must be integers 0-255 or \"all\", got {self.classes!r}") from None
             if not classes or any(c < 0 or c > 255 for c in classes):
-                raise UsageError(f"classes must be integers 0-255 or None (all), got {self.classes!r}")
-            object.__setattr__(self, "classes", classes)
+                raise UsageError(f"classes must be integers 0-255 or \"all\", got {self.classes!r}")
+        object.__setattr__(self, "classes", classes)
         if self.bbox is not None:
             try:
                 bbox = tuple(float(v) for v in self.bbox)
@@ -137,23 +162,35 @@ class RunConfig:
         else:
             object.__setattr__(self, "quad_measure", None)
         object.__setattr__(self, "merge", _choice(MergeMethod, self.merge, "merge"))
-        layers = tuple(dict.fromkeys(("elevation", *self.layers)))
+        layers = (self.layers,) if isinstance(self.layers, str) else tuple(self.layers)
         unknown = [name for name in layers if name not in LAYERS]
         if unknown:
             raise UsageError(f"unknown layer(s) {unknown}; expected some of {', '.join(LAYERS)}")
-        object.__setattr__(self, "layers", layers)
-        if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) < 1):
-            raise UsageError(f"workers must be a positive integer, got {self.workers!r}")
-        if self.zarr_format not in (2, 3):
+        # in one order whatever the order asked: the store is the same
+        object.__setattr__(self, "layers", tuple(name for name in LAYERS if name == "elevation" or name in layers))
+        object.__setattr__(self, "workers", _whole("workers", self.workers, allow_none=True))
+        if self.zarr_format not in (2, 3) or isinstance(self.zarr_format, (bool, float)):
             raise UsageError(f"zarr_format must be 2 or 3, got {self.zarr_format!r}")
-        if isinstance(self.max_cells, bool) or int(self.max_cells) < 1:
-            raise UsageError(f"max_cells must be a positive integer, got {self.max_cells!r}")
+        object.__setattr__(self, "max_cells", _whole("max_cells", self.max_cells))
+        for name in ("keep_withheld", "overwrite", "skip_bad_files"):
+            object.__setattr__(self, name, _flag(name, getattr(self, name)))
+        for name in ("in_crs", "out_crs", "scheduler", "scratch_dir"):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, (str, Path)):
+                raise UsageError(f"{name} must be a string, got {value!r}")
+            object.__setattr__(self, name, None if value is None else str(value))
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain values (lists for tuples), JSON- and TOML-friendly; ``None`` fields omitted."""
+        """Plain values (lists for tuples), JSON- and TOML-friendly: ``None``
+        fields are omitted, except those whose default is not None, which are
+        written as their word ("all" classes, "none" quad measure)."""
         out: dict[str, Any] = {}
         for key, value in asdict(self).items():
-            if key == "extra" or value is None:
+            if key == "extra":
+                continue
+            if value is None:
+                if key in _NONE_WORDS:
+                    out[key] = _NONE_WORDS[key]
                 continue
             out[key] = list(value) if isinstance(value, tuple) else value
         return out
@@ -169,8 +206,6 @@ class RunConfig:
         for key in ("inputs", "classes", "bbox", "layers"):
             if isinstance(values.get(key), list):
                 values[key] = tuple(values[key])
-        if values.get("classes") == "all":
-            values["classes"] = None
         return cls(**values)
 
     @classmethod
@@ -187,6 +222,5 @@ class RunConfig:
 
     def differences(self, other: RunConfig) -> list[str]:
         """Names of the parameters that change the result and differ from ``other``."""
-        ignore = {"workers", "scheduler", "overwrite", "scratch_dir", "inputs", "output", "extra"}
         mine, theirs = asdict(self), asdict(other)
-        return sorted(k for k in mine if k not in ignore and mine[k] != theirs[k])
+        return sorted(k for k in mine if k not in _NEUTRAL and mine[k] != theirs[k])

@@ -69,7 +69,9 @@ class Workflow:
             inputs = [inputs]
         base = path.parent
         params: dict[str, Any] = dict(data.get("run", {}))
-        for key in ("inputs", "output", "scheduler", "overwrite"):
+        if "overwrite" in params:
+            raise UsageError(f"{path}: 'overwrite' has no place in a workflow: each run updates its store")
+        for key in ("inputs", "output", "scheduler"):
             if key in params:
                 raise UsageError(f"{path}: {key!r} belongs in [workflow], not [run]")
         try:

@@ -1,3 +1,5 @@
+import json
+
 import pytest
 
 from pipeline.config import RunConfig
@@ -34,12 +36,46 @@ def test_defaults_and_round_trip(tmp_path):
         ({"bbox": (1, 1, 0, 0)}, "min < max"),
         ({"layers": ("aspect",)}, "unknown layer"),
         ({"zarr_format": 4}, "zarr_format must be 2 or 3"),
+        ({"zarr_format": 3.0}, "zarr_format must be 2 or 3"),
         ({"inputs": ()}, "at least one"),
+        ({"classes": "2,x"}, "classes must be integers 0-255"),
+        ({"overwrite": "false"}, "overwrite must be true or false, got 'false'"),
+        ({"keep_withheld": 1}, "keep_withheld must be true or false"),
+        ({"skip_bad_files": "yes"}, "skip_bad_files must be true or false"),
+        ({"workers": "abc"}, "workers must be a positive integer, got 'abc'"),
+        ({"workers": 2.5}, "workers must be a positive integer"),
+        ({"workers": 0}, "workers must be a positive integer"),
+        ({"max_cells": "lots"}, "max_cells must be a positive integer"),
+        ({"max_cells": 1.5}, "max_cells must be a positive integer"),
+        ({"scheduler": 5}, "scheduler must be a string"),
     ],
 )
 def test_invalid_values_are_named(kw, match):
     with pytest.raises(UsageError, match=match):
         base(**kw)
+
+
+@pytest.mark.parametrize("kw", [{"classes": None}, {"quad_measure": None}, {"classes": None, "quad_measure": None}])
+def test_none_that_is_not_the_default_survives_a_round_trip(tmp_path, kw):
+    # "all classes" and "no quads" must not come back as the defaults (ground, s4)
+    cfg = base(**kw)
+    data = cfg.to_dict()
+    assert RunConfig.from_dict(data) == cfg
+    job = tmp_path / "job.toml"
+    job.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in data.items()))  # JSON scalars and lists are TOML
+    assert RunConfig.from_toml(job) == cfg
+    assert RunConfig.from_dict(data).differences(cfg) == []
+
+
+def test_classes_as_text_and_neutral_differences():
+    assert base(classes="9, 2").classes == (2, 9)
+    assert base(classes="ALL").classes is None
+    # the order of the layers asked and the cell limit do not change the store
+    a = base(layers=("point_count", "slope"), max_cells=10**6, workers=1)
+    b = base(layers=("slope", "point_count"))
+    assert a.layers == b.layers == ("elevation", "slope", "point_count")
+    assert a.differences(b) == []
+    assert base(layers=("slope",)).differences(b) == ["layers"]
 
 
 def test_unknown_keys_and_bad_toml(tmp_path):

@@ -128,6 +128,9 @@ def test_bad_workflow_files_are_one_line_errors(tmp_path, capsys):
     bad.write_text("[workflow]\ninputs = ['x']\noutput = 'o.zarr'\n[run]\nresolution = 1\noutput = 'p'\n")
     with pytest.raises(UsageError, match="belongs in \\[workflow\\]"):
         Workflow.load(bad)
+    bad.write_text("[workflow]\ninputs = ['x']\noutput = 'o.zarr'\n[run]\nresolution = 1\noverwrite = true\n")
+    with pytest.raises(UsageError, match="'overwrite' has no place in a workflow"):
+        Workflow.load(bad)
     assert main(["workflow", "run", str(tmp_path / "missing.toml")]) == 2
     assert "cannot read the workflow file" in capsys.readouterr().err
 
