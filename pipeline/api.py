@@ -59,9 +59,12 @@ class TiledStore:
         return store.read_dem_window(self.path, x0, y0, x1, y1)
 
     def tile_dem(self, tile: Tile) -> xr.Dataset:
-        r = self.grid.resolution / 2
-        x0, y0, x1, y1 = tile.box
-        return self.dem_window(x0 + r, y0 + r, x1 - r, y1 - r)
+        """The tile's own block of cells, loaded (picked by index: cell
+        centres need not be exact in binary, 0.1 m cells for one)."""
+        r0, r1, c0, c1 = self.grid.cell_slice(tile.row, tile.col)
+        ny = self.grid.ny
+        with store.open_dem(self.path) as ds:
+            return ds.isel(y=slice(ny - r1, ny - r0), x=slice(c0, c1)).load()  # y is descending
 
     def tile_mesh(self, tile: Tile) -> tuple[meshcore.Mesh, np.ndarray]:
         """The tile's faces as a :class:`meshcore.Mesh` (nodes numbered locally) and node z."""

@@ -144,6 +144,26 @@ def test_python_api_over_tiles(tiled):
     assert window["elevation"].shape == (ts.grid.tile_cells, min(ts.grid.tile_cells, ts.grid.nx - busy.col * ts.grid.tile_cells))
 
 
+def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_path):
+    import pipeline
+
+    folder = tmp_path / "small"
+    write_survey(folder, SurveySpec(points=8_000, files=1, width=50.0, height=30.0, seed=5))
+    out = tmp_path / "r03.zarr"
+    _run(folder, out, resolution=0.3, tile_size=19.2)
+    ts = pipeline.open(out)
+    whole = ts.dem()["elevation"].values
+    t = ts.grid.tile_cells
+    for tile in ts.tiles():
+        window = ts.tile_dem(tile)["elevation"]
+        r0, r1, c0, c1 = ts.grid.cell_slice(tile.row, tile.col)
+        assert window.shape == (r1 - r0, c1 - c0)
+        np.testing.assert_array_equal(window.values, whole[ts.grid.ny - r1 : ts.grid.ny - r0, c0:c1])
+        x0, y0, x1, y1 = tile.box  # cell centres inside the tile's box
+        assert x0 < float(window.x.min()) and float(window.x.max()) < x1 and y0 < float(window.y.min())
+        assert float(window.y.max()) < y1 and r1 - r0 <= t
+
+
 def test_cli_demo_and_zarr_format_2(tmp_path):
     from matplotlib.image import imread
 
