@@ -774,8 +774,12 @@ def _open_group(path: StorePath, name: str = "", mode: str = "r") -> zarr.Group:
 
 
 def _open_array(path: StorePath, name: str) -> zarr.Array:
+    """An array to write tiles to.  Every chunk written is stored, even one
+    that equals the fill value: a v2 array without one (a null ``fill_value``)
+    leaves missing chunks undefined to its readers."""
     try:
-        return zarr.open_array(store=os.fspath(path), path=name, mode="r+")
+        array = zarr.open_array(store=os.fspath(path), path=name, mode="r+")
+        return array.with_config({"write_empty_chunks": True})
     except FileNotFoundError:
         where = os.fspath(path)
         raise StoreError(f"{where}: no array '{name}' (was the store created with this layer?)") from None

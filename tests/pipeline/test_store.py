@@ -96,6 +96,20 @@ def test_gridspec_rejects_invalid_values(grid, change, message):
 
 
 @FORMATS
+def test_a_tile_of_zeros_and_nan_is_stored_not_left_to_the_fill_value(tmp_path, grid, zarr_format):
+    # a v2 array with no fill value (face_kind, point_count) leaves missing
+    # chunks undefined to older readers: every tile written must be on disk
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
+    t = grid.tile_cells
+    empty = {"elevation": np.full((t, t), np.nan, np.float32), "slope": np.full((t, t), np.nan, np.float32),
+             "face_kind": np.zeros((t, t), np.int8), "point_count": np.zeros((t, t), np.int32)}
+    write_tile(path, grid, 1, 1, empty)
+    for name in LAYERS:
+        chunk = "0.1" if zarr_format == 2 else "c/0/1"  # north-up: tile row 1 is chunk row 0
+        assert (path / name / chunk).is_file(), name
+
+
+@FORMATS
 def test_tiles_written_concurrently_read_back_north_up(tmp_path, grid, zarr_format):
     path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
     layers = south_up(grid)
