@@ -11,6 +11,7 @@ when the store is complete.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -41,10 +42,14 @@ def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
 
 
 def work_dir_for(output: str, scratch_dir: str | None) -> Path:
-    """``.NAME.work`` beside the store, or inside ``scratch_dir`` when given."""
+    """``.NAME.work`` beside the store, or ``.NAME-HASH.work`` inside
+    ``scratch_dir`` when given (HASH of the store's path: two stores of one
+    name in different folders may share a scratch folder)."""
     out = Path(output).absolute()
-    parent = Path(scratch_dir).absolute() if scratch_dir else out.parent
-    return parent / f".{out.name}.work"
+    if not scratch_dir:
+        return out.parent / f".{out.name}.work"
+    digest = hashlib.sha1(os.fsencode(out)).hexdigest()[:10]
+    return Path(scratch_dir).absolute() / f".{out.name}-{digest}.work"
 
 
 class WorkDir:

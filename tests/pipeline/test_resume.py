@@ -75,6 +75,29 @@ def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monk
     assert not (tmp_path / ".dem.zarr.work").exists()
 
 
+def test_stores_of_one_name_share_a_scratch_folder_without_harm(survey, reference, tmp_path, monkeypatch):
+    scratch = tmp_path / "scratch"
+    a, b = tmp_path / "a" / "dem.zarr", tmp_path / "b" / "dem.zarr"
+    real_dem = run_module.dem_tile
+    calls = []
+
+    def failing_dem(job):
+        calls.append(1)
+        if len(calls) == 4:
+            raise RuntimeError("disk on fire")
+        return real_dem(job)
+
+    monkeypatch.setattr(run_module, "dem_tile", failing_dem)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        run_module.run(_config(survey, a, scratch_dir=str(scratch)), progress=False)
+    monkeypatch.setattr(run_module, "dem_tile", real_dem)
+    run_module.run(_config(survey, b, scratch_dir=str(scratch)), progress=False)  # must not reset a's work
+    report = run_module.run(_config(survey, a, scratch_dir=str(scratch)), progress=False)
+    assert any("resumed" in note for note in report.notes)
+    assert_same_store(a, reference)
+    assert_same_store(b, reference)
+
+
 def test_a_complete_store_is_left_alone(survey, reference):
     before = {p: p.stat().st_mtime_ns for p in Path(reference).rglob("*") if p.is_file()}
     report = run_module.run(_config(survey, reference), progress=False)
