@@ -745,6 +745,10 @@ def _remove_partial_writes(path: StorePath) -> None:
                     pass
 
 
+#: the files at the top of a Zarr store (its arrays and groups are folders)
+_ZARR_METADATA = frozenset({"zarr.json", ".zgroup", ".zattrs", ".zarray", ".zmetadata"})
+
+
 def _is_zarr_store(path: StorePath) -> bool:
     return os.path.isdir(path) and any(
         os.path.exists(os.path.join(path, name)) for name in ("zarr.json", ".zgroup", ".zarray")
@@ -759,6 +763,13 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
     if _is_zarr_store(where):
         if not overwrite:
             raise StoreError(f"{where}: a Zarr store already exists; pass --overwrite to replace it")
+        if os.path.islink(where):
+            raise StoreError(f"{where}: is a symbolic link; to replace the store, give the path it points to")
+        strays = sorted(e.name for e in os.scandir(where) if not e.is_dir() and e.name not in _ZARR_METADATA)
+        if strays:
+            raise StoreError(
+                f"{where}: holds files that are not Zarr's ({', '.join(strays[:3])}); refusing to replace it"
+            )
         shutil.rmtree(where)
     elif not (os.path.isdir(where) and not os.listdir(where)):
         raise StoreError(f"{where}: exists and is not a Zarr store; refusing to replace it")

@@ -228,6 +228,21 @@ def test_existing_store_needs_overwrite(tmp_path, grid, zarr_format):
     assert list(ds.data_vars) == ["elevation"]
 
 
+def test_overwrite_deletes_only_a_store_of_zarrs_files(tmp_path, grid):
+    path = new_store(tmp_path / "dem.zarr", grid, 3)
+    (path / "notes.csv").write_text("keep me")  # a user's file beside the store's
+    with pytest.raises(StoreError, match=r"dem.zarr: holds files that are not Zarr's \(notes.csv\)"):
+        create_store(path, grid, CRS_WKT, attrs={}, overwrite=True)
+    assert (path / "notes.csv").read_text() == "keep me" and (path / "elevation").is_dir()
+    (path / "notes.csv").unlink()
+    link = tmp_path / "link.zarr"
+    link.symlink_to(path)
+    with pytest.raises(StoreError, match="link.zarr: is a symbolic link"):
+        create_store(link, grid, CRS_WKT, attrs={}, overwrite=True)
+    create_store(path, grid, CRS_WKT, attrs={"second": True}, overwrite=True)
+    assert open_dem(link).attrs["second"] is True
+
+
 def test_create_store_checks_its_arguments(tmp_path, grid):
     with pytest.raises(UsageError, match="JSON-serialisable"):
         create_store(tmp_path / "a.zarr", grid, CRS_WKT, attrs={"when": object()})
