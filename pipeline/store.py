@@ -56,12 +56,14 @@ Examples
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 import numbers
 import os
 import re
 import shutil
+import struct
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -823,8 +825,8 @@ def _create_array(
     formats say that differently: xarray takes a v2 array's ``fill_value`` as
     ``_FillValue``, so an unmasked v2 array stores a null fill value (reading
     back as 0); in v3 xarray ignores ``fill_value`` and reads the
-    ``_FillValue`` attribute (integers only: it wants floats base64-encoded,
-    and NaN needs no mask anyway).
+    ``_FillValue`` attribute, floats base64-encoded (so both formats give
+    ``encoding["_FillValue"]``, the nodata value rioxarray exports).
     """
     attrs = dict(attrs)
     if data is not None:
@@ -847,6 +849,8 @@ def _create_array(
         fill_value = 0 if fill is None else fill
         if masked and dtype.kind in "iu":
             attrs["_FillValue"] = int(fill)
+        elif masked:  # as xarray writes a float's: base64 of the little-endian double
+            attrs["_FillValue"] = base64.standard_b64encode(struct.pack("<d", fill)).decode("ascii")
     array = group.create_array(
         name,
         shape=shape,

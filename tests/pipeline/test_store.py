@@ -153,6 +153,10 @@ def test_georeferencing_attributes_for_cf_gdal_and_rioxarray(tmp_path, grid, zar
         var = ds[name]
         assert (var.attrs.get("grid_mapping") or var.encoding.get("grid_mapping")) == "spatial_ref"
         assert CRS.from_wkt(var.attrs["_CRS"]["wkt"]) == CRS.from_epsg(2154)  # GDAL < 3.9
+    for name in ("elevation", "slope"):  # the nodata value rioxarray exports, in both formats
+        assert np.isnan(ds[name].encoding["_FillValue"]), name
+    for name in ("face_kind", "point_count"):  # counts and codes: every value is data
+        assert "_FillValue" not in ds[name].encoding, name
     assert ds["x"].attrs["standard_name"] == "projection_x_coordinate"
     assert ds["y"].attrs["standard_name"] == "projection_y_coordinate"
     assert ds["x"].attrs["units"] == ds["y"].attrs["units"] == "metre"
