@@ -314,9 +314,9 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
     infos
         Header information of the input files (:func:`pipeline.sources.read_info`).
     in_crs
-        CRS of the inputs (anything ``pyproj.CRS.from_user_input`` accepts).
-        It replaces a missing or broken CRS, and also a valid one that
-        differs (recorded in the notes).
+        CRS of the inputs whose CRS is missing or broken (anything
+        ``pyproj.CRS.from_user_input`` accepts).  A file's valid CRS is kept,
+        and a note says so when it differs from ``in_crs``.
     out_crs
         CRS of the outputs. Default: the files' common CRS.
 
@@ -350,20 +350,21 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
                 file_crs = cache.get(info.crs_wkt)
             except CRSError as exc:
                 problem = f"stored CRS unparsable ({_one_line(exc)})"
-        if user_in is not None:
-            if file_crs is not None and not same_crs(file_crs, user_in):
+        if file_crs is not None:
+            if user_in is not None and not same_crs(file_crs, user_in):
                 notes.append(
-                    f"{info.path}: --in-crs {crs_label(user_in)} overrides the file's CRS {crs_label(file_crs)}"
+                    f"{info.path}: its own CRS {crs_label(file_crs)} is kept; --in-crs {crs_label(user_in)} "
+                    "is for files without a usable CRS"
                 )
-            elif file_crs is None and problem:
+            sources.append(file_crs)
+        elif user_in is not None:
+            if problem:
                 notes.append(f"{info.path}: {problem}; using --in-crs {crs_label(user_in)}")
-            elif file_crs is None:
+            else:
                 defaulted.append(info.path)
             sources.append(user_in)
-        elif file_crs is None:
-            unusable.append(f"{info.path} ({problem or 'no CRS record'})")
         else:
-            sources.append(file_crs)
+            unusable.append(f"{info.path} ({problem or 'no CRS record'})")
     if unusable:
         shown = ", ".join(unusable[:_MAX_LISTED])
         more = len(unusable) - _MAX_LISTED

@@ -53,16 +53,18 @@ def test_missing_crs_without_in_crs_lists_the_files(tmp_path: Path) -> None:
     assert "--in-crs" in message and "\n" not in message
 
 
-def test_in_crs_fills_missing_and_overrides_different(tmp_path: Path) -> None:
+def test_in_crs_fills_missing_and_keeps_a_files_valid_crs(tmp_path: Path) -> None:
     a = info_for(tmp_path, "utm.las", "EPSG:32631")
     b = info_for(tmp_path, "nocrs.las", None)
     c = info_for(tmp_path, "l93.las", LAMBERT93)
-    plan = resolve_crs([a, b, c], LAMBERT93, None)
-    assert all(pyproj.CRS.from_wkt(w).to_epsg() == 2154 for w in plan.source_wkts)
-    assert all(plan.reprojector(p).is_identity for p in plan.paths)
-    overrides = [n for n in plan.notes if "overrides" in n]
-    assert len(overrides) == 1 and str(a.path) in overrides[0] and "UTM zone 31N" in overrides[0]
+    plan = resolve_crs([a, b, c], LAMBERT93, LAMBERT93)
+    assert [pyproj.CRS.from_wkt(w).to_epsg() for w in plan.source_wkts] == [32631, 2154, 2154]
+    assert [plan.reprojector(p).is_identity for p in plan.paths] == [False, True, True]
+    kept = [n for n in plan.notes if "is kept" in n]
+    assert len(kept) == 1 and str(a.path) in kept[0] and "UTM zone 31N" in kept[0]
     assert any(str(b.path) in n and "without a CRS" in n for n in plan.notes)
+    with pytest.raises(CrsError, match="2 different CRSs"):  # the UTM file still needs --out-crs
+        resolve_crs([a, b, c], LAMBERT93, None)
 
 
 def test_mixed_crs_without_out_crs_groups_the_files(tmp_path: Path) -> None:
