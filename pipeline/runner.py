@@ -34,7 +34,7 @@ import numpy as np
 
 from .config import RunConfig
 from .checkpoint import WorkDir, work_dir_for
-from .errors import InputFileError, OutputWriteError, PipelineError, UsageError
+from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
@@ -239,7 +239,10 @@ def _route(job: _RouteJob) -> dict[str, Any]:
         counts["read"] += chunk.read
         counts["filtered_class"] += chunk.filtered_class
         counts["filtered_withheld"] += chunk.filtered_withheld
-        x, y, z = reproject.transform(chunk.x, chunk.y, chunk.z)
+        try:
+            x, y, z = reproject.transform(chunk.x, chunk.y, chunk.z)
+        except CrsError as exc:  # points of this file: a bad input, named (and skippable)
+            raise InputFileError(f"{job.path}: {exc}") from None
         if job.bbox is not None:
             inside = (x >= job.bbox[0]) & (x <= job.bbox[2]) & (y >= job.bbox[1]) & (y <= job.bbox[3])
             counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))

@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pyproj
 import pytest
 import xarray as xr
 
@@ -80,3 +81,37 @@ def test_only_bad_files_is_an_error_even_when_skipping(archives, tmp_path, capsy
     shutil.copy(bad / "notes.las", only / "notes.las")
     assert main(_args(only, tmp_path / "c.zarr", "--skip-bad-files")) == 2
     assert "every input was skipped" in capsys.readouterr().err
+
+
+def _geographic(path: Path, lat_of_first: float | None = None) -> Path:
+    import laspy
+
+    rng = np.random.default_rng(5)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([1e-7, 1e-7, 0.01])
+    header.offsets = np.array([2.0, 46.0, 0.0])
+    header.add_crs(pyproj.CRS.from_epsg(4326))
+    las = laspy.LasData(header)
+    lat = 46.0 + rng.random(2000) * 0.01
+    if lat_of_first is not None:
+        lat[:3] = lat_of_first
+    las.x, las.y, las.z = 2.0 + rng.random(2000) * 0.01, lat, rng.random(2000)
+    las.classification = np.full(2000, 2, dtype=np.uint8)
+    las.write(path)
+    return path
+
+
+def test_points_that_cannot_be_reprojected_name_their_file_and_can_be_skipped(tmp_path):
+    from pipeline.errors import InputFileError
+
+    folder = tmp_path / "geo"
+    folder.mkdir()
+    _geographic(folder / "good.las")
+    bad = _geographic(folder / "polar.las", lat_of_first=95.0)  # beyond the pole
+    # the header bounds reach the pole too: a coarse grid keeps the DEM small
+    config = dict(inputs=(str(folder),), resolution=50_000.0, tile_size=50_000.0, out_crs="EPSG:2154")
+    with pytest.raises(InputFileError, match=r"polar\.las: 3 of 2,000 points could not be transformed"):
+        run(RunConfig(output=str(tmp_path / "a.zarr"), **config), progress=False)
+    report = run(RunConfig(output=str(tmp_path / "b.zarr"), skip_bad_files=True, **config), progress=False)
+    assert [f["path"] for f in report.skipped_files] == [str(bad)]
+    assert report.points_kept == 2000
