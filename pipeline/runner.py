@@ -356,7 +356,7 @@ def _execute(
 ) -> RunReport:
     from . import store
     from .crs import resolve_crs
-    from .sources import discover_inputs, read_info
+    from .sources import discover_inputs, read_info, with_measured_bounds
 
     show = sys.stderr.isatty() if progress is None else progress
     say = log or (lambda message: None)
@@ -368,6 +368,8 @@ def _execute(
     for p in discover_inputs(config.inputs):
         try:
             info = read_info(p)
+            if info.point_count and not info.bounds_usable:  # the grid needs them
+                info = with_measured_bounds(info)
         except InputFileError as exc:
             if not config.skip_bad_files:
                 raise

@@ -25,7 +25,7 @@ import os
 import struct
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,7 @@ __all__ = [
     "file_digest",
     "iter_points",
     "read_info",
+    "with_measured_bounds",
 ]
 
 #: Largest buffer of raw point records read at once (bytes).
@@ -346,6 +347,15 @@ class SourceInfo:
     extra_dims: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
 
+    @property
+    def bounds_usable(self) -> bool:
+        """Whether the header's bounds can place the file: finite, min <= max,
+        and not all zero (never filled in) when it announces points."""
+        b = self.bounds
+        if not all(np.isfinite(b)) or b[0] > b[3] or b[1] > b[4] or b[2] > b[5]:
+            return False
+        return self.point_count == 0 or any(v != 0 for v in b)
+
     def crs(self) -> pyproj.CRS | None:
         """The CRS as a pyproj object, or None."""
         return None if self.crs_wkt is None else pyproj.CRS.from_wkt(self.crs_wkt)
@@ -442,12 +452,14 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
         notes.append(str(exc).removeprefix(f"{path}: "))
     scales = tuple(float(s) for s in header.scales)
     if not all(np.isfinite(scales)) or any(s == 0 for s in scales):
+        if total:
+            raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
         notes.append(f"unusable scale factors {scales}")
     if total == 0:
         notes.append("the header announces no points")
 
     is_copc = any(v.user_id == "copc" and v.record_id == 1 for v in header.vlrs)
-    return SourceInfo(
+    info = SourceInfo(
         path=path,
         size_bytes=size,
         version=f"{header.version.major}.{header.version.minor}",
@@ -465,6 +477,26 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
         extra_dims=extra_dims,
         notes=tuple(notes),
     )
+    if not info.bounds_usable:
+        info = replace(info, notes=(*info.notes, f"unusable header bounds {info.bounds}"))
+    return info
+
+
+def with_measured_bounds(info: SourceInfo, chunk_size: int = 2_000_000) -> SourceInfo:
+    """``info`` with the bounds of its points, every one read (for a header
+    whose bounds are unusable: NaN, min > max, never filled in)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for chunk in iter_points(info.path, PointFilter(classes=None, keep_withheld=True), chunk_size):
+        if chunk.x.size:
+            xyz = (chunk.x, chunk.y, chunk.z)
+            lo = np.minimum(lo, [a.min() for a in xyz])
+            hi = np.maximum(hi, [a.max() for a in xyz])
+    if not np.isfinite(lo).all():
+        return info
+    bounds = tuple(float(v) for v in (*lo, *hi))
+    note = f"header bounds unusable: {bounds} measured from its points"
+    return replace(info, bounds=bounds, notes=(*(n for n in info.notes if not n.startswith("unusable header")), note))
 
 
 def _dtype_name(dtype: Any) -> str:

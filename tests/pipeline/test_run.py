@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -194,6 +196,27 @@ def test_cli_demo_and_zarr_format_2(tmp_path):
     assert code == 0
     assert (out / ".zgroup").exists()
     assert np.isfinite(xr.open_zarr(out)["elevation"].values).any()
+
+
+@pytest.mark.parametrize("bounds", ["zero", "nan", "swapped"])
+def test_unusable_header_bounds_are_measured_from_the_points(tmp_path, bounds):
+    import struct
+
+    folder = tmp_path / "survey"
+    paths = write_survey(folder, SurveySpec(points=20_000, files=2, width=200.0, height=100.0, seed=8))
+    bad = paths[1]
+    data = bytearray(bad.read_bytes())
+    fields = list(struct.unpack_from("<6d", data, 179))  # max x, min x, max y, min y, max z, min z
+    fields = {"zero": [0.0] * 6, "nan": [math.nan, *fields[1:]], "swapped": [fields[1], fields[0], *fields[2:]]}[bounds]
+    struct.pack_into("<6d", data, 179, *fields)
+    bad.write_bytes(bytes(data))
+    report = _run(folder, tmp_path / "dem.zarr", tile_size=64.0)
+    assert any(note.startswith(f"{bad}: header bounds unusable") for note in report.notes), report.notes
+    reference = _run(write_survey(tmp_path / "good", SurveySpec(points=20_000, files=2, width=200.0, height=100.0,
+                                                                seed=8))[0].parent, tmp_path / "good.zarr", tile_size=64.0)
+    assert report.vertices == reference.vertices and report.faces == reference.faces
+    a = xr.open_zarr(tmp_path / "dem.zarr")["elevation"].values
+    np.testing.assert_array_equal(a, xr.open_zarr(tmp_path / "good.zarr")["elevation"].values)
 
 
 def test_a_stale_header_keeps_every_point_in_one_conforming_mesh(tmp_path):

@@ -478,9 +478,19 @@ def test_corrupt_laz_chunk(tmp_path: Path) -> None:
 def test_non_finite_coordinates(tmp_path: Path) -> None:
     w = write_las(tmp_path / "nan.las", n=10)
     patch(w.path, _X_SCALE, "<d", float("nan"))
-    assert any("scale" in note for note in read_info(w.path).notes)
+    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
+        read_info(w.path)
+    assert_names(exc, w.path)
     with pytest.raises(InputFileError, match="non-finite x") as exc:
         list(iter_points(w.path))
+    assert_names(exc, w.path)
+
+
+def test_a_zero_scale_factor_is_an_error_not_a_collapsed_axis(tmp_path: Path) -> None:
+    w = write_las(tmp_path / "flat.las", n=10)
+    patch(w.path, _X_SCALE, "<d", 0.0)  # every x would be the offset
+    with pytest.raises(InputFileError, match=r"unusable scale factors \(0\.0, 0\.01, 0\.01\)") as exc:
+        read_info(w.path)
     assert_names(exc, w.path)
 
 
