@@ -21,9 +21,10 @@ True
 from __future__ import annotations
 
 import glob
+import math
 import os
 import struct
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -33,6 +34,7 @@ import laspy
 import numpy as np
 import pyproj
 from laspy import DecompressionSelection
+from numpy.typing import NDArray
 from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
@@ -791,12 +793,45 @@ def iter_points(
     return _iter_points(Path(path), point_filter, _check_chunk_size(chunk_size))
 
 
+def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDArray[np.float64]]:
+    """Stored integers to coordinates, the same float for the same coordinate
+    in every file (whatever its offset).
+
+    ``X * scale + offset`` rounds twice, at offsets that differ from file to
+    file, so one point of two overlapping files can come out an ulp apart
+    and escape duplicate merging.  When the offset is a whole number of
+    scale steps, ``X + offset / scale`` is an exact integer ``k``, and the
+    coordinate is ``k / (1 / scale)`` rounded once: with a scale like 0.01 the
+    float nearest the decimal value itself, whatever the scale of the file.
+    """
+    steps = offset / scale if scale else math.nan
+    if not (math.isfinite(steps) and abs(steps - round(steps)) <= 1e-6 and abs(steps) < 2.0**52 - 2.0**32):
+        return lambda stored: stored * scale + offset  # off the lattice: as the header says
+    shift = float(round(steps))
+    per_unit = 1.0 / scale
+    whole = abs(per_unit - round(per_unit)) <= 1e-9 * abs(per_unit)
+    divisor = float(round(per_unit))
+
+    def decode(stored: NDArray[np.integer]) -> NDArray[np.float64]:
+        values = stored.astype(np.float64)
+        values += shift  # exact: integers below 2**53
+        if whole:
+            values /= divisor
+        else:
+            values *= scale
+        return values
+
+    return decode
+
+
 def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iterator[PointChunk]:
     keep_class: np.ndarray | None = None
     if point_filter.classes is not None:
         keep_class = np.zeros(256, dtype=bool)
         keep_class[sorted(point_filter.classes)] = True
     with _open(path, _POINT_SELECTION) as (reader, size):
+        header = reader.header
+        decoders = [_decoder(float(s), float(o)) for s, o in zip(header.scales, header.offsets)]
         for chunk in _chunks(path, reader, size, chunk_size):
             n = len(chunk)
             keep = np.ones(n, dtype=bool)
@@ -811,8 +846,8 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
                 filtered_class = int(np.count_nonzero(keep & ~in_class))
                 keep &= in_class
             xyz = []
-            for axis in "xyz":
-                values = np.asarray(getattr(chunk, axis), dtype=np.float64)[keep]
+            for axis, decode in zip("xyz", decoders):
+                values = decode(np.asarray(getattr(chunk, axis.upper()))[keep])
                 if not np.isfinite(values).all():
                     raise InputFileError(
                         f"{path}: non-finite {axis} coordinate after scaling "

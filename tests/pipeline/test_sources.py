@@ -615,3 +615,49 @@ def test_info_report_and_json(tmp_path: Path) -> None:
     text = info_report([w.path])
     for expected in (str(w.path), "1.4, point format 6, LAZ", "30", "ground", "EPSG:2154", "height (float32)"):
         assert expected in text
+
+
+def _same_points(path: Path, scale: float, offset: tuple[float, float], z_shift: float) -> None:
+    rng = np.random.default_rng(21)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([scale, scale, 0.01])
+    header.offsets = np.array([offset[0], offset[1], 0.0])
+    las = laspy.LasData(header)
+    las.x = 651_000.0 + np.round(rng.uniform(0, 100, 3000), 2)
+    las.y = 6_861_000.0 + np.round(rng.uniform(0, 100, 3000), 2)
+    las.z = np.round(rng.uniform(0, 10, 3000), 2) + z_shift
+    las.write(path)
+
+
+def test_one_coordinate_is_one_float_whatever_the_files_offset_and_scale(tmp_path: Path) -> None:
+    # overlapping strips from different tools: other offsets, other scales
+    layouts = [(0.01, (0.0, 0.0)), (0.01, (651_000.0, 6_861_000.0)), (0.001, (650_000.37, 6_860_999.99)),
+               (0.01, (-123.45, 17.0))]
+    read = []
+    for k, (scale, offset) in enumerate(layouts):
+        _same_points(tmp_path / f"{k}.las", scale, offset, 0.0)
+        chunk = next(iter_points(tmp_path / f"{k}.las", PointFilter(classes=None)))
+        read.append(chunk)
+    for chunk in read[1:]:
+        assert np.array_equal(chunk.x, read[0].x) and np.array_equal(chunk.y, read[0].y)
+    # and it is the float nearest the decimal the file stores
+    assert np.array_equal(read[0].x, np.round(read[0].x, 2)) and np.array_equal(read[2].y, np.round(read[2].y, 2))
+
+
+def test_a_point_in_two_files_of_other_offsets_is_one_vertex(tmp_path: Path) -> None:
+    from pipeline.config import RunConfig
+    from pipeline.runner import run
+
+    folder = tmp_path / "pair"
+    folder.mkdir()
+    _same_points(folder / "a.las", 0.01, (0.0, 0.0), 0.0)
+    _same_points(folder / "b.las", 0.01, (651_000.0, 6_861_000.0), 1.0)  # the same x, y, one metre higher
+    common = dict(resolution=1.0, tile_size=32.0, classes=None, in_crs="EPSG:2154")
+    both = run(RunConfig(inputs=(str(folder),), output=str(tmp_path / "ab.zarr"), **common), progress=False)
+    one = run(RunConfig(inputs=(str(folder / "a.las"),), output=str(tmp_path / "a.zarr"), **common), progress=False)
+    assert both.duplicates == 3000 and both.vertices == one.vertices == 3000
+    import xarray as xr
+
+    np.testing.assert_array_equal(  # the lowest of each pair: file a's
+        xr.open_zarr(tmp_path / "ab.zarr")["elevation"].values, xr.open_zarr(tmp_path / "a.zarr")["elevation"].values
+    )
