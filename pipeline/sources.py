@@ -257,6 +257,8 @@ def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> 
     total = int(header.point_count)
     compressed = bool(header.are_points_compressed)
     available = _records_available(header, size)
+    if total == 0 and available:  # a count never filled in: the records are the truth
+        header.point_count = total = available
     if available is not None and available < total:
         raise InputFileError(
             f"{path}: point data is truncated: the file holds {available:,} of the "
@@ -441,7 +443,10 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
 
     total = int(header.point_count)
     available = _records_available(header, size)
-    if available is not None and available < total:
+    if total == 0 and available:
+        notes.append(f"the header announces no points but the file holds {available:,} point records: all are read")
+        total = available
+    elif available is not None and available < total:
         notes.append(f"point data is truncated: the file holds {available:,} of the {total:,} points announced")
     elif available is not None and available > total:
         notes.append(

@@ -414,6 +414,20 @@ def test_header_count_smaller_than_data_is_a_note_in_the_run_report(tmp_path: Pa
     assert any(note.startswith(f"{w.path}: ") and "300 left out" in note for note in report.notes), report.notes
 
 
+@pytest.mark.parametrize(("version", "point_format"), [("1.2", 3), ("1.4", 6)])
+def test_a_point_count_never_filled_in_reads_every_record(tmp_path: Path, version: str, point_format: int) -> None:
+    w = write_las(tmp_path / "unfilled.las", point_format=point_format, version=version, n=500)
+    patch(w.path, _LEGACY_POINT_COUNT, "<I", 0)
+    if version == "1.4":
+        patch(w.path, _POINT_COUNT_14, "<Q", 0)
+    info = read_info(w.path)
+    assert info.point_count == 500
+    assert any("announces no points but the file holds 500 point records" in n for n in info.notes), info.notes
+    chunks = list(iter_points(w.path, PointFilter(classes=None), chunk_size=120))
+    assert sum(c.read for c in chunks) == 500
+    assert np.array_equal(np.concatenate([c.x for c in chunks]), w.x[~w.withheld])
+
+
 def test_evlrs_after_the_points_are_not_counted_as_records(tmp_path: Path) -> None:
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.add_crs(pyproj.CRS("EPSG:2154"))
