@@ -391,7 +391,15 @@ def _execute(
         raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
     tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
     grid = TileGrid.covering(bounds, config.resolution, tile_cells)
-    check_cells(grid, config.max_cells)
+    try:
+        check_cells(grid, config.max_cells)
+    except UsageError as exc:  # say which file spans the most: a wrong CRS or header shows up here
+        spans = [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
+        widest = int(np.argmax(spans))
+        b = file_bounds[widest]
+        raise UsageError(
+            f"{exc}; the widest input is {paths[widest]}: x {b[0]:.2f} .. {b[2]:.2f}, y {b[1]:.2f} .. {b[3]:.2f}"
+        ) from None
     report.tiles = grid.n_tiles
     say(f"{len(paths)} file(s), grid {grid.nx} x {grid.ny} cells, {grid.n_rows} x {grid.n_cols} tiles")
 

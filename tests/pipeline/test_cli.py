@@ -126,3 +126,18 @@ def test_a_full_disk_is_one_line_exit_1_and_resumable(survey, tmp_path, capsys, 
     monkeypatch.setattr(store, "write_tile", real)
     assert _run(survey, out, "--no-progress") == 0
     assert "resumed" in capsys.readouterr().out
+
+
+def test_a_dem_above_max_cells_names_the_widest_input(tmp_path, capsys):
+    folder = tmp_path / "pair"
+    small, wide = write_survey(folder, SurveySpec(points=4_000, files=2, width=100.0, height=50.0, seed=2))
+    import laspy  # stretch one file's points (and header) tenfold east: a wrong header or CRS looks like this
+
+    las = laspy.read(wide)
+    las.x = las.x.min() + (las.x - las.x.min()) * 10
+    las.write(wide)
+    code = main(["run", str(folder), "-o", str(tmp_path / "o.zarr"), "--resolution", "1", "--max-cells", "10000",
+                 "--no-progress"])
+    assert code == 2
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("terrain: error")]
+    assert "above max_cells=10,000" in line and f"the widest input is {wide}: x " in line
