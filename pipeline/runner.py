@@ -25,7 +25,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -358,6 +358,8 @@ def _execute(
     from .crs import resolve_crs
     from .sources import discover_inputs, read_info, with_measured_bounds
 
+    # absolute: tasks on a cluster's workers run in other folders
+    config = replace(config, output=os.path.abspath(config.output))
     show = sys.stderr.isatty() if progress is None else progress
     say = log or (lambda message: None)
     report = RunReport()

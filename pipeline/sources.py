@@ -94,8 +94,8 @@ def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike
     Returns
     -------
     list of Path
-        Unique files (duplicates, including the same file reached twice, are
-        dropped), sorted by their path.
+        Unique files as absolute paths (duplicates, including the same file
+        reached twice, are dropped), sorted by their path.
 
     Raises
     ------
@@ -120,7 +120,8 @@ def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike
     for item in inputs:
         text = os.fspath(item)
         for path in _expand_one(text):
-            found.setdefault(os.path.realpath(path), path)
+            # absolute: workers elsewhere (a cluster) and later runs from another folder see the same file
+            found.setdefault(os.path.realpath(path), Path(os.path.abspath(path)))
     return sorted(found.values(), key=lambda p: p.as_posix())
 
 

@@ -106,6 +106,20 @@ def test_a_complete_store_is_left_alone(survey, reference):
     assert {p: p.stat().st_mtime_ns for p in Path(reference).rglob("*") if p.is_file()} == before
 
 
+def test_paths_typed_from_another_folder_are_the_same_job(survey, reference, tmp_path, monkeypatch):
+    # relative paths are made absolute: a rerun from elsewhere (or a worker
+    # on a cluster, in its own folder) sees the same files and store
+    monkeypatch.chdir(survey.parent)
+    out = tmp_path / "rel.zarr"
+    run_module.run(_config(Path(survey.name), os.path.relpath(out)), progress=False)
+    monkeypatch.chdir(tmp_path)
+    report = run_module.run(_config(Path(os.path.relpath(survey)), out.name), progress=False)
+    assert any("already complete" in note for note in report.notes)
+    inputs = store.read_attrs(out)["provenance"]["inputs"]
+    assert inputs and all(Path(i["path"]).is_absolute() for i in inputs)
+    assert_same_store(out, reference)
+
+
 def test_other_parameters_are_an_error_naming_them(survey, reference):
     with pytest.raises(UsageError, match=r"other parameters \(triangle_measure: 's3' -> 's1'"):
         run_module.run(_config(survey, reference, triangle_measure="s1"), progress=False)
