@@ -18,29 +18,33 @@ from .checkpoint import WorkDir, load_array
 from .tiles import held_box, hull_near
 from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
 
-__all__ = ["forget_changed_inputs", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
+__all__ = ["forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
+
+
+def same_input(old: dict[str, Any], item: dict[str, Any], routed: dict[str, Any] | None) -> bool:
+    """Whether input ``item`` (path, size, mtime) is the file ``old`` of the
+    last run: the same size and time stamp, or a file only touched (the same
+    size and SHA-256 as its routing record ``routed``, when there is one)."""
+    from .sources import file_digest
+
+    if (old["size"], old["mtime"]) == (item["size"], item["mtime"]):
+        return True
+    return routed is not None and old["size"] == item["size"] and routed.get("sha256") == file_digest(item["path"])
 
 
 def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> list[tuple]:
     """Drop the spilled points and records of inputs that changed or went away,
     renumber the spill files of the others to their new place in the input
     list, and return the regions (boxes) whose points changed."""
-    from .sources import file_digest
-
     old_index = {i["path"]: k for k, i in enumerate(before)}
     regions: list[tuple] = []
     keep: dict[int, int] = {}  # old index -> new index
     for k, item in enumerate(now):
         j = old_index.get(item["path"])
-        if j is not None:
-            old = before[j]
-            rec = work.recorded("route", f"{j:06d}")
-            same = (old["size"], old["mtime"]) == (item["size"], item["mtime"])
-            if not same and rec is not None and old["size"] == item["size"]:
-                same = rec.get("sha256") == file_digest(item["path"])  # touched, not changed
-            if same and rec is not None:
-                keep[j] = k
-                continue
+        routed = None if j is None else work.recorded("route", f"{j:06d}")
+        if j is not None and routed is not None and same_input(before[j], item, routed):
+            keep[j] = k
+            continue
         if item.get("bounds"):
             regions.append(tuple(item["bounds"]))
     for j, old in enumerate(before):

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .config import RunConfig
-from .errors import UsageError
+from .errors import InputFileError, UsageError
 
 __all__ = ["Workflow", "run_workflow", "workflow_status"]
 
@@ -106,6 +106,7 @@ def run_workflow(workflow: Workflow, *, progress: bool | None = None, log: Calla
 def workflow_status(workflow: Workflow) -> dict[str, Any]:
     """Last run, files known, and what the next run would do."""
     from . import store
+    from .changes import same_input
     from .checkpoint import WorkDir, work_dir_for
     from .sources import discover_inputs
 
@@ -125,18 +126,22 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
         )
     try:
         current = [str(p) for p in discover_inputs(cfg.inputs)]
-    except UsageError as exc:
+    except (UsageError, InputFileError) as exc:  # shown as a row: inputs may not be there yet
         status.update(inputs_error=str(exc))
         current = []
-    before = {i["path"]: i for i in (attrs or {}).get("provenance", {}).get("inputs", [])}
+    known = (attrs or {}).get("provenance", {}).get("inputs", [])
+    before = {i["path"]: i for i in known}
+    index = {i["path"]: k for k, i in enumerate(known)}
+    work = WorkDir(work_dir_for(cfg.output, cfg.scratch_dir))
     new = [p for p in current if p not in before]
     gone = [p for p in before if p not in set(current)]
     changed = []
     for p in current:
-        old = before.get(p)
-        if old is not None:
+        if p in before:
             st = Path(p).stat()
-            if (st.st_size, st.st_mtime) != (old.get("size"), old.get("mtime")):
+            item = {"path": p, "size": st.st_size, "mtime": st.st_mtime}
+            routed = work.recorded("route", f"{index[p]:06d}") if work.exists() else None
+            if not same_input(before[p], item, routed):  # as the run decides: a touched file is the same
                 changed.append(p)
     status.update(new_files=new, changed_files=changed, removed_files=gone)
     if attrs is None:
@@ -145,7 +150,6 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     done = store.tiles_done(cfg.output)
     pending = int(done.size - done.sum()) if not attrs.get("complete") else 0
     if new or changed or gone:
-        work = WorkDir(work_dir_for(cfg.output, cfg.scratch_dir))
         status["tiles_pending"] = _pending_after_changes(attrs, work, new + changed, gone, before, done.shape)
     else:
         status["tiles_pending"] = pending

@@ -105,15 +105,21 @@ def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
     settled = _chunk_times(workflow.config.output)
     stamp = time.time() + 5
     os.utime(archive / "patch_c.laz", (stamp, stamp))
+    status = workflow_status(workflow)  # status decides as the run does
+    assert status["changed_files"] == [] and status["tiles_pending"] == 0
     report = run_workflow(workflow, progress=False)
     assert any("0 of" in note for note in report.notes), report.notes
     assert _chunk_times(workflow.config.output) == settled
     assert_same_store(Path(workflow.config.output), tmp_path / "full.zarr")
 
 
-def test_cli_workflow_run_and_status(job, capsys):
+def test_cli_workflow_run_and_status(job, capsys, tmp_path):
     assert main(["workflow", "status", str(job)]) == 0
     assert "never run" in capsys.readouterr().out
+    early = tmp_path / "early.toml"  # a job whose archive is not there yet: a status, not an error
+    early.write_text(JOB.replace("archive/*.laz", "later/*.laz"))
+    assert main(["workflow", "status", str(early)]) == 0
+    assert "later/*.laz: no .las/.laz file matches this pattern" in capsys.readouterr().out
     assert main(["workflow", "run", str(job), "--no-progress"]) == 0
     assert "points read" in capsys.readouterr().out
     assert main(["workflow", "status", str(job), "--json"]) == 0
