@@ -263,6 +263,54 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     return counts
 
 
+def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, Any]]]:
+    """The inputs' paths and header information (bounds measured from the
+    points where the header's are unusable), and with ``skip_bad_files`` the
+    files left out and why."""
+    from .sources import discover_inputs, read_info, with_measured_bounds
+
+    paths, infos, skipped = [], [], []
+    for p in discover_inputs(config.inputs):
+        try:
+            info = read_info(p)
+            if info.point_count and not info.bounds_usable:  # the grid needs them
+                info = with_measured_bounds(info)
+        except InputFileError as exc:
+            if not config.skip_bad_files:
+                raise
+            skipped.append({"path": str(p), "reason": str(exc), "points": None})
+            continue
+        infos.append(info)
+        paths.append(p)
+    if not paths:
+        raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in skipped))
+    return paths, infos, skipped
+
+
+def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, float, list]:
+    """The grid, the extent and the buffer of a job over these inputs (and the
+    files' bounds in the target CRS): what a run fixes before reading points."""
+    file_bounds = [_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)]
+    bounds = _union_bounds(file_bounds)
+    if config.bbox is not None:
+        b = config.bbox
+        bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
+    if not all(math.isfinite(v) for v in bounds) or bounds[0] > bounds[2] or bounds[1] > bounds[3]:
+        raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
+    tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
+    grid = TileGrid.covering(bounds, config.resolution, tile_cells)
+    try:
+        check_cells(grid, config.max_cells)
+    except UsageError as exc:  # say which file spans the most: a wrong CRS or header shows up here
+        spans = [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
+        widest = int(np.argmax(spans))
+        b = file_bounds[widest]
+        raise UsageError(
+            f"{exc}; the widest input is {paths[widest]}: x {b[0]:.2f} .. {b[2]:.2f}, y {b[1]:.2f} .. {b[3]:.2f}"
+        ) from None
+    return grid, bounds, buffer, file_bounds
+
+
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
     """A file's header bounds in the target CRS (None for an empty file)."""
     from pyproj import CRS, Transformer
@@ -356,7 +404,6 @@ def _execute(
 ) -> RunReport:
     from . import store
     from .crs import resolve_crs
-    from .sources import discover_inputs, read_info, with_measured_bounds
 
     # absolute: tasks on a cluster's workers run in other folders
     config = replace(config, output=os.path.abspath(config.output))
@@ -366,42 +413,12 @@ def _execute(
     t_start = time.perf_counter()
 
     t0 = time.perf_counter()
-    paths, infos = [], []
-    for p in discover_inputs(config.inputs):
-        try:
-            info = read_info(p)
-            if info.point_count and not info.bounds_usable:  # the grid needs them
-                info = with_measured_bounds(info)
-        except InputFileError as exc:
-            if not config.skip_bad_files:
-                raise
-            report.skipped_files.append({"path": str(p), "reason": str(exc), "points": None})
-            continue
-        infos.append(info)
-        paths.append(p)
+    paths, infos, report.skipped_files = read_headers(config)
+    for p, info in zip(paths, infos):
         report.notes.extend(f"{p}: {note}" for note in info.notes)
-    if not paths:
-        raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in report.skipped_files))
     plan = resolve_crs(infos, config.in_crs, config.out_crs)
     report.notes.extend(plan.notes)
-    file_bounds = [_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)]
-    bounds = _union_bounds(file_bounds)
-    if config.bbox is not None:
-        b = config.bbox
-        bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
-    if not all(math.isfinite(v) for v in bounds) or bounds[0] > bounds[2] or bounds[1] > bounds[3]:
-        raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
-    tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
-    grid = TileGrid.covering(bounds, config.resolution, tile_cells)
-    try:
-        check_cells(grid, config.max_cells)
-    except UsageError as exc:  # say which file spans the most: a wrong CRS or header shows up here
-        spans = [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
-        widest = int(np.argmax(spans))
-        b = file_bounds[widest]
-        raise UsageError(
-            f"{exc}; the widest input is {paths[widest]}: x {b[0]:.2f} .. {b[2]:.2f}, y {b[1]:.2f} .. {b[3]:.2f}"
-        ) from None
+    grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, plan)
     report.tiles = grid.n_tiles
     say(f"{len(paths)} file(s), grid {grid.nx} x {grid.ny} cells, {grid.n_rows} x {grid.n_cols} tiles")
 

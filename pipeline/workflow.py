@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .config import RunConfig
-from .errors import InputFileError, UsageError
+from .errors import InputFileError, PipelineError, UsageError
 
 __all__ = ["Workflow", "run_workflow", "workflow_status"]
 
@@ -149,12 +149,29 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
         return status
     done = store.tiles_done(cfg.output)
     pending = int(done.size - done.sum()) if not attrs.get("complete") else 0
-    if new or changed or gone:
+    if (new or changed or gone) and _frame_changes(cfg, attrs["provenance"]):
+        status["tiles_pending"] = "all (the grid, extent or buffer changes)"
+    elif new or changed or gone:
         status["tiles_pending"] = _pending_after_changes(attrs, work, new + changed, gone, before, done.shape)
     else:
         status["tiles_pending"] = pending
     status["tiles_total"] = int(done.size)
     return status
+
+
+def _frame_changes(config: RunConfig, provenance: dict[str, Any]) -> bool:
+    """Whether the next run's grid, extent or buffer differ from the store's
+    (the run then computes every tile again)."""
+    from .crs import resolve_crs
+    from .runner import job_frame, read_headers
+
+    try:
+        paths, infos, _ = read_headers(config)
+        grid, bounds, buffer, _ = job_frame(config, paths, infos, resolve_crs(infos, config.in_crs, config.out_crs))
+    except PipelineError:  # the run will say what is wrong
+        return False
+    now = {"grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer}
+    return any(provenance.get(k) != v for k, v in now.items())
 
 
 def _pending_after_changes(attrs, work, touched: list[str], gone: list[str], before, shape) -> int | str:

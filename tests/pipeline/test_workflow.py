@@ -157,3 +157,15 @@ def test_unset_variables_in_paths_are_named(tmp_path, monkeypatch):
     job.write_text("[workflow]\ninputs = ['$NO_SUCH_VARIABLE/x']\noutput = 'o.zarr'\n[run]\nresolution = 1\n")
     with pytest.raises(UsageError, match="NO_SUCH_VARIABLE.*not set"):
         Workflow.load(job)
+
+
+def test_status_sees_a_new_file_that_moves_the_grid(job, tmp_path):
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    _patch(tmp_path / "archive", "beyond", (260.0, 40.0), seed=5)  # east of the old extent
+    status = workflow_status(workflow)
+    assert status["new_files"] == [str(tmp_path / "archive" / "beyond.laz")]
+    assert str(status["tiles_pending"]).startswith("all")
+    report = run_workflow(workflow, progress=False)
+    assert any("grid, extent or buffer changed" in note for note in report.notes), report.notes
+    assert workflow_status(workflow)["tiles_pending"] == 0
