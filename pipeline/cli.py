@@ -28,11 +28,31 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _parser() -> argparse.ArgumentParser:
+def _positive_count(text: str) -> int:
+    """A positive integer, also written as a float: 4e9 as the help shows it."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}") from None
+    if not value.is_integer() or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return int(value)
+
+
+def _common_flags(**defaults) -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("-v", "--verbose", action="count", default=0, help="more detail, and tracebacks of errors")
-    common.add_argument("-q", "--quiet", action="store_true", help="print errors only")
-    common.add_argument("--log-json", action="store_true", help="log JSON lines on stderr (for schedulers)")
+    common.add_argument("-v", "--verbose", action="count", default=defaults["verbose"],
+                        help="more detail, and tracebacks of errors")
+    common.add_argument("-q", "--quiet", action="store_true", default=defaults["quiet"], help="print errors only")
+    common.add_argument("--log-json", action="store_true", default=defaults["log_json"],
+                        help="log JSON lines on stderr (for schedulers)")
+    return common
+
+
+def _parser() -> argparse.ArgumentParser:
+    common = _common_flags(verbose=0, quiet=False, log_json=False)
+    # a sub-command's own defaults would undo the flags given before it
+    nested = _common_flags(verbose=argparse.SUPPRESS, quiet=argparse.SUPPRESS, log_json=argparse.SUPPRESS)
     parser = argparse.ArgumentParser(
         prog="terrain",
         description="Combined triangle/quad terrain meshes and DEMs from point clouds.",
@@ -94,7 +114,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3; 2 for GDAL 3.6)")
     run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
-    run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
+    run.add_argument("--max-cells", type=_positive_count, help="refuse a DEM above this many cells (default 4e9)")
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
     run.add_argument("--skip-bad-files", action="store_true", default=None,
                      help="skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")
@@ -119,10 +139,10 @@ def _parser() -> argparse.ArgumentParser:
         "removed files; 'status' says what the last run did and what the next one would do.",
     )
     wf_sub = wf.add_subparsers(dest="action", required=True, metavar="ACTION")
-    wf_run = wf_sub.add_parser("run", parents=[common], help="bring the workflow's store up to date")
+    wf_run = wf_sub.add_parser("run", parents=[nested], help="bring the workflow's store up to date")
     wf_run.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_run.add_argument("--no-progress", action="store_true", help="no progress bar")
-    wf_status = wf_sub.add_parser("status", parents=[common], help="last run, files known, tiles pending")
+    wf_status = wf_sub.add_parser("status", parents=[nested], help="last run, files known, tiles pending")
     wf_status.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_status.add_argument("--json", action="store_true", help="print JSON")
 

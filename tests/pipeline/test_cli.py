@@ -141,3 +141,21 @@ def test_a_dem_above_max_cells_names_the_widest_input(tmp_path, capsys):
     assert code == 2
     (line,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("terrain: error")]
     assert "above max_cells=10,000" in line and f"the widest input is {wide}: x " in line
+
+
+def test_common_flags_before_a_workflow_action_count(tmp_path, capsys):
+    missing = str(tmp_path / "missing.toml")
+    assert main(["workflow", "--log-json", "status", missing]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert json.loads(line)["message"].endswith("cannot read the workflow file (No such file or directory)")
+    assert main(["workflow", "status", "--log-json", missing]) == 2  # after the action too
+    assert json.loads(capsys.readouterr().err.strip().splitlines()[-1])["level"] == "error"
+
+
+def test_max_cells_takes_the_notation_its_help_shows():
+    from pipeline.cli import _parser
+
+    args = _parser().parse_args(["run", "a.laz", "-o", "o.zarr", "--resolution", "1", "--max-cells", "4e9"])
+    assert args.max_cells == 4_000_000_000
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["run", "a.laz", "-o", "o.zarr", "--resolution", "1", "--max-cells", "2.5"])
