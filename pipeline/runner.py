@@ -160,6 +160,12 @@ def _client(config: RunConfig):
     return Client(cluster), cluster
 
 
+def _close(client, cluster) -> None:
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
 def _map(
     client,
     fn: Callable,
@@ -455,37 +461,42 @@ def _execute(
         done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
         done.notes.append("the store was already complete: nothing was recomputed")
         return done
-    if previous is None:
-        store.create_store(
-            config.output,
-            spec,
-            plan.target_wkt,
-            layers=config.layers,
-            attrs={"provenance": provenance, "complete": False},
-            zarr_format=config.zarr_format,
-            overwrite=config.overwrite or incremental,
-        )
-        work.reset()
-    elif not work.exists():
-        # the intermediate files are gone: every stage runs again
-        store.reset_tiles_done(config.output)
-        work.reset()
-        report.notes.append("the work folder was missing: every tile was computed again")
-    elif not same_inputs:
-        changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
-        tiles = tiles_depending_on(work, grid, changed)
-        forget_tiles(work, config.output, grid, tiles)
-        report.notes.append(
-            f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again"
-        )
-        store.finalize_store(config.output, {"provenance": provenance, "complete": False})
-    else:
-        say(f"{config.output}: resuming an unfinished run")
-        report.notes.append("resumed an unfinished run: finished work was kept")
-    report.stages["scan"] = time.perf_counter() - t0
+    # the cluster first: an unreachable scheduler leaves no store and no work folder behind
+    client, cluster = _client(config)
+    try:
+        if previous is None:
+            store.create_store(
+                config.output,
+                spec,
+                plan.target_wkt,
+                layers=config.layers,
+                attrs={"provenance": provenance, "complete": False},
+                zarr_format=config.zarr_format,
+                overwrite=config.overwrite or incremental,
+            )
+            work.reset()
+        elif not work.exists():
+            # the intermediate files are gone: every stage runs again
+            store.reset_tiles_done(config.output)
+            work.reset()
+            report.notes.append("the work folder was missing: every tile was computed again")
+        elif not same_inputs:
+            changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
+            tiles = tiles_depending_on(work, grid, changed)
+            forget_tiles(work, config.output, grid, tiles)
+            report.notes.append(
+                f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again"
+            )
+            store.finalize_store(config.output, {"provenance": provenance, "complete": False})
+        else:
+            say(f"{config.output}: resuming an unfinished run")
+            report.notes.append("resumed an unfinished run: finished work was kept")
+        report.stages["scan"] = time.perf_counter() - t0
+    except BaseException:
+        _close(client, cluster)
+        raise
 
     scratch = work.path
-    client, cluster = _client(config)
     try:
         t0 = time.perf_counter()
         counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
@@ -601,9 +612,7 @@ def _execute(
         _write_mesh(client, config, grid, work, tile_jobs, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        _close(client, cluster)
 
     report.stages["total"] = time.perf_counter() - t_start
     store.finalize_store(

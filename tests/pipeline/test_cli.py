@@ -159,3 +159,10 @@ def test_max_cells_takes_the_notation_its_help_shows():
     assert args.max_cells == 4_000_000_000
     with pytest.raises(SystemExit):
         _parser().parse_args(["run", "a.laz", "-o", "o.zarr", "--resolution", "1", "--max-cells", "2.5"])
+
+
+def test_an_unreachable_scheduler_leaves_nothing_behind(survey, tmp_path, capsys):
+    out = tmp_path / "e.zarr"
+    assert _run(survey, out, "--no-progress", "--scheduler", "tcp://127.0.0.1:1") == 2
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:1" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / ".e.zarr.work").exists()
