@@ -227,14 +227,16 @@ def _demo(args: argparse.Namespace) -> int:
     from .config import RunConfig
     from .preview import render_preview
     from .runner import run
+    from .sources import read_info
     from .synthetic import demo_spec, write_survey
 
     out, points = args.out, args.points
     spec = demo_spec(points)
     survey = out / "survey"
     paths = write_survey(survey, spec)
+    written = sum(read_info(p).point_count for p in paths)  # none fall in the lake
     LOGGER.info(
-        f"wrote {len(paths)} overlapping LAZ strips ({points:,} points, {spec.crs}: hills, a valley with a "
+        f"wrote {len(paths)} overlapping LAZ strips ({written:,} points, {spec.crs}: hills, a valley with a "
         f"lake, {spec.buildings} buildings, {spec.trees} trees) to {survey}"
     )
     config = RunConfig(

@@ -160,6 +160,10 @@ def render_preview(
             raise UsageError(f"--window must be xmin,ymin,xmax,ymax with min < max, got {window}")
         ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="red", linewidth=1.5))
         polys, quads = _window_faces(str(store_path), window)
+        if polys.shape[0] == 0:
+            plt.close(fig)
+            raise UsageError(f"--window {window} meets no face of the mesh (its extent: x {extent[0]:g} .. "
+                             f"{extent[1]:g}, y {extent[2]:g} .. {extent[3]:g})")
         if polys.shape[0] > MAX_MESH_FACES:
             plt.close(fig)
             raise UsageError(

@@ -46,4 +46,7 @@ def test_refusals_are_one_line_errors(store, tmp_path, capsys):
     assert main(["preview", str(store), "-o", str(tmp_path / "c.png"), "--window", "651000,6861000,651200,6861150"]) == 2
     assert "too many to draw" in capsys.readouterr().err
     assert main(["preview", str(store), "-o", str(tmp_path / "d.png"), "--window", "1,2,3"]) == 2
+    assert main(["preview", str(store), "-o", str(tmp_path / "f.png"), "--window", "0,0,10,10"]) == 2
+    assert "meets no face of the mesh" in capsys.readouterr().err
+    assert not (tmp_path / "f.png").exists()
     assert main(["preview", str(tmp_path / "nothing.zarr"), "-o", str(tmp_path / "e.png")]) == 2
