@@ -50,11 +50,13 @@ def _angle_score(ux: float, uy: float, vx: float, vy: float) -> float:
     lv = math.sqrt(vx * vx + vy * vy)
     if lu == 0.0 or lv == 0.0:
         return 0.0
-    inv = 1.0 / (lu * lv)
-    cos_t = (ux * vx + uy * vy) * inv
-    if cos_t >= 0.0:
-        return abs(ux * vy - uy * vx) * inv
-    return max(1.0 + cos_t, 0.0)
+    luv = lu * lv
+    dot = ux * vx + uy * vy
+    cross = ux * vy - uy * vx
+    if dot >= 0.0:
+        return abs(cross) / luv
+    # 1 + cos = sin^2 / (1 - cos): no cancellation as theta nears 180 deg
+    return cross * cross / (luv * (luv - dot))
 
 
 @njit

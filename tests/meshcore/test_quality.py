@@ -140,3 +140,14 @@ def test_s3_quick_estimate_says_below_only_when_the_kernel_agrees():
             assert not below or exact < limit
             said_below += below and limit == exact * (1 + 1e-6)
     assert said_below > 1000  # the quick test settles the common case
+
+
+@pytest.mark.parametrize("h", [1e-3, 1e-6, 1e-9, 1e-12])
+def test_angles_near_180_degrees_keep_their_precision(h):
+    # the apex angle is pi - 2 atan(2h): 1 + cos = 2 sin^2(atan 2h) = 8h^2 / (1 + 4h^2),
+    # which 1 + cos(theta) computed directly loses to cancellation from about 179.99 deg
+    exact = 2 / math.sqrt(3) * 8 * h * h / (1 + 4 * h * h)
+    assert float(s1([[0.0, 0.0], [1.0, 0.0], [0.5, h]])) == pytest.approx(exact, rel=1e-9, abs=0.0)
+    # a quadrangle with a near-straight corner at (1, h): pi - 2 atan(h), S2 = 1 + cos there
+    quad = [[0.0, 0.0], [1.0, -1.0], [2.0, 0.0], [1.0, h]]
+    assert float(s2(quad)) == pytest.approx(2 * h * h / (1 + h * h), rel=1e-9, abs=0.0)
