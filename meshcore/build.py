@@ -291,7 +291,11 @@ def build_mesh(
         are not inside it are returned as ``mesh.window_escapes`` ``(k, 3)``
         (centre x, centre y, radius), for every Delaunay triangle that meets
         the window: the piece is the global mesh's piece unless a point the
-        caller did not pass lies inside one of these circles.
+        caller did not pass lies inside one of these circles.  Beyond the
+        convex hull of ``xy`` there are no triangles and so no circles: where
+        the window reaches past that hull, ``xy`` must also hold the points
+        of the global convex hull there (a tiled run adds them to every
+        tile), else global triangles there are missing without an escape.
 
     Returns
     -------
