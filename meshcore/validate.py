@@ -148,7 +148,11 @@ def convex_hull(x: ArrayLike, y: ArrayLike) -> NDArray[np.int64]:
     cx = x[candidates]
     cy = y[candidates]
     order = np.lexsort((cy, cx)).astype(np.int64)
-    return candidates[_hull_kernel(cx, cy, order)]
+    hull = candidates[_hull_kernel(cx, cy, order)]
+    # each index once: the chain closes on a repeated point, and a collinear
+    # set's chain runs out and back
+    _, first = np.unique(hull, return_index=True)
+    return hull[np.sort(first)]
 
 
 def _fail(message: str) -> None:

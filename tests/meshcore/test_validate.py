@@ -113,6 +113,17 @@ def test_convex_hull_matches_qhull_and_keeps_points_on_hull_edges():
     assert sorted(meshcore.convex_hull(square[:, 0], square[:, 1]).tolist()) == [0, 1, 2, 3, 4]
 
 
+def test_convex_hull_lists_each_point_once():
+    # a repeated corner: both indices, once each, side by side
+    assert meshcore.convex_hull([0.0, 1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0, 0.0]).tolist() == [0, 4, 1, 2, 3]
+    # a collinear set is its segment, from one end to the other
+    assert meshcore.convex_hull([0.0, 1.0, 2.0, 3.0], [0.0, 1.0, 2.0, 3.0]).tolist() == [0, 1, 2, 3]
+    rng = np.random.default_rng(3)  # many repeats, past the filter's threshold
+    xy = np.repeat(rng.integers(0, 5, size=(40, 2)).astype(float), 3, axis=0)
+    hull = meshcore.convex_hull(xy[:, 0], xy[:, 1])
+    assert len(set(hull.tolist())) == len(hull)
+
+
 @pytest.mark.parametrize("x, y, message", [([0.0, np.nan, 1.0], [0.0, 1.0, 1.0], "finite"), ([0.0, 1.0], [0.0], "one length")])
 def test_convex_hull_rejects_bad_coordinates(x, y, message):
     with pytest.raises(meshcore.InvalidInputError, match=message):
