@@ -13,6 +13,7 @@ and rasterization.  No I/O.
 
 from __future__ import annotations
 
+from ._jit import drop_stale_kernels
 from ._order import lexicographic_order
 from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
@@ -24,6 +25,8 @@ from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
 from .validate import convex_hull, validate
+
+drop_stale_kernels()
 
 __version__ = "0.1.0"
 
