@@ -811,11 +811,13 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
     float nearest the decimal value itself, whatever the scale of the file.
     """
     steps = offset / scale if scale else math.nan
-    if not (math.isfinite(steps) and abs(steps - round(steps)) <= 1e-6 and abs(steps) < 2.0**52 - 2.0**32):
+    # offset / scale is off a whole number by its own rounding at most (a few ulps of it)
+    on_lattice = math.isfinite(steps) and abs(steps - round(steps)) <= max(1e-6, 8.0 * math.ulp(steps))
+    if not (on_lattice and abs(steps) < 2.0**52 - 2.0**32):
         return lambda stored: stored * scale + offset  # off the lattice: as the header says
     shift = float(round(steps))
     per_unit = 1.0 / scale
-    whole = abs(per_unit - round(per_unit)) <= 1e-9 * abs(per_unit)
+    whole = abs(per_unit - round(per_unit)) <= 4.0 * math.ulp(per_unit)  # 1 / 0.01, not 1 / 0.010000000009
     divisor = float(round(per_unit))
 
     def decode(stored: NDArray[np.integer]) -> NDArray[np.float64]:
@@ -837,7 +839,10 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
         keep_class[sorted(point_filter.classes)] = True
     with _open(path, _POINT_SELECTION) as (reader, size):
         header = reader.header
-        decoders = [_decoder(float(s), float(o)) for s, o in zip(header.scales, header.offsets)]
+        scales = tuple(float(s) for s in header.scales)
+        if header.point_count and not all(math.isfinite(s) and s != 0 for s in scales):
+            raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
+        decoders = [_decoder(s, float(o)) for s, o in zip(scales, header.offsets)]
         for chunk in _chunks(path, reader, size, chunk_size):
             n = len(chunk)
             keep = np.ones(n, dtype=bool)

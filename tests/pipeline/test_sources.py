@@ -495,7 +495,7 @@ def test_non_finite_coordinates(tmp_path: Path) -> None:
     with pytest.raises(InputFileError, match="unusable scale factors") as exc:
         read_info(w.path)
     assert_names(exc, w.path)
-    with pytest.raises(InputFileError, match="non-finite x") as exc:
+    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
         list(iter_points(w.path))
     assert_names(exc, w.path)
 
@@ -505,6 +505,9 @@ def test_a_zero_scale_factor_is_an_error_not_a_collapsed_axis(tmp_path: Path) ->
     patch(w.path, _X_SCALE, "<d", 0.0)  # every x would be the offset
     with pytest.raises(InputFileError, match=r"unusable scale factors \(0\.0, 0\.01, 0\.01\)") as exc:
         read_info(w.path)
+    assert_names(exc, w.path)
+    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
+        list(iter_points(w.path))
     assert_names(exc, w.path)
 
 
@@ -646,7 +649,7 @@ def _same_points(path: Path, scale: float, offset: tuple[float, float], z_shift:
 def test_one_coordinate_is_one_float_whatever_the_files_offset_and_scale(tmp_path: Path) -> None:
     # overlapping strips from different tools: other offsets, other scales
     layouts = [(0.01, (0.0, 0.0)), (0.01, (651_000.0, 6_861_000.0)), (0.001, (650_000.37, 6_860_999.99)),
-               (0.01, (-123.45, 17.0))]
+               (0.01, (-123.45, 17.0)), (1e-4, (651_034.5678, 6_861_060.5944)), (1e-7, (650_999.1234567, 6_860_999.7654321))]
     read = []
     for k, (scale, offset) in enumerate(layouts):
         _same_points(tmp_path / f"{k}.las", scale, offset, 0.0)
