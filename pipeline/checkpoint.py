@@ -45,11 +45,11 @@ def work_dir_for(output: str, scratch_dir: str | None) -> Path:
     """``.NAME.work`` beside the store, or ``.NAME-HASH.work`` inside
     ``scratch_dir`` when given (HASH of the store's path: two stores of one
     name in different folders may share a scratch folder)."""
-    out = Path(output).absolute()
+    out = Path(os.path.abspath(output))  # normalised: "a/../b.zarr" and "b.zarr" are one store
     if not scratch_dir:
         return out.parent / f".{out.name}.work"
     digest = hashlib.sha1(os.fsencode(out)).hexdigest()[:10]
-    return Path(scratch_dir).absolute() / f".{out.name}-{digest}.work"
+    return Path(os.path.abspath(scratch_dir)) / f".{out.name}-{digest}.work"
 
 
 class WorkDir:

@@ -75,6 +75,14 @@ def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monk
     assert not (tmp_path / ".dem.zarr.work").exists()
 
 
+def test_one_store_spelt_two_ways_has_one_work_folder(tmp_path):
+    from pipeline.checkpoint import work_dir_for
+
+    for scratch in (None, str(tmp_path / "scratch")):
+        spelt = work_dir_for(str(tmp_path / "jobs" / ".." / "out" / "a.zarr"), scratch)
+        assert spelt == work_dir_for(str(tmp_path / "out" / "a.zarr"), scratch)
+
+
 def test_stores_of_one_name_share_a_scratch_folder_without_harm(survey, reference, tmp_path, monkeypatch):
     scratch = tmp_path / "scratch"
     a, b = tmp_path / "a" / "dem.zarr", tmp_path / "b" / "dem.zarr"
