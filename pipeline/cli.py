@@ -10,6 +10,7 @@ from pathlib import Path
 
 from meshcore import MeshError
 
+from .config import positive_integer
 from .errors import OutputWriteError, PipelineError, UsageError
 from .logs import LOGGER, configure
 
@@ -22,21 +23,11 @@ EXIT_INTERRUPTED = 130
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
-    if value <= 0:
+    """A positive integer, also written as a whole float: 4e9 as the help shows it."""
+    value = positive_integer(text)
+    if value is None:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
     return value
-
-
-def _positive_count(text: str) -> int:
-    """A positive integer, also written as a float: 4e9 as the help shows it."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}") from None
-    if not value.is_integer() or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return int(value)
 
 
 def _common_flags(**defaults) -> argparse.ArgumentParser:
@@ -114,7 +105,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3; 2 for GDAL 3.6)")
     run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
-    run.add_argument("--max-cells", type=_positive_count, help="refuse a DEM above this many cells (default 4e9)")
+    run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
     run.add_argument("--skip-bad-files", action="store_true", default=None,
                      help="skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")

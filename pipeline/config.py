@@ -10,6 +10,7 @@ the valid values.
 from __future__ import annotations
 
 import math
+import numbers
 import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from enum import Enum
@@ -50,12 +51,31 @@ def _flag(name: str, value: object) -> bool:
     return value
 
 
+def positive_integer(value: object) -> int | None:
+    """``value`` as a positive integer: an int, a whole float (``4e9``) or
+    their text; None when it is none of these (or a bool)."""
+    if isinstance(value, str):
+        try:
+            value = int(value)
+        except ValueError:
+            try:
+                value = float(value)
+            except ValueError:
+                return None
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
+        return None
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        return None
+    return int(value) if value >= 1 else None
+
+
 def _whole(name: str, value: object, allow_none: bool = False) -> int | None:
     if value is None and allow_none:
         return None
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+    number = None if isinstance(value, str) else positive_integer(value)  # text only on the command line
+    if number is None:
         raise UsageError(f"{name} must be a positive integer, got {value!r}")
-    return value
+    return number
 
 
 #: fields whose default is not None but that accept None, and how a job file says None

@@ -47,6 +47,7 @@ def test_defaults_and_round_trip(tmp_path):
         ({"workers": 0}, "workers must be a positive integer"),
         ({"max_cells": "lots"}, "max_cells must be a positive integer"),
         ({"max_cells": 1.5}, "max_cells must be a positive integer"),
+        ({"max_cells": float("inf")}, "max_cells must be a positive integer"),
         ({"scheduler": 5}, "scheduler must be a string"),
     ],
 )
@@ -65,6 +66,14 @@ def test_none_that_is_not_the_default_survives_a_round_trip(tmp_path, kw):
     job.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in data.items()))  # JSON scalars and lists are TOML
     assert RunConfig.from_toml(job) == cfg
     assert RunConfig.from_dict(data).differences(cfg) == []
+
+
+def test_counts_written_as_whole_floats_are_counts():
+    # TOML and the command line take 4e9 for max_cells, as its help writes it
+    assert base(max_cells=4e9).max_cells == 4_000_000_000 and base(workers=2.0).workers == 2
+    import numpy as np
+
+    assert base(workers=np.int64(3)).workers == 3
 
 
 def test_classes_as_text_and_neutral_differences():
