@@ -317,6 +317,21 @@ def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, f
     return grid, bounds, buffer, file_bounds
 
 
+def _skipped_note(skipped: list) -> str:
+    return f"{len(skipped)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
+
+
+def job_frame_record(grid: TileGrid, bounds, buffer: float) -> dict[str, Any]:
+    """The provenance entries that fix a job's tiles."""
+    return {"grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer}
+
+
+def frame_moved(before: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether two provenances differ in the entries that fix the tiles (every
+    tile is then computed again)."""
+    return any(before.get(k) != now.get(k) for k in ("grid", "extent", "buffer"))
+
+
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
     """A file's header bounds in the target CRS (None for an empty file)."""
     from pyproj import CRS, Transformer
@@ -440,16 +455,12 @@ def _execute(
             for i, b in zip(infos, file_bounds)
         ],
         "crs_wkt": plan.target_wkt,
-        "grid": grid.to_dict(),
-        "extent": list(bounds),
-        "buffer": buffer,
+        **job_frame_record(grid, bounds, buffer),
     }
     spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
     work = WorkDir(work_dir_for(config.output, config.scratch_dir))
     previous = _existing_job(config, provenance, allow_new_inputs=incremental)
-    fresh_frame = previous is not None and any(
-        previous.get("provenance", {}).get(k) != provenance[k] for k in ("grid", "extent", "buffer")
-    )
+    fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
     if incremental and fresh_frame:
         report.notes.append("the grid, extent or buffer changed: every tile was computed again")
         previous = None
@@ -460,6 +471,9 @@ def _execute(
         say(f"{config.output}: already complete; nothing to do")
         done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
         done.notes.append("the store was already complete: nothing was recomputed")
+        done.skipped_files = report.skipped_files  # this run's bad files, not the last run's
+        if report.skipped_files:
+            done.notes.append(_skipped_note(report.skipped_files))
         return done
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
     client, cluster = _client(config)
@@ -533,9 +547,7 @@ def _execute(
                 )
         report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None and "skipped" not in c]
         if report.skipped_files:
-            report.notes.append(
-                f"{len(report.skipped_files)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
-            )
+            report.notes.append(_skipped_note(report.skipped_files))
         hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
         moved = tiles_whose_hull_moved(work, grid, buffer, hull)
         if moved:

@@ -148,49 +148,37 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
         status["tiles_pending"] = "all"
         return status
     done = store.tiles_done(cfg.output)
-    pending = int(done.size - done.sum()) if not attrs.get("complete") else 0
-    if (new or changed or gone) and _frame_changes(cfg, attrs["provenance"]):
-        status["tiles_pending"] = "all (the grid, extent or buffer changes)"
-    elif new or changed or gone:
-        status["tiles_pending"] = _pending_after_changes(attrs, work, new + changed, gone, before, done.shape)
-    else:
-        status["tiles_pending"] = pending
     status["tiles_total"] = int(done.size)
+    if not (new or changed or gone):
+        status["tiles_pending"] = int(done.size - done.sum()) if not attrs.get("complete") else 0
+        return status
+    status["tiles_pending"] = _pending_after_changes(cfg, attrs["provenance"], work, new + changed, gone, before)
     return status
 
 
-def _frame_changes(config: RunConfig, provenance: dict[str, Any]) -> bool:
-    """Whether the next run's grid, extent or buffer differ from the store's
-    (the run then computes every tile again)."""
+def _pending_after_changes(config: RunConfig, provenance, work, touched: list[str], gone: list[str], before) -> int | str:
+    """Tiles the next run would mesh again, decided from the inputs' headers as
+    the run decides: the same grid (else every tile), the same skipped files,
+    and bounds measured where a header's are unusable, in the target CRS."""
+    from .changes import tiles_depending_on
     from .crs import resolve_crs
-    from .runner import job_frame, read_headers
+    from .runner import frame_moved, job_frame, job_frame_record, read_headers
+    from .tiling import TileGrid
 
     try:
         paths, infos, _ = read_headers(config)
-        grid, bounds, buffer, _ = job_frame(config, paths, infos, resolve_crs(infos, config.in_crs, config.out_crs))
-    except PipelineError:  # the run will say what is wrong
-        return False
-    now = {"grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer}
-    return any(provenance.get(k) != v for k, v in now.items())
-
-
-def _pending_after_changes(attrs, work, touched: list[str], gone: list[str], before, shape) -> int | str:
-    """Tiles the next run would mesh again (an estimate from the files' header bounds)."""
-    from .changes import tiles_depending_on
-    from .sources import read_info
-    from .tiling import TileGrid
-
+        grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, resolve_crs(infos, config.in_crs, config.out_crs))
+    except PipelineError as exc:
+        return f"unknown: the next run would stop: {exc}"
+    if frame_moved(provenance, job_frame_record(grid, bounds, buffer)):
+        return "all (the grid, extent or buffer changes)"
     if not work.exists():
         return "all"
-    grid = TileGrid.from_dict(attrs["provenance"]["grid"])
-    regions = []
-    for p in touched:
-        b = read_info(Path(p)).bounds
-        regions.append((b[0], b[1], b[3], b[4]))
-    for p in gone:
-        if before[p].get("bounds"):
-            regions.append(tuple(before[p]["bounds"]))
-    return len(tiles_depending_on(work, grid, regions))
+    now = dict(zip(map(str, paths), file_bounds))
+    regions = [now[p] for p in touched if now.get(p)]
+    regions += [tuple(before[p]["bounds"]) for p in [*gone, *(p for p in touched if p not in now)]
+                if p in before and before[p].get("bounds")]
+    return len(tiles_depending_on(work, TileGrid.from_dict(provenance["grid"]), regions))
 
 
 def status_text(status: dict[str, Any]) -> str:

@@ -169,3 +169,16 @@ def test_status_sees_a_new_file_that_moves_the_grid(job, tmp_path):
     report = run_workflow(workflow, progress=False)
     assert any("grid, extent or buffer changed" in note for note in report.notes), report.notes
     assert workflow_status(workflow)["tiles_pending"] == 0
+
+
+def test_status_skips_a_bad_new_file_as_the_run_does(job, tmp_path):
+    job.write_text(job.read_text().replace("[run]\n", "[run]\nskip_bad_files = true\n"))
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    good = tmp_path / "archive" / "patch_a.laz"
+    (tmp_path / "archive" / "broken.laz").write_bytes(good.read_bytes()[:400])  # a truncated delivery
+    status = workflow_status(workflow)
+    assert status["new_files"] == [str(tmp_path / "archive" / "broken.laz")]
+    assert status["tiles_pending"] == 0  # it adds no points: no tile changes
+    report = run_workflow(workflow, progress=False)
+    assert [f["path"] for f in report.skipped_files] == [str(tmp_path / "archive" / "broken.laz")]
