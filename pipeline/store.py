@@ -767,7 +767,10 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
             raise StoreError(f"{where}: a Zarr store already exists; pass --overwrite to replace it")
         if os.path.islink(where):
             raise StoreError(f"{where}: is a symbolic link; to replace the store, give the path it points to")
-        strays = sorted(e.name for e in os.scandir(where) if not e.is_dir() and e.name not in _ZARR_METADATA)
+        strays = sorted(
+            e.name for e in os.scandir(where)
+            if (e.name not in _ZARR_METADATA if not e.is_dir() else not _is_zarr_store(e.path))  # arrays and groups
+        )
         if strays:
             raise StoreError(
                 f"{where}: holds files that are not Zarr's ({', '.join(strays[:3])}); refusing to replace it"

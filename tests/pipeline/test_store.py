@@ -239,6 +239,10 @@ def test_overwrite_deletes_only_a_store_of_zarrs_files(tmp_path, grid):
         create_store(path, grid, CRS_WKT, attrs={}, overwrite=True)
     assert (path / "notes.csv").read_text() == "keep me" and (path / "elevation").is_dir()
     (path / "notes.csv").unlink()
+    (path / "figures").mkdir()  # a user's folder too
+    with pytest.raises(StoreError, match=r"holds files that are not Zarr's \(figures\)"):
+        create_store(path, grid, CRS_WKT, attrs={}, overwrite=True)
+    (path / "figures").rmdir()
     link = tmp_path / "link.zarr"
     link.symlink_to(path)
     with pytest.raises(StoreError, match="link.zarr: is a symbolic link"):
