@@ -20,6 +20,7 @@ resumes, and :func:`execute` can update a store after its inputs changed.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
@@ -507,7 +508,8 @@ def _execute(
             report.notes.append("resumed an unfinished run: finished work was kept")
         report.stages["scan"] = time.perf_counter() - t0
     except BaseException:
-        _close(client, cluster)
+        with contextlib.suppress(Exception):  # the first error is the one to report
+            _close(client, cluster)
         raise
 
     scratch = work.path
