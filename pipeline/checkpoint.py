@@ -11,17 +11,23 @@ when the store is complete.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import os
 import shutil
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["WorkDir", "work_dir_for"]
+from .errors import UsageError
+
+__all__ = ["WorkDir", "work_dir_for", "output_lock"]
 
 
 _NPY_HEADER_LOCK = threading.Lock()
@@ -50,6 +56,38 @@ def work_dir_for(output: str, scratch_dir: str | None) -> Path:
         return out.parent / f".{out.name}.work"
     digest = hashlib.sha1(os.fsencode(out)).hexdigest()[:10]
     return Path(os.path.abspath(scratch_dir)) / f".{out.name}-{digest}.work"
+
+
+@contextmanager
+def output_lock(output: str) -> Iterator[None]:
+    """Hold ``.NAME.lock`` beside the store for the length of a run: a second
+    run on the same store fails at once instead of deleting the first one's
+    work.  The lock is the operating system's (``flock``), so a run that dies
+    releases it; the file is removed when the run ends."""
+    out = Path(os.path.abspath(output))
+    path = out.parent / f".{out.name}.lock"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        handle = open(path, "a")
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            raise UsageError(
+                f"{output}: another run is writing this store (it holds {path}); wait for it to end or stop it"
+            ) from None
+        try:
+            if os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino:
+                break  # the file is still the lock file: ours
+        except FileNotFoundError:
+            pass
+        handle.close()  # a run ending removed it after we opened it: take the new one
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        handle.close()
 
 
 class WorkDir:

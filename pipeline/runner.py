@@ -21,6 +21,7 @@ resumes, and :func:`execute` can update a store after its inputs changed.
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import os
 import sys
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from .config import RunConfig
-from .checkpoint import WorkDir, work_dir_for
+from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile
@@ -405,11 +406,17 @@ def execute(
         ...): one line naming the file; the run resumes once the cause is fixed.
     """
     try:
-        return _execute(config, progress=progress, log=log, incremental=incremental)
+        with output_lock(config.output):
+            return _execute(config, progress=progress, log=log, incremental=incremental)
     except PipelineError:  # input errors are OSErrors too; their messages are already clear
         raise
     except OSError as exc:
         if exc.filename is None:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT) or "requested and" in str(exc):  # a short write: full
+                raise OutputWriteError(
+                    f"{config.output}: cannot write the store or its work files ({exc.strerror or exc}); "
+                    "run the same command again once there is room: finished work is kept"
+                ) from exc
             raise
         raise OutputWriteError(
             f"{config.output}: cannot write {exc.filename} ({exc.strerror or exc}); "
@@ -473,6 +480,8 @@ def _execute(
         done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
         done.notes.append("the store was already complete: nothing was recomputed")
         done.skipped_files = report.skipped_files  # this run's bad files, not the last run's
+        if not incremental:
+            work.remove()  # left by a run stopped just after it marked the store complete
         if report.skipped_files:
             done.notes.append(_skipped_note(report.skipped_files))
         return done

@@ -186,3 +186,47 @@ def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, referenc
     final = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert final.returncode == 0, final.stderr
     assert_same_store(out, reference)
+
+
+def test_a_second_run_on_a_store_in_use_stops_at_once(survey, tmp_path):
+    from pipeline.checkpoint import output_lock
+
+    out = tmp_path / "busy.zarr"
+    with output_lock(str(out)):  # as another process's run holds it
+        with pytest.raises(UsageError, match=r"busy.zarr: another run is writing this store"):
+            run_module.run(_config(survey, out), progress=False)
+        assert not out.exists()
+    run_module.run(_config(survey, out), progress=False)  # released: the run goes on
+    assert not (tmp_path / ".busy.zarr.lock").exists()
+
+
+def test_a_work_folder_left_after_the_store_was_complete_is_removed(survey, reference, tmp_path):
+    out = tmp_path / "done.zarr"
+    run_module.run(_config(survey, out), progress=False)
+    left = tmp_path / ".done.zarr.work" / "records"
+    left.mkdir(parents=True)  # as a run killed just after marking the store complete leaves it
+    report = run_module.run(_config(survey, out), progress=False)
+    assert any("already complete" in note for note in report.notes)
+    assert not (tmp_path / ".done.zarr.work").exists()
+
+
+def test_a_full_disk_under_the_work_files_is_one_line_and_resumes(survey, reference, tmp_path, monkeypatch):
+    import errno
+
+    from pipeline import tiling
+    from pipeline.errors import OutputWriteError
+
+    out = tmp_path / "full.zarr"
+    real = tiling.TileSpiller.flush
+
+    def full(self):  # np.save into a file object: the OSError names no file
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(tiling.TileSpiller, "flush", full)
+    with pytest.raises(OutputWriteError, match=r"full.zarr: cannot write the store or its work files \(No space left"):
+        run_module.run(_config(survey, out), progress=False)
+    assert store.read_attrs(out)["complete"] is False
+    monkeypatch.setattr(tiling.TileSpiller, "flush", real)
+    report = run_module.run(_config(survey, out), progress=False)
+    assert report.points_read == SPEC.points
+    assert_same_store(out, reference)
