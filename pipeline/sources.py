@@ -459,9 +459,7 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
     except InputFileError as exc:
         notes.append(str(exc).removeprefix(f"{path}: "))
     scales = tuple(float(s) for s in header.scales)
-    if not all(np.isfinite(scales)) or any(s == 0 for s in scales):
-        if total:
-            raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
+    if not _usable_scales(path, scales, total):
         notes.append(f"unusable scale factors {scales}")
     if total == 0:
         notes.append("the header announces no points")
@@ -799,6 +797,16 @@ def iter_points(
     return _iter_points(Path(path), point_filter, _check_chunk_size(chunk_size))
 
 
+def _usable_scales(path: Path, scales: tuple[float, ...], points: int) -> bool:
+    """Whether every scale factor is finite and not zero; unusable ones are an
+    error for a file with points (its coordinates cannot be decoded)."""
+    if all(math.isfinite(s) and s != 0 for s in scales):
+        return True
+    if points:
+        raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
+    return False
+
+
 def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDArray[np.float64]]:
     """Stored integers to coordinates, the same float for the same coordinate
     in every file (whatever its offset).
@@ -840,8 +848,7 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
     with _open(path, _POINT_SELECTION) as (reader, size):
         header = reader.header
         scales = tuple(float(s) for s in header.scales)
-        if header.point_count and not all(math.isfinite(s) and s != 0 for s in scales):
-            raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
+        _usable_scales(path, scales, int(header.point_count))
         decoders = [_decoder(s, float(o)) for s, o in zip(scales, header.offsets)]
         for chunk in _chunks(path, reader, size, chunk_size):
             n = len(chunk)

@@ -489,26 +489,14 @@ def test_corrupt_laz_chunk(tmp_path: Path) -> None:
     assert "LAZ" in str(exc.value)
 
 
-def test_non_finite_coordinates(tmp_path: Path) -> None:
-    w = write_las(tmp_path / "nan.las", n=10)
-    patch(w.path, _X_SCALE, "<d", float("nan"))
-    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
-        read_info(w.path)
-    assert_names(exc, w.path)
-    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
-        list(iter_points(w.path))
-    assert_names(exc, w.path)
-
-
-def test_a_zero_scale_factor_is_an_error_not_a_collapsed_axis(tmp_path: Path) -> None:
-    w = write_las(tmp_path / "flat.las", n=10)
-    patch(w.path, _X_SCALE, "<d", 0.0)  # every x would be the offset
-    with pytest.raises(InputFileError, match=r"unusable scale factors \(0\.0, 0\.01, 0\.01\)") as exc:
-        read_info(w.path)
-    assert_names(exc, w.path)
-    with pytest.raises(InputFileError, match="unusable scale factors") as exc:
-        list(iter_points(w.path))
-    assert_names(exc, w.path)
+@pytest.mark.parametrize(("scale", "shown"), [(float("nan"), "nan"), (0.0, "0.0")])
+def test_an_unusable_scale_factor_is_an_error_not_a_broken_axis(tmp_path: Path, scale: float, shown: str) -> None:
+    w = write_las(tmp_path / "scale.las", n=10)
+    patch(w.path, _X_SCALE, "<d", scale)  # NaN coordinates, or every x the offset
+    for read in (read_info, lambda path: list(iter_points(path))):
+        with pytest.raises(InputFileError, match=rf"unusable scale factors \({shown}, 0\.01, 0\.01\)") as exc:
+            read(w.path)
+        assert_names(exc, w.path)
 
 
 def test_missing_file_and_directory(tmp_path: Path) -> None:
