@@ -38,10 +38,10 @@ from .config import RunConfig
 from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
-from .tiles import TileJob, TileSummary, dem_tile, mesh_tile
+from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
-    TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, tile_key,
+    TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, spill_intact, tile_key,
 )
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
@@ -265,6 +265,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
         spill.add(x, y, z)
         hull = hull_candidates(np.concatenate([hull, np.column_stack([x, y, z])]))
     spill.flush()
+    counts["parts"] = spill.parts  # a resume checks they are still there
     counts["sha256"] = file_digest(job.path)
     counts["hull"] = hull
     counts["seconds"] = time.perf_counter() - t0
@@ -515,6 +516,10 @@ def _execute(
         else:
             say(f"{config.output}: resuming an unfinished run")
             report.notes.append("resumed an unfinished run: finished work was kept")
+        if previous is not None and work.exists():
+            lost = _forget_lost_units(work, len(paths), grid)
+            if lost:
+                report.notes.append(f"{lost} finished unit(s) had lost files in the work folder: done again")
         report.stages["scan"] = time.perf_counter() - t0
     except BaseException:
         with contextlib.suppress(Exception):  # the first error is the one to report
@@ -556,7 +561,7 @@ def _execute(
                     f"{c['path']}: {c['beyond_grid']:,} point(s) lie beyond the bounds its header announces "
                     "(a stale header?): the mesh holds them, the DEM stops at the header's extent"
                 )
-        report.files = [{k: v for k, v in c.items() if k != "hull"} for c in counts if c is not None and "skipped" not in c]
+        report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts")} for c in counts if c is not None and "skipped" not in c]
         if report.skipped_files:
             report.notes.append(_skipped_note(report.skipped_files))
         hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
@@ -646,6 +651,27 @@ def _execute(
     if not incremental:
         work.remove()
     return report
+
+
+def _forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid) -> int:
+    """Forget the records of finished units whose files are gone from the work
+    folder (a cleaner, a user), so they are done again; returns how many."""
+    lost = 0
+    for i in range(n_inputs):
+        rec = work.recorded("route", f"{i:06d}")
+        if rec is not None and not spill_intact(work.path, i, rec.get("parts", [])):
+            work.forget_record("route", f"{i:06d}")  # routed again: its spill files are rewritten
+            lost += 1
+    for r, c in grid.tiles():
+        key = tile_key(r, c)
+        if work.recorded("mesh", key) is not None and not piece_intact(work.path, r, c):
+            work.forget_record("mesh", key)
+            work.forget_record("write", f"ids_{key}")
+            lost += 1
+        elif work.recorded("write", f"ids_{key}") is not None and not piece_intact(work.path, r, c, ("node_ids",)):
+            work.forget_record("write", f"ids_{key}")
+            lost += 1
+    return lost
 
 
 def _tile_key(job: TileJob) -> str:

@@ -349,6 +349,21 @@ def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
     return np.take(vertices, used[int(has_gap):], axis=0), inverse.reshape(faces.shape) - int(has_gap)
 
 
+#: the arrays :func:`mesh_tile` saves, by piece name
+PIECE_ARRAYS = {
+    "piece": ("owned_xy", "owned_z", "vertex_xyz", "vertex_rank", "faces", "point_count"),
+    "border": ("vertex_xyz", "faces"),
+}
+
+
+def piece_intact(scratch: Path, row: int, col: int, extra: tuple[str, ...] = ()) -> bool:
+    """Whether every array :func:`mesh_tile` saved for the tile (and the
+    ``extra`` ones of its piece) is still there."""
+    folder = tile_dir(scratch, row, col)
+    wanted = [(name, key) for name, keys in PIECE_ARRAYS.items() for key in keys] + [("piece", k) for k in extra]
+    return all((folder / name / f"{key}.npy").is_file() for name, key in wanted)
+
+
 def save_piece(scratch: Path, row: int, col: int, name: str, **arrays: NDArray) -> None:
     """Save a tile's arrays under ``name`` (one ``.npy`` each, so readers can map slices)."""
     folder = tile_dir(scratch, row, col) / name

@@ -193,6 +193,11 @@ class TileSpiller:
         if self._held > self.budget:
             self.flush()
 
+    @property
+    def parts(self) -> list[list[int]]:
+        """``[row, col, n]``: the spill files written for each tile (for the record)."""
+        return [[r, c, n] for (r, c), n in sorted(self._parts.items())]
+
     def flush(self) -> None:
         for key, chunks in self._pending.items():
             part = self._parts.get(key, 0)
@@ -287,6 +292,13 @@ def drop_source_spill(scratch: Path, source: int) -> None:
     """Delete every spill file of one source (it is routed again, or left out)."""
     for part in (Path(scratch) / "tiles").glob(f"*/{source:06d}_*.npy"):
         part.unlink()
+
+
+def spill_intact(scratch: Path, source: int, parts: list[list[int]]) -> bool:
+    """Whether every spill file :attr:`TileSpiller.parts` listed is still there."""
+    return all(
+        (tile_dir(scratch, r, c) / f"{source:06d}_{k:06d}.npy").is_file() for r, c, n in parts for k in range(n)
+    )
 
 
 def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:

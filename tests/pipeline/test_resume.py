@@ -230,3 +230,29 @@ def test_a_full_disk_under_the_work_files_is_one_line_and_resumes(survey, refere
     report = run_module.run(_config(survey, out), progress=False)
     assert report.points_read == SPEC.points
     assert_same_store(out, reference)
+
+
+def test_units_whose_work_files_were_lost_are_done_again(survey, reference, tmp_path, monkeypatch):
+    import shutil
+
+    out = tmp_path / "lost.zarr"
+    real_dem = run_module.dem_tile
+    calls = []
+
+    def failing_dem(job):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("stopped")
+        return real_dem(job)
+
+    monkeypatch.setattr(run_module, "dem_tile", failing_dem)
+    with pytest.raises(RuntimeError, match="stopped"):
+        run_module.run(_config(survey, out), progress=False)
+    monkeypatch.setattr(run_module, "dem_tile", real_dem)
+    # a cleaner removes a tile's piece and one routed file's spill in another tile
+    work = tmp_path / ".lost.zarr.work" / "tiles"
+    shutil.rmtree(work / "00001_00002" / "piece")
+    next((work / "00000_00001").glob("000001_*.npy")).unlink()
+    report = run_module.run(_config(survey, out), progress=False)
+    assert any("2 finished unit(s) had lost files in the work folder" in note for note in report.notes), report.notes
+    assert_same_store(out, reference)
