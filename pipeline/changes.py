@@ -36,6 +36,10 @@ def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list
     """Drop the spilled points and records of inputs that changed or went away,
     renumber the spill files of the others to their new place in the input
     list, and return the regions (boxes) whose points changed."""
+    # a run stopped between the two renaming steps below left "tmp" names:
+    # their records are gone with them, so those files are routed again
+    for left in [*(work.path / "tiles").glob("*/tmp*.npy"), *(work.path / "records" / "route").glob("tmp*")]:
+        left.unlink()
     old_index = {i["path"]: k for k, i in enumerate(before)}
     regions: list[tuple] = []
     keep: dict[int, int] = {}  # old index -> new index

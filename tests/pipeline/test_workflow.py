@@ -182,3 +182,21 @@ def test_status_skips_a_bad_new_file_as_the_run_does(job, tmp_path):
     assert status["tiles_pending"] == 0  # it adds no points: no tile changes
     report = run_workflow(workflow, progress=False)
     assert [f["path"] for f in report.skipped_files] == [str(tmp_path / "archive" / "broken.laz")]
+
+
+def test_names_left_by_a_stopped_renaming_are_not_read(job, tmp_path):
+    import numpy as np
+
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    work = next((tmp_path / "out").glob(".archive.zarr.work"))
+    tile = work / "tiles" / "00000_00000"  # under patch_a, which changes below: meshed again
+    # as a run killed between the two renaming steps leaves them (points far above the ground)
+    stray = np.array([[ORIGIN[0] + 30.5 + k, ORIGIN[1] + 30.5, 999.0] for k in range(5)])
+    np.save(tile / "tmp000003_000000.npy", stray)
+    (work / "records" / "route" / "tmp000003.json").write_text("{}")
+    time.sleep(0.01)
+    _patch(tmp_path / "archive", "patch_a", (20.0, 20.0), seed=21)
+    run_workflow(workflow, progress=False)
+    assert not list(work.glob("tiles/*/tmp*")) and not list(work.glob("records/route/tmp*"))
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
