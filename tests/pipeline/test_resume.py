@@ -36,6 +36,23 @@ def _config(survey, out, **kw) -> RunConfig:
     return RunConfig(**values)
 
 
+def _stop_in_the_dem_stage(monkeypatch, config: RunConfig, at: int) -> None:
+    """Run ``config`` until its ``at``-th DEM tile fails (a failed task), then undo the failure."""
+    real = run_module.dem_tile
+    calls = []
+
+    def failing(job):
+        calls.append(1)
+        if len(calls) == at:
+            raise RuntimeError("disk on fire")
+        return real(job)
+
+    monkeypatch.setattr(run_module, "dem_tile", failing)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        run_module.run(config, progress=False)
+    monkeypatch.setattr(run_module, "dem_tile", real)
+
+
 @pytest.fixture(scope="module")
 def reference(survey, tmp_path_factory):
     out = tmp_path_factory.mktemp("reference") / "dem.zarr"
@@ -86,19 +103,7 @@ def test_one_store_spelt_two_ways_has_one_work_folder(tmp_path):
 def test_stores_of_one_name_share_a_scratch_folder_without_harm(survey, reference, tmp_path, monkeypatch):
     scratch = tmp_path / "scratch"
     a, b = tmp_path / "a" / "dem.zarr", tmp_path / "b" / "dem.zarr"
-    real_dem = run_module.dem_tile
-    calls = []
-
-    def failing_dem(job):
-        calls.append(1)
-        if len(calls) == 4:
-            raise RuntimeError("disk on fire")
-        return real_dem(job)
-
-    monkeypatch.setattr(run_module, "dem_tile", failing_dem)
-    with pytest.raises(RuntimeError, match="disk on fire"):
-        run_module.run(_config(survey, a, scratch_dir=str(scratch)), progress=False)
-    monkeypatch.setattr(run_module, "dem_tile", real_dem)
+    _stop_in_the_dem_stage(monkeypatch, _config(survey, a, scratch_dir=str(scratch)), at=4)
     run_module.run(_config(survey, b, scratch_dir=str(scratch)), progress=False)  # must not reset a's work
     report = run_module.run(_config(survey, a, scratch_dir=str(scratch)), progress=False)
     assert any("resumed" in note for note in report.notes)
@@ -236,19 +241,7 @@ def test_units_whose_work_files_were_lost_are_done_again(survey, reference, tmp_
     import shutil
 
     out = tmp_path / "lost.zarr"
-    real_dem = run_module.dem_tile
-    calls = []
-
-    def failing_dem(job):
-        calls.append(1)
-        if len(calls) == 3:
-            raise RuntimeError("stopped")
-        return real_dem(job)
-
-    monkeypatch.setattr(run_module, "dem_tile", failing_dem)
-    with pytest.raises(RuntimeError, match="stopped"):
-        run_module.run(_config(survey, out), progress=False)
-    monkeypatch.setattr(run_module, "dem_tile", real_dem)
+    _stop_in_the_dem_stage(monkeypatch, _config(survey, out), at=3)
     # a cleaner removes a tile's piece and one routed file's spill in another tile
     work = tmp_path / ".lost.zarr.work" / "tiles"
     shutil.rmtree(work / "00001_00002" / "piece")
