@@ -251,15 +251,22 @@ def _records_available(header: laspy.LasHeader, size: int) -> int | None:
     return max(0, end - start) // record if record else None
 
 
+def _point_counts(header: laspy.LasHeader, size: int) -> tuple[int, int | None]:
+    """(points to read, whole records present or None for LAZ): the header's
+    count, or the records' when it announces none (a count never filled in)."""
+    announced = int(header.point_count)
+    available = _records_available(header, size)
+    return (available if announced == 0 and available else announced), available
+
+
 def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
     """Yield laspy point records of at most ``chunk_size`` points, checking for short data."""
     check_point_data(path, size)
     header = reader.header
-    total = int(header.point_count)
     compressed = bool(header.are_points_compressed)
-    available = _records_available(header, size)
-    if total == 0 and available:  # a count never filled in: the records are the truth
-        header.point_count = total = available
+    total, available = _point_counts(header, size)
+    if total != header.point_count:  # laspy reads as many as its header says
+        header.point_count = total
     if available is not None and available < total:
         raise InputFileError(
             f"{path}: point data is truncated: the file holds {available:,} of the "
@@ -442,11 +449,9 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
             "decoded, later dimensions appear as unnamed 'ExtraBytes'"
         )
 
-    total = int(header.point_count)
-    available = _records_available(header, size)
-    if total == 0 and available:
+    total, available = _point_counts(header, size)
+    if total != header.point_count:
         notes.append(f"the header announces no points but the file holds {available:,} point records: all are read")
-        total = available
     elif available is not None and available < total:
         notes.append(f"point data is truncated: the file holds {available:,} of the {total:,} points announced")
     elif available is not None and available > total:
@@ -848,7 +853,7 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
     with _open(path, _POINT_SELECTION) as (reader, size):
         header = reader.header
         scales = tuple(float(s) for s in header.scales)
-        _usable_scales(path, scales, int(header.point_count))
+        _usable_scales(path, scales, _point_counts(header, size)[0])
         decoders = [_decoder(s, float(o)) for s, o in zip(scales, header.offsets)]
         for chunk in _chunks(path, reader, size, chunk_size):
             n = len(chunk)
