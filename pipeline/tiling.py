@@ -203,7 +203,7 @@ class TileSpiller:
             part = self._parts.get(key, 0)
             folder = tile_dir(self.scratch, *key)
             folder.mkdir(parents=True, exist_ok=True)
-            np.save(folder / f"{self.source:06d}_{part:06d}.npy", np.concatenate(chunks))
+            np.save(folder / _spill_name(self.source, part), np.concatenate(chunks))
             self._parts[key] = part + 1
         self._pending.clear()
         self._held = 0
@@ -294,10 +294,15 @@ def drop_source_spill(scratch: Path, source: int) -> None:
         part.unlink()
 
 
+def _spill_name(source: int, part: int) -> str:
+    """The file of one source's ``part``-th flush into a tile."""
+    return f"{source:06d}_{part:06d}.npy"
+
+
 def spill_intact(scratch: Path, source: int, parts: list[list[int]]) -> bool:
     """Whether every spill file :attr:`TileSpiller.parts` listed is still there."""
     return all(
-        (tile_dir(scratch, r, c) / f"{source:06d}_{k:06d}.npy").is_file() for r, c, n in parts for k in range(n)
+        (tile_dir(scratch, r, c) / _spill_name(source, k)).is_file() for r, c, n in parts for k in range(n)
     )
 
 
