@@ -476,12 +476,15 @@ def _execute(
     elif fresh_frame:
         raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")
     same_inputs = previous is not None and _input_keys(previous["provenance"]["inputs"]) == _input_keys(provenance["inputs"])
+    # a workflow's store keeps its work folder: its next run reuses the tiles
+    # no changed input touches, whichever command finished the store meanwhile
+    keep_work = incremental or bool(previous is not None and previous.get("incremental"))
     if previous is not None and previous.get("complete") and same_inputs:
         say(f"{config.output}: already complete; nothing to do")
         done = RunReport(**{k: v for k, v in previous.get("report", {}).items() if k != "quad_share"})
         done.notes.append("the store was already complete: nothing was recomputed")
         done.skipped_files = report.skipped_files  # this run's bad files, not the last run's
-        if not incremental:
+        if not keep_work:
             work.remove()  # left by a run stopped just after it marked the store complete
         if report.skipped_files:
             done.notes.append(_skipped_note(report.skipped_files))
@@ -495,7 +498,7 @@ def _execute(
                 spec,
                 plan.target_wkt,
                 layers=config.layers,
-                attrs={"provenance": provenance, "complete": False},
+                attrs={"provenance": provenance, "complete": False, "incremental": keep_work},
                 zarr_format=config.zarr_format,
                 overwrite=config.overwrite or incremental,
             )
@@ -645,10 +648,10 @@ def _execute(
     report.stages["total"] = time.perf_counter() - t_start
     store.finalize_store(
         config.output,
-        {"report": report.to_dict(), "complete": True},
+        {"report": report.to_dict(), "complete": True, "incremental": keep_work},
         history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
     )
-    if not incremental:
+    if not keep_work:
         work.remove()
     return report
 

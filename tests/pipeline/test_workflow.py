@@ -200,3 +200,23 @@ def test_names_left_by_a_stopped_renaming_are_not_read(job, tmp_path):
     run_workflow(workflow, progress=False)
     assert not list(work.glob("tiles/*/tmp*")) and not list(work.glob("records/route/tmp*"))
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_a_plain_run_on_a_workflow_store_keeps_its_work(job, tmp_path):
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    work = tmp_path / "out" / ".archive.zarr.work"
+    assert work.is_dir()
+    # `terrain run` with the workflow's own parameters: already complete, and
+    # the workflow's intermediate files stay for its next run
+    report = run(workflow.config, progress=False)
+    assert any("already complete" in note for note in report.notes), report.notes
+    assert work.is_dir()
+    time.sleep(0.01)
+    _patch(tmp_path / "archive", "patch_a", (20.0, 20.0), seed=22)
+    report = run_workflow(workflow, progress=False)
+    assert not any("work folder was missing" in note for note in report.notes), report.notes
+    (note,) = [n for n in report.notes if "inputs changed" in n]
+    done, total = (int(w) for w in note.split(": ")[1].split(" tile")[0].split(" of "))
+    assert 0 < done < total
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
