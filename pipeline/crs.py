@@ -8,7 +8,12 @@ plan and its :class:`Reprojector` recipes pickle and store as plain text.
 
 A note on heights: pyproj transforms z only when both the source and the
 target CRS have a vertical component (compound or 3D CRSs). Between 2D CRSs
-z passes through unchanged, keeping the files' vertical datum and unit.
+z passes through unchanged, keeping the files' vertical datum and unit.  Into
+a target with a vertical component from files without one, z is converted to
+the target's vertical unit (the unit only: the files name no datum to shift
+from), so that the store's unit is the heights' own.  The plan also says how
+a height compares with a horizontal distance (:attr:`CrsPlan.height_scale`),
+which slopes need when the two units differ.
 
 Examples
 --------
@@ -113,6 +118,22 @@ def _horizontal_unit(crs: pyproj.CRS) -> str:
     return axes[0].unit_name if axes else "unknown"
 
 
+def unit_metres(name: str | None) -> float | None:
+    """Metres in one unit of length named as PROJ names it (``"US survey foot"``), or None if unknown."""
+    from pyproj.database import get_units_map
+
+    unit = get_units_map(category="linear").get(name) if name else None
+    return None if unit is None else float(unit.conv_factor)
+
+
+def cf_units(name: str | None) -> str | None:
+    """A unit of length as CF writes it (``"metre"``, ``"0.3048 metre"``), or None if unknown."""
+    metres = unit_metres(name)
+    if metres is None:
+        return None
+    return "metre" if metres == 1.0 else f"{metres!r} metre"
+
+
 def _user_crs(text: str, option: str) -> pyproj.CRS:
     if not isinstance(text, str) or not text.strip():
         raise CrsError(f"{option} must be a CRS such as EPSG:2154, a WKT or a PROJ string, got {text!r}")
@@ -182,7 +203,11 @@ class Reprojector:
 
     source_wkt: str
     target_wkt: str
+    z_factor: float = 1.0
+    """Multiplies z after the transformation: a unit conversion pyproj does not
+    do (files without a vertical CRS into a target with one)."""
     is_identity: bool = field(init=False, compare=False)
+    _same_crs: bool = field(init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         source = _user_crs(self.source_wkt, "source CRS")
@@ -191,8 +216,11 @@ class Reprojector:
             object.__setattr__(self, "source_wkt", source.to_wkt())
         if not pyproj.crs.is_wkt(self.target_wkt):
             object.__setattr__(self, "target_wkt", target.to_wkt())
-        identity = self.source_wkt == self.target_wkt or same_crs(source, target)
-        object.__setattr__(self, "is_identity", identity)
+        if not (math.isfinite(self.z_factor) and self.z_factor > 0):
+            raise UsageError(f"z_factor must be a positive number, got {self.z_factor!r}")
+        same = self.source_wkt == self.target_wkt or same_crs(source, target)
+        object.__setattr__(self, "_same_crs", same)
+        object.__setattr__(self, "is_identity", same and self.z_factor == 1.0)
 
     def transform(
         self, x: np.ndarray, y: np.ndarray, z: np.ndarray
@@ -211,8 +239,13 @@ class Reprojector:
             raise UsageError(f"x, y, z must have the same shape, got {xs.shape}, {ys.shape}, {zs.shape}")
         if self.is_identity:
             return xs, ys, zs
-        tx, ty, tz = _thread_transformer(self.source_wkt, self.target_wkt).transform(xs, ys, zs)
-        tx, ty, tz = (np.asarray(a, dtype=np.float64) for a in (tx, ty, tz))
+        if self._same_crs:
+            tx, ty, tz = xs, ys, zs
+        else:
+            tx, ty, tz = _thread_transformer(self.source_wkt, self.target_wkt).transform(xs, ys, zs)
+            tx, ty, tz = (np.asarray(a, dtype=np.float64) for a in (tx, ty, tz))
+        if self.z_factor != 1.0:
+            tz = tz * self.z_factor
         bad = ~(np.isfinite(tx) & np.isfinite(ty) & np.isfinite(tz))
         if bad.any():
             src, dst = pyproj.CRS.from_wkt(self.source_wkt), pyproj.CRS.from_wkt(self.target_wkt)
@@ -222,14 +255,14 @@ class Reprojector:
             )
         return tx, ty, tz
 
-    def to_dict(self) -> dict[str, str]:
+    def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
-        return {"source_wkt": self.source_wkt, "target_wkt": self.target_wkt}
+        return {"source_wkt": self.source_wkt, "target_wkt": self.target_wkt, "z_factor": self.z_factor}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Reprojector:
         """Rebuild from :meth:`to_dict` output."""
-        return cls(source_wkt=data["source_wkt"], target_wkt=data["target_wkt"])
+        return cls(source_wkt=data["source_wkt"], target_wkt=data["target_wkt"], z_factor=data.get("z_factor", 1.0))
 
 
 # --------------------------------------------------------------------------- the plan
@@ -255,6 +288,15 @@ class CrsPlan:
         Unit of the target's vertical axis when it has one, else None.
     notes
         Lines for the run report: overrides, reprojections, what happens to z.
+    height_unit
+        Unit of the output heights when the target or the files declare it
+        (e.g. ``"US survey foot"``), else None.
+    height_scale
+        A height times this is in the horizontal unit: what a slope needs.
+        Undeclared heights are taken to be in the horizontal unit of their
+        files (metres beside degrees), as is the custom.
+    z_factors
+        Per file, what multiplies its z after reprojection (empty: all 1).
     """
 
     paths: tuple[Path, ...]
@@ -264,10 +306,19 @@ class CrsPlan:
     horizontal_unit: str
     vertical_unit: str | None = None
     notes: tuple[str, ...] = ()
+    height_unit: str | None = None
+    height_scale: float = 1.0
+    z_factors: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if len(self.paths) != len(self.source_wkts):
             raise UsageError(f"{len(self.paths)} paths but {len(self.source_wkts)} source CRSs")
+        if self.z_factors and len(self.z_factors) != len(self.paths):
+            raise UsageError(f"{len(self.paths)} paths but {len(self.z_factors)} z factors")
+
+    def z_factor(self, index: int) -> float:
+        """What multiplies the z of input ``index`` after reprojection."""
+        return self.z_factors[index] if self.z_factors else 1.0
 
     def source_wkt(self, path: str | Path) -> str:
         """The source CRS (WKT) of one input file."""
@@ -278,7 +329,7 @@ class CrsPlan:
 
     def reprojector(self, path: str | Path) -> Reprojector:
         """The recipe taking one file's points to the target CRS."""
-        return Reprojector(self.source_wkt(path), self.target_wkt)
+        return Reprojector(self.source_wkt(path), self.target_wkt, self.z_factor(self.paths.index(Path(path))))
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
@@ -290,6 +341,9 @@ class CrsPlan:
             "horizontal_unit": self.horizontal_unit,
             "vertical_unit": self.vertical_unit,
             "notes": list(self.notes),
+            "height_unit": self.height_unit,
+            "height_scale": self.height_scale,
+            "z_factors": list(self.z_factors),
         }
 
     @classmethod
@@ -303,6 +357,9 @@ class CrsPlan:
             horizontal_unit=data["horizontal_unit"],
             vertical_unit=data.get("vertical_unit"),
             notes=tuple(data.get("notes", ())),
+            height_unit=data.get("height_unit"),
+            height_scale=data.get("height_scale", 1.0),
+            z_factors=tuple(data.get("z_factors", ())),
         )
 
 
@@ -401,13 +458,21 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
 
     target_wkt = target.to_wkt()
     horizontal_unit = _horizontal_unit(target)
+    z_factors = [1.0] * len(infos)
+    heights: list[_Heights] = []
     for crs, members in groups:
+        group_infos = [infos[i] for i in members]
+        h = _heights(crs, target, group_infos)
+        heights.append(h)
+        for i in members:
+            z_factors[i] = h.factor
         if not same_crs(crs, target):
-            notes.extend(_reprojection_notes(crs, target, [infos[i] for i in members]))
+            notes.extend(_reprojection_notes(crs, target, group_infos, h))
     if all(same_crs(crs, target) for crs, _ in groups):
         notes.append(f"no reprojection: every file is already in {crs_label(target)}")
     if horizontal_unit != "metre":
         notes.append(f"horizontal unit is {horizontal_unit}: distances and cell sizes are in {horizontal_unit}")
+    height_unit, height_scale = _output_heights(heights, target, notes)
 
     return CrsPlan(
         paths=tuple(info.path for info in infos),
@@ -417,7 +482,62 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         horizontal_unit=horizontal_unit,
         vertical_unit=_vertical_unit(target),
         notes=tuple(notes),
+        height_unit=height_unit,
+        height_scale=height_scale,
+        z_factors=tuple(z_factors) if any(f != 1.0 for f in z_factors) else (),
     )
+
+
+@dataclass(frozen=True)
+class _Heights:
+    """What becomes of one CRS group's heights."""
+
+    declared: str | None
+    """The unit the files' heights are declared in (vertical CRS or GeoTIFF key), if any."""
+    presumed: str
+    """``declared``, or the custom for undeclared heights: the horizontal unit (metres beside degrees)."""
+    unit: str | None
+    """The unit of these heights in the output, when known."""
+    presumed_out: str
+    """``unit``, or the presumed one."""
+    factor: float
+    """Multiplies z after reprojection."""
+
+
+def _heights(source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInfo]) -> _Heights:
+    declared_keys = {m.z_unit for m in members if m.z_unit}
+    declared = _vertical_unit(source) or (declared_keys.pop() if len(declared_keys) == 1 else None)
+    presumed = declared or ("metre" if _horizontal(source).is_geographic else _horizontal_unit(source))
+    if not _has_vertical(target):
+        return _Heights(declared, presumed, declared, presumed, 1.0)
+    target_unit = _vertical_unit(target) or "metre"
+    if _has_vertical(source):  # PROJ converts z itself
+        return _Heights(declared, presumed, target_unit, target_unit, 1.0)
+    have, want = unit_metres(presumed), unit_metres(target_unit)
+    factor = 1.0 if have is None or want is None else have / want
+    return _Heights(declared, presumed, target_unit, target_unit, factor)
+
+
+def _output_heights(heights: Sequence[_Heights], target: pyproj.CRS, notes: list[str]) -> tuple[str | None, float]:
+    """The unit of the output heights (when declared) and the scale that puts them in the horizontal unit."""
+    units = {h.unit for h in heights}
+    presumed = {h.presumed_out for h in heights}
+    if len(presumed) > 1:
+        notes.append(
+            f"the files' heights are in different units ({', '.join(sorted(presumed))}) and the DEM mixes them: "
+            "reproject to a --out-crs with a vertical component (e.g. EPSG:32631+5773) to convert them to one"
+        )
+        return None, 1.0
+    unit = units.pop() if len(units) == 1 else None
+    z_unit = presumed.pop()
+    if z_unit == _horizontal_unit(target):
+        return unit, 1.0
+    z_metres = unit_metres(z_unit)
+    axes = _horizontal(target).axis_info
+    xy_metres = axes[0].unit_conversion_factor if axes else None
+    if z_metres is None or not xy_metres:
+        return unit, 1.0
+    return unit, z_metres / xy_metres
 
 
 def _check_target(
@@ -469,9 +589,22 @@ def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> 
     return f"EPSG:{code} (WGS 84 / UTM zone {zone}{'N' if north else 'S'})"
 
 
-def _reprojection_notes(source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInfo]) -> list[str]:
+def _reprojection_notes(
+    source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInfo], heights: _Heights
+) -> list[str]:
     names = _list_paths([m.path for m in members])
     notes = [f"{names}: reprojected from {crs_label(source)} to {crs_label(target)}"]
+    if _has_vertical(target) and not _has_vertical(source):
+        unit_text = heights.declared or f"undeclared, presumably {heights.presumed}"
+        if heights.factor != 1.0:
+            change = f"z is converted from {heights.presumed} to {heights.unit} (x{heights.factor:.12g})"
+        else:
+            change = f"z stays in {heights.presumed} ({unit_text})"
+        notes.append(
+            f"{names}: {change}, the unit of {crs_label(target)}'s heights; the files name no vertical datum, "
+            "so no datum shift is applied: their heights are taken to be in the target's vertical datum"
+        )
+        return notes
     if _has_vertical(source) and _has_vertical(target):
         notes.append(
             f"{names}: z is transformed too, both CRSs having a vertical component "
@@ -490,16 +623,13 @@ def _reprojection_notes(source: pyproj.CRS, target: pyproj.CRS, members: Sequenc
                 "(install proj-data or enable PROJ_NETWORK); a coarser one is used and heights may be left unchanged"
             )
         return notes
-    declared = {m.z_unit for m in members if m.z_unit}
-    z_unit = _vertical_unit(source) or (declared.pop() if len(declared) == 1 else None)
-    # Undeclared heights are conventionally in the horizontal unit, or in metres beside degrees.
-    presumed = z_unit or ("metre" if _horizontal(source).is_geographic else _horizontal_unit(source))
-    unit_text = z_unit or f"undeclared, presumably {presumed}"
+    presumed = heights.presumed
+    unit_text = heights.declared or f"undeclared, presumably {presumed}"
     notes.append(
         f"{names}: z is not transformed (pyproj changes z only when both CRSs are compound/3D): "
         f"heights keep the files' vertical datum and unit ({unit_text})"
     )
     target_unit = _horizontal_unit(target)
     if presumed != target_unit:
-        notes.append(f"{names}: z stays in {presumed} while x and y become {target_unit}")
+        notes.append(f"{names}: z stays in {presumed} while x and y become {target_unit} (slopes allow for it)")
     return notes

@@ -204,6 +204,7 @@ class _RouteJob:
     buffer: float
     source_wkt: str
     target_wkt: str
+    z_factor: float
     classes: tuple[int, ...] | None
     keep_withheld: bool
     bbox: tuple[float, float, float, float] | None
@@ -233,7 +234,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     t0 = time.perf_counter()
     drop_source_spill(Path(job.scratch), job.index)  # left by a stopped run: routed again from the start
     spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
-    reproject = Reprojector(job.source_wkt, job.target_wkt)
+    reproject = Reprojector(job.source_wkt, job.target_wkt, job.z_factor)
     point_filter = PointFilter(
         classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
     )
@@ -433,7 +434,7 @@ def _execute(
     incremental: bool,
 ) -> RunReport:
     from . import store
-    from .crs import resolve_crs
+    from .crs import cf_units, resolve_crs
 
     # absolute: tasks on a cluster's workers run in other folders
     config = replace(config, output=os.path.abspath(config.output))
@@ -501,6 +502,7 @@ def _execute(
                 attrs={"provenance": provenance, "complete": False, "incremental": keep_work},
                 zarr_format=config.zarr_format,
                 overwrite=config.overwrite or incremental,
+                height_units=cf_units(plan.height_unit),
             )
             work.reset()
         elif not work.exists():
@@ -535,7 +537,7 @@ def _execute(
         counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
         jobs = [
             _RouteJob(
-                i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt,
+                i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt, plan.z_factor(i),
                 config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
             )
             for i, p in enumerate(paths)
@@ -582,7 +584,7 @@ def _execute(
         tile_jobs = [
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
-                config.quad_measure, config.merge, config.max_edge, config.layers, hull,
+                config.quad_measure, config.merge, config.max_edge, config.layers, hull, plan.height_scale,
             )
             for r, c in grid.tiles()
         ]

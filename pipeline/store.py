@@ -308,6 +308,7 @@ def create_store(
     attrs: Mapping[str, Any],
     zarr_format: int = 3,
     overwrite: bool = False,
+    height_units: str | None = None,
 ) -> None:
     """Create the store: the root group, its coordinates, grid mapping and empty layers.
 
@@ -328,6 +329,9 @@ def create_store(
     zarr_format : {3, 2}
     overwrite : bool
         Replace an existing Zarr store at ``path``.
+    height_units : str, optional
+        CF ``units`` of the elevation (e.g. ``"0.3048 metre"``); default: the
+        vertical unit of ``crs_wkt`` when it has one.
 
     Raises
     ------
@@ -343,6 +347,7 @@ def create_store(
     crs = _parse_crs(crs_wkt)
     grid_mapping = _grid_mapping_attrs(crs, grid)
     x_attrs, y_attrs, z_units = _axis_attrs(crs)
+    z_units = height_units or z_units
 
     _make_room(path, overwrite)
     root = zarr.create_group(store=os.fspath(path), zarr_format=zarr_format, attributes=root_attrs)

@@ -54,6 +54,8 @@ class TileJob:
     layers: tuple[str, ...] = ("elevation",)
     hull: NDArray[np.float64] | None = None
     """The global convex hull's points (x, y, z), added to every tile's points."""
+    height_scale: float = 1.0
+    """A height times this is in the horizontal unit (for slopes)."""
 
 
 @dataclass(frozen=True)
@@ -439,7 +441,7 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
         if ok.any():
             jj, ii = np.nonzero(ok)
             gx, gy = meshcore.gradient(mesh, z, x0 + (ii + 0.5) * g.resolution, y0 + (jj + 0.5) * g.resolution)
-            slope[jj, ii] = np.degrees(np.arctan(np.hypot(gx, gy)))
+            slope[jj, ii] = np.degrees(np.arctan(job.height_scale * np.hypot(gx, gy)))
         layers["slope"] = slope
     if "face_kind" in job.layers:
         layers["face_kind"] = _face_kind(mesh, kinds, x0, y0, g.resolution, shape, job.max_edge)

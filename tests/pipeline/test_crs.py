@@ -257,3 +257,53 @@ def test_real_mixed_crs_lists_both() -> None:
     message = str(exc.value)
     assert str(autzen.path) in message and str(ign.path) in message
     assert "NAD_1983_HARN_Lambert_Conformal_Conic" in message and "EPSG:2154" in message
+
+
+# --------------------------------------------------------------------------- heights in a run
+
+
+def _feet_plane(path: Path, grade: float) -> Path:
+    """A plane rising ``grade`` feet per foot eastwards, in New Mexico Central (US survey feet), z undeclared."""
+    import laspy
+
+    rng = np.random.default_rng(5)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.01, 0.01, 0.001])
+    header.offsets = np.array([1_639_600.0, 1_454_500.0, 0.0])
+    header.add_crs(pyproj.CRS("EPSG:2903"))
+    las = laspy.LasData(header)
+    x = 1_639_600.0 + rng.uniform(0, 400, 3000)
+    y = 1_454_500.0 + rng.uniform(0, 400, 3000)
+    las.x, las.y = x, y
+    las.z = 7000.0 + grade * (x - 1_639_600.0)
+    las.classification = np.full(3000, 2, dtype=np.uint8)
+    las.write(path)
+    return path
+
+
+def test_slope_and_height_units_survive_a_change_of_units(tmp_path: Path) -> None:
+    import xarray as xr
+
+    from pipeline.config import RunConfig
+    from pipeline.runner import run
+
+    path = _feet_plane(tmp_path / "plane_ft.las", grade=0.1)
+    expected = np.degrees(np.arctan(0.1))
+
+    def store(name: str, resolution: float, out_crs: str | None) -> xr.Dataset:
+        out = tmp_path / name
+        cfg = RunConfig(inputs=(str(path),), output=str(out), resolution=resolution, out_crs=out_crs, layers=("slope",))
+        run(cfg, progress=False)
+        return xr.open_zarr(out)
+
+    native = store("native.zarr", 5.0, None)
+    metres = store("utm.zarr", 1.5, "EPSG:26913")  # x, y become metres, z stays in feet
+    heights = store("utm_navd88.zarr", 1.5, "EPSG:26913+5703")  # z is given the target's unit too
+    for ds in (native, metres, heights):
+        assert_allclose(np.nanmedian(ds.slope.values), expected, atol=0.05)
+    # heights: in feet unless the target has a vertical axis, and then labelled as they are
+    for ds in (native, metres):  # the plane tops out at 7040 ft on its east edge
+        assert_allclose(np.nanmax(ds.elevation.values), 7040.0, atol=1.0)
+    assert_allclose(np.nanmax(heights.elevation.values), np.nanmax(metres.elevation.values) * 1200 / 3937, rtol=1e-5)
+    assert heights.elevation.attrs["units"] == "metre"
+    assert "units" not in native.elevation.attrs  # undeclared: no label is invented

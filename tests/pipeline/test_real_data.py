@@ -61,6 +61,8 @@ def test_us_feet_and_info(tmp_path, capsys):
 
     crs = CRS.from_wkt(xr.open_zarr(out)["spatial_ref"].attrs["crs_wkt"])
     assert "foot" in crs.axis_info[0].unit_name.lower()
+    # the file declares its heights in US survey feet (VerticalUnitsGeoKey): the store says so
+    assert xr.open_zarr(out)["elevation"].attrs["units"] == "0.304800609601219 metre"
 
 
 def test_geographic_input_needs_a_projected_crs(tmp_path, capsys):
