@@ -103,7 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
     run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
-    run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3; 2 for GDAL 3.6)")
+    run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
     run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
     run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
     run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")

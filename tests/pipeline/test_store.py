@@ -169,6 +169,25 @@ def test_georeferencing_attributes_for_cf_gdal_and_rioxarray(tmp_path, grid, zar
         assert (tmp_path / "dem.zarr" / ".zmetadata").exists()
 
 
+@FORMATS
+def test_the_readmes_netcdf_export_keeps_values_and_crs(tmp_path, grid, zarr_format):
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
+    layers = south_up(grid)
+    for row in range(2):
+        for col in range(3):
+            write_tile(path, grid, row, col, tile_of(layers, grid, row, col))
+    finalize_store(path, {"report": {"points": {"kept": 1}}})
+    ds = xr.open_zarr(path)
+    ds.attrs.clear()
+    for v in ds.variables.values():
+        v.attrs.pop("_CRS", None)
+    ds.to_netcdf(tmp_path / "dem.nc", engine="scipy")
+    back = xr.open_dataset(tmp_path / "dem.nc", engine="scipy")
+    assert CRS.from_cf(back["spatial_ref"].attrs) == CRS.from_epsg(2154)
+    for name in LAYERS:
+        np.testing.assert_array_equal(back[name].values, xr.open_zarr(path)[name].values)
+
+
 def test_store_without_crs_keeps_the_geotransform(tmp_path, grid):
     create_store(tmp_path / "dem.zarr", grid, None, attrs={})
     ds = open_dem(tmp_path / "dem.zarr")
