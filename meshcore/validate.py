@@ -32,24 +32,52 @@ def _face_turns(x, y, faces) -> int:
 
 @njit
 def _hull_kernel(x, y, order) -> np.ndarray:
-    """Convex hull (counter-clockwise, collinear boundary points kept) of sorted points."""
-    n = order.shape[0]
-    out = np.empty(2 * n + 1, dtype=np.int64)
+    """Convex hull (counter-clockwise, collinear boundary points kept) of sorted
+    points.  The chain runs over distinct places (two equal points on it would
+    make every later turn test zero, so nothing behind them could be popped);
+    each place on the hull then lists every point there, side by side."""
+    n0 = order.shape[0]
+    run = np.empty(n0 + 1, dtype=np.int64)  # run[j]: where the j-th distinct place starts in ``order``
+    n = 0
+    for i in range(n0):
+        if i == 0 or x[order[i]] != x[order[i - 1]] or y[order[i]] != y[order[i - 1]]:
+            run[n] = i
+            n += 1
+    run[n] = n0
+    out = np.empty(2 * n + 1, dtype=np.int64)  # places, as indices into ``run``
     k = 0
-    for i in range(n):  # lower chain
-        p = order[i]
-        while k >= 2 and orient2d(x[out[k - 2]], y[out[k - 2]], x[out[k - 1]], y[out[k - 1]], x[p], y[p]) < 0:
+    for j in range(n):  # lower chain
+        p = order[run[j]]
+        while k >= 2:
+            a = order[run[out[k - 2]]]
+            b = order[run[out[k - 1]]]
+            if orient2d(x[a], y[a], x[b], y[b], x[p], y[p]) >= 0:
+                break
             k -= 1
-        out[k] = p
+        out[k] = j
         k += 1
     lower = k + 1
-    for i in range(n - 2, -1, -1):  # upper chain
-        p = order[i]
-        while k >= lower and orient2d(x[out[k - 2]], y[out[k - 2]], x[out[k - 1]], y[out[k - 1]], x[p], y[p]) < 0:
+    for j in range(n - 2, -1, -1):  # upper chain
+        p = order[run[j]]
+        while k >= lower:
+            a = order[run[out[k - 2]]]
+            b = order[run[out[k - 1]]]
+            if orient2d(x[a], y[a], x[b], y[b], x[p], y[p]) >= 0:
+                break
             k -= 1
-        out[k] = p
+        out[k] = j
         k += 1
-    return out[: k - 1]
+    m = max(k - 1, 1)
+    total = 0
+    for t in range(m):
+        total += run[out[t] + 1] - run[out[t]]
+    hull = np.empty(total, dtype=np.int64)
+    h = 0
+    for t in range(m):
+        for i in range(run[out[t]], run[out[t] + 1]):
+            hull[h] = order[i]
+            h += 1
+    return hull
 
 
 @njit

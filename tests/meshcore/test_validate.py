@@ -124,6 +124,23 @@ def test_convex_hull_lists_each_point_once():
     assert len(set(hull.tolist())) == len(hull)
 
 
+@pytest.mark.parametrize("n", [6, 50, 1000])
+def test_convex_hull_with_repeated_points_is_the_hull_of_the_distinct_ones(n):
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(n)
+    xy = np.round(rng.uniform(0.0, 100.0, size=(n, 2)), 2) + 6.5e5
+    xy = np.vstack([xy, xy[rng.integers(0, n, n // 2 + 1)]])  # repeats, interior ones too
+    hull = meshcore.convex_hull(xy[:, 0], xy[:, 1])
+    corners = {tuple(p) for p in xy[ConvexHull(xy).vertices]}
+    assert {tuple(p) for p in xy[hull]} == corners  # no interior point
+    # every point at a hull corner is listed, and the walk stays counter-clockwise
+    assert len(hull) == sum(tuple(p) in corners for p in xy)
+    distinct = xy[hull][np.r_[True, (np.diff(xy[hull], axis=0) != 0).any(axis=1)]]
+    u = np.roll(distinct, -1, axis=0) - distinct
+    assert (u[:, 0] * np.roll(u[:, 1], -1) - u[:, 1] * np.roll(u[:, 0], -1) > 0).all()
+
+
 @pytest.mark.parametrize("x, y, message", [([0.0, np.nan, 1.0], [0.0, 1.0, 1.0], "finite"), ([0.0, 1.0], [0.0], "one length")])
 def test_convex_hull_rejects_bad_coordinates(x, y, message):
     with pytest.raises(meshcore.InvalidInputError, match=message):

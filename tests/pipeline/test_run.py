@@ -243,3 +243,34 @@ def test_a_stale_header_keeps_every_point_in_one_conforming_mesh(tmp_path):
     reference = tmp_path / "whole.zarr"
     whole = _run(folder, reference, tile_size=1024.0)
     assert whole.vertices == report.vertices
+
+
+def test_repeated_points_on_the_hull_leave_no_gap_between_tiles(tmp_path):
+    """Points repeated at one x, y (overlapping strips): the stitched mesh still
+    covers the convex hull, and the DEM has data wherever the hull does."""
+    import laspy
+    from scipy.spatial import ConvexHull
+
+    rng = np.random.default_rng(5)
+    x = np.round(rng.uniform(1000, 1300, 20_000), 2)
+    y = np.round(rng.uniform(5000, 5250, 20_000), 2)
+    again = rng.integers(0, x.size, 3000)
+    x, y = np.r_[x, x[again]], np.r_[y, y[again]]
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = np.array([0.01, 0.01, 0.01]), np.array([1000.0, 5000.0, 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, 50 + 0.05 * (x - 1000)
+    las.classification = np.full(x.size, 2, dtype=np.uint8)
+    las.write(tmp_path / "strips.las")
+    out = tmp_path / "dem.zarr"
+    report = _run(tmp_path / "strips.las", out, resolution=1.0, tile_size=40.0, in_crs="EPSG:2154")
+    node_xy, _, faces = store.read_mesh(out)
+    meshcore.validate(meshcore.Mesh(np.asarray(node_xy), np.asarray(faces), np.arange(len(node_xy))))
+    assert len(node_xy) == report.vertices
+    ds = xr.open_zarr(out)
+    gx, gy = np.meshgrid(ds.x.values, ds.y.values)
+    facets = ConvexHull(np.c_[x, y] - 1000.0).equations  # cell centres strictly inside the hull
+    inside = (facets[:, :2] @ np.c_[gx.ravel(), gy.ravel()].T - 1000.0 * facets[:, :2].sum(1, keepdims=True)
+              + facets[:, 2:] < -1e-6).all(axis=0).reshape(gx.shape)
+    assert inside.sum() > 0.9 * 300 * 250
+    assert np.isfinite(ds.elevation.values[inside]).all()
