@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from .checkpoint import WorkDir, load_array
-from .tiles import held_box, hull_near
+from .tiles import held_box, hull_near, reached_tiles
 from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
 
 __all__ = ["forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
@@ -113,17 +113,16 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
 
 
 def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[int, int]]) -> None:
-    """Mesh these tiles again, and write the DEM of them and their neighbours
-    (whose DEM reads their border faces) and the whole mesh again."""
+    """Mesh these tiles again, and write the DEM of them and of the tiles their
+    faces reached (whose DEM reads those faces) and the whole mesh again."""
     from . import store
 
     dem = set()
     for r, c in tiles:
+        rec = work.recorded("mesh", tile_key(r, c))
+        reach = None if rec is None or rec.get("reach") is None else tuple(rec["reach"])
         work.forget_record("mesh", tile_key(r, c))
-        dem.update(
-            (rr, cc)
-            for rr in range(max(0, r - 1), min(grid.n_rows, r + 2))
-            for cc in range(max(0, c - 1), min(grid.n_cols, c + 2))
-        )
+        dem.update(reached_tiles(grid, None, r, c))
+        dem.update(reached_tiles(grid, reach, r, c))  # where its old faces reached
     store.reset_tiles_done(output, sorted(dem))
     work.forget("write")

@@ -38,7 +38,7 @@ from .config import RunConfig
 from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
-from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact
+from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
     TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, spill_intact, tile_key,
@@ -593,6 +593,7 @@ def _execute(
             rec = work.recorded("mesh", _tile_key(job))
             if rec is not None:
                 rec["held"] = tuple(tuple(box) for box in rec.get("held", ()))
+                rec["reach"] = None if rec.get("reach") is None else tuple(rec["reach"])
                 summaries[(job.row, job.col)] = TileSummary(**rec)
         pending = [job for job in tile_jobs if (job.row, job.col) not in summaries]
 
@@ -623,6 +624,15 @@ def _execute(
 
         t0 = time.perf_counter()
         node_offsets, face_offsets = mesh_offsets(grid, list(summaries.values()))
+        reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
+        for s in summaries.values():
+            for t in reached_tiles(grid, s.reach, s.row, s.col):
+                reaching[t].add((s.row, s.col))
+        # the DEM under faces meshed again, however far they reach, is written again
+        store.reset_tiles_done(config.output, sorted({
+            t for job in pending for t in reached_tiles(grid, summaries[(job.row, job.col)].reach, job.row, job.col)
+        }))
+        tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)]))) for job in tile_jobs]
         written = store.tiles_done(config.output)
         pending = [job for job in tile_jobs if not written[job.row, job.col]]
 

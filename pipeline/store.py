@@ -400,8 +400,12 @@ def reset_tiles_done(path: StorePath, tiles: Sequence[tuple[int, int]] | None = 
     array = _open_array(path, TILE_DONE)
     if tiles is None:
         array[...] = 0
-    for row, col in tiles or ():
-        array[row, col] = 0
+        return
+    index = tuple(np.array(list(tiles), dtype=np.int64).reshape(-1, 2).T)
+    done = array[...]
+    if done[index].any():  # one write, and none when nothing changes
+        done[index] = 0
+        array[...] = done
 
 
 def read_attrs(path: StorePath) -> dict[str, Any] | None:

@@ -30,7 +30,10 @@ import meshcore
 from .checkpoint import load_array
 from .tiling import TileGrid, intersect_boxes, load_tile_points, points_in_box, tile_dir
 
-__all__ = ["TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near"]
+__all__ = [
+    "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
+    "reached_tiles",
+]
 
 MAX_EXPANSIONS = 6
 """Rounds of loading missing points before a tile is reported uncertified."""
@@ -54,6 +57,9 @@ class TileJob:
     layers: tuple[str, ...] = ("elevation",)
     hull: NDArray[np.float64] | None = None
     """The global convex hull's points (x, y, z), added to every tile's points."""
+    reaching: tuple[tuple[int, int], ...] | None = None
+    """For the DEM: the other tiles whose faces may cover this tile's cells
+    (see :func:`reached_tiles`); None: the eight around it."""
     height_scale: float = 1.0
     """A height times this is in the horizontal unit (for slopes)."""
 
@@ -73,6 +79,24 @@ class TileSummary:
     held: tuple[tuple[float, float, float, float], ...] = ()
     """The boxes whose points the tile held: its piece depends on no other point
     (besides the global hull's)."""
+    reach: tuple[float, float, float, float] | None = None
+    """The bounding box of the tile's faces that leave its box (None: none do).
+    A sliver along the convex hull may cross several tiles."""
+
+
+def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
+    """The tiles whose cells the faces of tile (row, col) leaving its box may
+    cover: those ``reach`` overlaps, or, unknown (None from an older record),
+    the eight around it."""
+    if reach is None:
+        return [
+            (r, c)
+            for r in range(max(0, row - 1), min(grid.n_rows, row + 2))
+            for c in range(max(0, col - 1), min(grid.n_cols, col + 2))
+        ]
+    c0, c1 = (int(v) for v in grid.bins(np.array([reach[0], reach[2]]), 0))
+    r0, r1 = (int(v) for v in grid.bins(np.array([reach[1], reach[3]]), 1))
+    return [(r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)]
 
 
 def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
@@ -320,6 +344,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         certified=certified,
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in held),
+        reach=None if border_v.shape[0] == 0 else (
+            *(float(v) for v in border_v[:, :2].min(axis=0)), *(float(v) for v in border_v[:, :2].max(axis=0))
+        ),
     )
 
 
@@ -387,12 +414,8 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     verts, faces, kinds = [], [], []
     offset = 0
     # the tile's own piece first: its faces need no shift
-    neighbours = [
-        (r, c)
-        for r in range(max(0, job.row - 1), min(g.n_rows, job.row + 2))
-        for c in range(max(0, job.col - 1), min(g.n_cols, job.col + 2))
-        if (r, c) != (job.row, job.col)
-    ]
+    around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
+    neighbours = [t for t in around if t != (job.row, job.col)]
     for r, c in [(job.row, job.col), *neighbours]:
         own = (r, c) == (job.row, job.col)
         piece = load_piece(Path(job.scratch), r, c, ("vertex_xyz", "faces"), "piece" if own else "border")

@@ -245,32 +245,58 @@ def test_a_stale_header_keeps_every_point_in_one_conforming_mesh(tmp_path):
     assert whole.vertices == report.vertices
 
 
+def _write_ground(path, x, y, z, origin=(0.0, 0.0)):
+    import laspy
+
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales, header.offsets = np.array([0.01, 0.01, 0.01]), np.array([origin[0], origin[1], 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    las.classification = np.full(np.size(x), 2, dtype=np.uint8)
+    las.write(path)
+    return path
+
+
+def _cells_inside_hull(ds, x, y):
+    """The DEM's cell centres strictly inside the convex hull of the points."""
+    from scipy.spatial import ConvexHull
+
+    o = np.array([x.min(), y.min()])
+    facets = ConvexHull(np.c_[x, y] - o).equations
+    gx, gy = np.meshgrid(ds.x.values - o[0], ds.y.values - o[1])
+    return (facets[:, :2] @ np.c_[gx.ravel(), gy.ravel()].T + facets[:, 2:] < -1e-6).all(axis=0).reshape(gx.shape)
+
+
+def test_a_hull_sliver_across_several_tiles_leaves_no_hole_in_the_dem(tmp_path):
+    """A long thin triangle along the convex hull covers cells of tiles two and
+    more away from the tile that owns it: their DEM must still read it."""
+    rng = np.random.default_rng(1)
+    x = np.r_[np.round(rng.uniform(0, 400, 4000), 2), 0, 400, 0, 400, 200]
+    y = np.r_[np.round(rng.uniform(0, 100, 4000), 2), 0, 0, 100, 100, 104]  # a low roof above the data
+    path = _write_ground(tmp_path / "roof.las", x, y, 10 + 0.01 * x + 0.02 * y)
+    out = tmp_path / "dem.zarr"
+    _run(path, out, resolution=1.0, tile_size=20.0, in_crs="EPSG:2154")
+    ds = xr.open_zarr(out)
+    inside = _cells_inside_hull(ds, x, y)
+    assert inside[ds.y.values > 100.0].sum() > 600  # cells under the roof, across the tiles of the top row
+    assert np.isfinite(ds.elevation.values[inside]).all()
+
+
 def test_repeated_points_on_the_hull_leave_no_gap_between_tiles(tmp_path):
     """Points repeated at one x, y (overlapping strips): the stitched mesh still
     covers the convex hull, and the DEM has data wherever the hull does."""
-    import laspy
-    from scipy.spatial import ConvexHull
-
     rng = np.random.default_rng(5)
     x = np.round(rng.uniform(1000, 1300, 20_000), 2)
     y = np.round(rng.uniform(5000, 5250, 20_000), 2)
     again = rng.integers(0, x.size, 3000)
     x, y = np.r_[x, x[again]], np.r_[y, y[again]]
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales, header.offsets = np.array([0.01, 0.01, 0.01]), np.array([1000.0, 5000.0, 0.0])
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = x, y, 50 + 0.05 * (x - 1000)
-    las.classification = np.full(x.size, 2, dtype=np.uint8)
-    las.write(tmp_path / "strips.las")
+    path = _write_ground(tmp_path / "strips.las", x, y, 50 + 0.05 * (x - 1000), origin=(1000.0, 5000.0))
     out = tmp_path / "dem.zarr"
-    report = _run(tmp_path / "strips.las", out, resolution=1.0, tile_size=40.0, in_crs="EPSG:2154")
+    report = _run(path, out, resolution=1.0, tile_size=40.0, in_crs="EPSG:2154")
     node_xy, _, faces = store.read_mesh(out)
     meshcore.validate(meshcore.Mesh(np.asarray(node_xy), np.asarray(faces), np.arange(len(node_xy))))
     assert len(node_xy) == report.vertices
     ds = xr.open_zarr(out)
-    gx, gy = np.meshgrid(ds.x.values, ds.y.values)
-    facets = ConvexHull(np.c_[x, y] - 1000.0).equations  # cell centres strictly inside the hull
-    inside = (facets[:, :2] @ np.c_[gx.ravel(), gy.ravel()].T - 1000.0 * facets[:, :2].sum(1, keepdims=True)
-              + facets[:, 2:] < -1e-6).all(axis=0).reshape(gx.shape)
+    inside = _cells_inside_hull(ds, x, y)
     assert inside.sum() > 0.9 * 300 * 250
     assert np.isfinite(ds.elevation.values[inside]).all()
