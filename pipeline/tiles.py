@@ -153,6 +153,54 @@ def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float,
     return out
 
 
+def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float64], box):
+    """Bounding box of (disk ∩ convex polygon ``hull_xy`` (counter-clockwise)
+    ∩ ``box``), a little grown against rounding, or None when they do not meet.
+
+    No point lies outside the global hull, so the part of an escaping circle
+    beyond it needs no points loaded: along a survey edge that is not
+    axis-aligned the circles of the slivers there reach far out of the hull
+    but only a thin lens into it.  The box's corners are those of the polygon
+    inside the disk, the crossings of its edges with the circle, and the
+    disk's own extreme points inside the polygon.
+    """
+    clipped = _disk_box_in(cx, cy, r, box)
+    if clipped is None or hull_xy.shape[0] < 3:
+        return clipped
+    px, py = hull_xy[:, 0] - cx, hull_xy[:, 1] - cy  # centred: rounding relative to r
+    qx, qy = np.roll(px, -1), np.roll(py, -1)
+    xs, ys = [px[px * px + py * py <= r * r]], [py[px * px + py * py <= r * r]]
+    dx, dy = qx - px, qy - py
+    a = dx * dx + dy * dy
+    b = px * dx + py * dy
+    c = px * px + py * py - r * r
+    disc = b * b - a * c
+    ok = (a > 0) & (disc >= 0)
+    root = np.sqrt(np.where(ok, disc, 0.0))
+    for sign in (-1.0, 1.0):
+        t = np.where(ok, (-b + sign * root) / np.where(ok, a, 1.0), -1.0)
+        on = ok & (t >= 0.0) & (t <= 1.0)
+        xs.append(px[on] + t[on] * dx[on])
+        ys.append(py[on] + t[on] * dy[on])
+    ex = np.array([r, -r, 0.0, 0.0])
+    ey = np.array([0.0, 0.0, r, -r])
+    inside = ((dx[None, :] * (ey[:, None] - py[None, :]) - dy[None, :] * (ex[:, None] - px[None, :])) >= 0).all(axis=1)
+    xs.append(ex[inside])
+    ys.append(ey[inside])
+    x = np.concatenate(xs)
+    y = np.concatenate(ys)
+    if x.size == 0:
+        return None
+    grow = 1e-9 * r + 1e-9 * max(abs(cx), abs(cy))
+    out = (
+        max(clipped[0], cx + float(x.min()) - grow), max(clipped[1], cy + float(y.min()) - grow),
+        min(clipped[2], cx + float(x.max()) + grow), min(clipped[3], cy + float(y.max()) + grow),
+    )
+    if out[0] > out[2] or out[1] > out[3]:
+        return None
+    return out
+
+
 def _uncovered(box, held: list) -> list:
     """The parts of ``box`` (as boxes) outside every box of ``held``."""
     parts = [box]
@@ -252,6 +300,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         points = np.concatenate([points, _load_boxes(job, bands, held)])
         held.extend(bands)
     expansions = 0
+    hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
 
     def build(points):
         return meshcore.build_mesh(
@@ -268,7 +317,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         reach = job.grid.tile_size * 2**expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         for cx, cy, r in mesh.window_escapes:
-            box = _disk_box_in(cx, cy, r, job.extent)
+            box = _disk_box_in_hull(cx, cy, r, hull_xy, job.extent)
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
                 continue

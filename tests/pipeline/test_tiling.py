@@ -115,3 +115,36 @@ def test_uncovered_parts_are_exactly_the_box_minus_the_held_boxes(rng):
             part_strict |= inside(pts, p, strict=True)
         assert np.all(held_in | part_in)  # nothing of the box is forgotten
         assert not np.any(held_strict & part_strict)  # and nothing held is asked for again
+
+
+def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
+    """The box of points to load for a circle: it holds every point of (disk ∩
+    hull ∩ extent), and for the sliver circles along a slanted survey edge it is
+    a thin strip, not the disk's whole span over the extent."""
+    from pipeline.tiles import _disk_box_in, _disk_box_in_hull
+
+    a = math.radians(20.0)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    hull = np.array([[0.0, 0.0], [500.0, 0.0], [500.0, 500.0], [0.0, 500.0]]) @ rot.T + 1000.0  # counter-clockwise
+    extent = (*hull.min(axis=0), *hull.max(axis=0))
+    edges = np.roll(hull, -1, axis=0) - hull
+    samples = rng.uniform(extent[:2], extent[2:], size=(200_000, 2))
+    cross = edges[:, 0] * (samples[:, 1, None] - hull[:, 1]) - edges[:, 1] * (samples[:, 0, None] - hull[:, 0])
+    samples = samples[(cross >= 0).all(axis=1)]  # the hull's inside
+    for _ in range(200):
+        cx, cy = rng.uniform(500.0, 2000.0, 2)
+        r = rng.uniform(1.0, 800.0)
+        box = _disk_box_in_hull(cx, cy, r, hull, extent)
+        hit = samples[(samples[:, 0] - cx) ** 2 + (samples[:, 1] - cy) ** 2 <= r * r]
+        if box is None:
+            assert hit.shape[0] == 0
+            continue
+        assert ((hit >= box[:2]) & (hit <= box[2:])).all()
+    # a sliver's circle along the south-east edge: centre far outside, the lens inside thin
+    mid, normal = (hull[0] + hull[1]) / 2, np.array([edges[0, 1], -edges[0, 0]]) / 500.0
+    cx, cy = mid + normal * 20_000.0
+    r = 20_000.0 + 0.5
+    full = _disk_box_in(cx, cy, r, extent)
+    lens = _disk_box_in_hull(cx, cy, r, hull, extent)
+    area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
+    assert area(lens) < 0.5 * area(full)
