@@ -14,7 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
+from numpy.typing import NDArray
 
 from . import store
 from .errors import PipelineError
@@ -59,17 +61,36 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
     if foreign.size:
         orow, ocol = grid.owner(v[foreign, 0], v[foreign, 1])
         owner = orow * grid.n_cols + ocol
-        vkey = v[foreign, 0] + 1j * v[foreign, 1]
+        fx = np.ascontiguousarray(v[foreign, 0])
+        fy = np.ascontiguousarray(v[foreign, 1])
         for number in np.unique(owner).tolist():
             sel = owner == number
             r, c = divmod(number, grid.n_cols)
-            table = load_piece(scratch, r, c, ("owned_xy",))["owned_xy"]
-            table = table[:, 0] + 1j * table[:, 1]
-            idx = np.searchsorted(table, vkey[sel])
-            if number == here or np.any(idx >= table.size) or np.any(table[np.minimum(idx, table.size - 1)] != vkey[sel]):
+            # a binary search in the (memory-mapped) table reads a few of its pages, not all
+            table = np.asarray(load_piece(scratch, r, c, ("owned_xy",))["owned_xy"])
+            idx = _sorted_rows(table, fx[sel], fy[sel])
+            if number == here or np.any(idx < 0):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
             gid[foreign[sel]] = node_offsets[number] + idx
     save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sorted_rows(table: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2), sorted by x then
+    y (a tile's owned points), or -1 where it is not there."""
+    n = table.shape[0]
+    out = np.empty(x.shape[0], dtype=np.int64)
+    for i in range(x.shape[0]):
+        lo, hi = 0, n
+        while lo < hi:  # the first row not below the point
+            mid = (lo + hi) >> 1
+            if table[mid, 0] < x[i] or (table[mid, 0] == x[i] and table[mid, 1] < y[i]):
+                lo = mid + 1
+            else:
+                hi = mid
+        out[i] = lo if lo < n and table[lo, 0] == x[i] and table[lo, 1] == y[i] else -1
+    return out
 
 
 @dataclass(frozen=True)
@@ -104,8 +125,10 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
         if block.what == "nodes":
             parts.append({key: np.asarray(a[rows]) for key, a in piece.items()})
         else:
-            # the slot past the vertices (id -1) stands for a triangle's missing 4th corner
-            parts.append({"faces": np.take(piece["node_ids"], piece["faces"][rows])})
+            ids = np.asarray(piece["node_ids"])
+            faces = np.empty((hi - lo, 4), dtype=ids.dtype)
+            _renumber(ids, np.asarray(piece["faces"][rows]), faces)
+            parts.append({"faces": faces})
     writer = store.MeshWriter.attach(block.output)
     if block.what == "nodes":
         xy = np.concatenate([p["owned_xy"] for p in parts])
@@ -113,3 +136,16 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
     else:
         writer.write_faces(block.start, np.concatenate([p["faces"] for p in parts]))
     return block.what, block.start, block.stop
+
+
+@numba.njit(cache=True, nogil=True)
+def _renumber(node_ids: NDArray[np.integer], faces: NDArray[np.integer], out: NDArray[np.integer]) -> None:
+    """``out[i, k] = node_ids[faces[i, k]]``: a piece's face corners as global
+    node ids; a missing 4th corner (-1) takes the slot past the vertices (-1)."""
+    last = node_ids.shape[0] - 1
+    for i in range(faces.shape[0]):
+        for k in range(4):
+            f = faces[i, k]
+            if f >= last:
+                raise IndexError("a face corner past the piece's vertices")
+            out[i, k] = node_ids[f if f >= 0 else last]
