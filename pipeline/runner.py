@@ -584,7 +584,8 @@ def _execute(
         tile_jobs = [
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
-                config.quad_measure, config.merge, config.max_edge, config.layers, hull, plan.height_scale,
+                config.quad_measure, config.merge, config.max_edge, config.layers, hull=hull,
+                height_scale=plan.height_scale,
             )
             for r, c in grid.tiles()
         ]
