@@ -57,11 +57,11 @@ class TileJob:
     layers: tuple[str, ...] = ("elevation",)
     hull: NDArray[np.float64] | None = None
     """The global convex hull's points (x, y, z), added to every tile's points."""
+    height_scale: float = 1.0
+    """A height times this is in the horizontal unit (for slopes)."""
     reaching: tuple[tuple[int, int], ...] | None = None
     """For the DEM: the other tiles whose faces may cover this tile's cells
     (see :func:`reached_tiles`); None: the eight around it."""
-    height_scale: float = 1.0
-    """A height times this is in the horizontal unit (for slopes)."""
 
 
 @dataclass(frozen=True)
@@ -226,6 +226,71 @@ def _uncovered(box, held: list) -> list:
     return parts
 
 
+def _clip_to_box(polygon: NDArray[np.float64], box) -> NDArray[np.float64]:
+    """The convex polygon (k, 2) cut to the box (infinite sides allowed)."""
+    pts = polygon
+    for axis, bound, keep_above in ((0, box[0], True), (0, box[2], False), (1, box[1], True), (1, box[3], False)):
+        if not math.isfinite(bound) or pts.shape[0] == 0:
+            continue
+        inside = pts[:, axis] >= bound if keep_above else pts[:, axis] <= bound
+        if inside.all():
+            continue
+        out = []
+        for k in range(pts.shape[0]):
+            a, b = pts[k - 1], pts[k]
+            ia, ib = inside[k - 1], inside[k]
+            if ia != ib:  # the edge crosses the bound
+                t = (bound - a[axis]) / (b[axis] - a[axis])
+                cut = a + t * (b - a)
+                cut[axis] = bound
+                out.append(cut)
+            if ib:
+                out.append(b)
+        pts = np.array(out).reshape(-1, 2)
+    return pts
+
+
+def _covers_window(xy: NDArray[np.float64], window, hull_xy: NDArray[np.float64]) -> bool:
+    """Whether the convex hull of ``xy`` (a tile's points) covers the part of
+    the tile's window inside the global hull ``hull_xy`` (counter-clockwise),
+    to within rounding.  Where it does not (a tile inside a data void wider
+    than its buffer), its triangulation has no triangle there and so no
+    circle to say that points are missing."""
+    if hull_xy.shape[0] < 3:
+        return True
+    need = _clip_to_box(hull_xy, window)
+    if need.shape[0] == 0:
+        return True
+    if xy.shape[0] < 3:
+        return False
+    h = meshcore.convex_hull(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]))
+    hx, hy = xy[h, 0], xy[h, 1]
+    ex, ey = np.roll(hx, -1) - hx, np.roll(hy, -1) - hy
+    cross = ex[None, :] * (need[:, 1, None] - hy[None, :]) - ey[None, :] * (need[:, 0, None] - hx[None, :])
+    scale = max(float(np.abs(hull_xy).max()), 1.0)
+    tol = 1e-9 * scale * np.hypot(ex, ey)[None, :]
+    return bool((cross >= -tol).all())
+
+
+def _merge_boxes(boxes: list) -> list:
+    """Boxes whose union holds ``boxes``: overlapping ones become their bounding
+    box, until none overlap.  The circles of a data void ask for hundreds of
+    overlapping boxes; held as they are, each circle's :func:`_uncovered` would
+    cut every box by every other."""
+    out: list = []
+    for box in sorted(boxes):
+        while True:
+            for k, other in enumerate(out):
+                if intersect_boxes(box, other) is not None:
+                    box = (min(box[0], other[0]), min(box[1], other[1]), max(box[2], other[2]), max(box[3], other[3]))
+                    del out[k]
+                    break
+            else:
+                break
+        out.append(box)
+    return out
+
+
 def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     """Strips along the data extent's edges that the tile's box reaches, one
     buffer deep and one tile longer than the box on either side.
@@ -307,7 +372,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
             points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
         )
 
-    mesh = build(points)
+    mesh, meshed = build(points), points  # ``meshed``: the points of the last build
     while True:
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
@@ -323,24 +388,31 @@ def mesh_tile(job: TileJob) -> TileSummary:
                 continue
             circles.append((cx, cy, r))
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
-        if not circles or expansions >= MAX_EXPANSIONS:
+        gap = not _covers_window(meshed[:, :2], window, hull_xy)
+        if gap:  # points beyond a void: look around, farther each time
+            around = intersect_boxes(near, job.extent)
+            requests.extend([] if around is None else _uncovered(around, held))
+        if not (circles or gap) or expansions >= MAX_EXPANSIONS:
             break
         expansions += 1
         if not requests:
             continue
+        requests = _merge_boxes(requests)
         extra = _load_boxes(job, requests, held)
         held.extend(requests)
         if extra.shape[0] == 0:
             continue
-        c = np.array(circles)
+        # kept even when no circle holds it: its box now counts as held, so a
+        # circle of a later build that reaches it is vouched for by it
+        points = np.concatenate([points, extra])
+        c = np.array(circles).reshape(-1, 3)
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
-        if np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
-            # a loaded point lies in a circle: the piece changes, build again
-            points = np.concatenate([points, extra])
-            mesh = build(points)
+        if gap or np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
+            # a loaded point lies in a circle, or may close the gap: build again
+            mesh, meshed = build(points), points
     xy = mesh.vertices
-    z = vertex_z(mesh.input_to_vertex, xy.shape[0], points[:, 2], job.duplicates)
-    certified = not circles
+    z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
+    certified = not (circles or gap)
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
     owned = (orow == job.row) & (ocol == job.col)

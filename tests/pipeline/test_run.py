@@ -282,6 +282,24 @@ def test_a_hull_sliver_across_several_tiles_leaves_no_hole_in_the_dem(tmp_path):
     assert np.isfinite(ds.elevation.values[inside]).all()
 
 
+def test_a_void_wider_than_the_buffer_is_bridged_as_in_one_piece(tmp_path):
+    """Tiles inside a data void (a building, a lake with --classes 2) own no
+    points and hold none within their buffer: they must reach across the void
+    for the triangles that span it, as an untiled run has them."""
+    rng = np.random.default_rng(3)
+    p = np.round(rng.uniform(0, 150, (11_000, 2)), 2)
+    p = p[~((np.abs(p[:, 0] - 75) < 37) & (np.abs(p[:, 1] - 75) < 37))]  # a 74 m void; the buffer is ~17 m
+    path = _write_ground(tmp_path / "void.las", p[:, 0], p[:, 1], 20 + 0.1 * p[:, 0] + 0.05 * p[:, 1])
+    out = tmp_path / "dem.zarr"
+    report = _run(path, out, resolution=1.0, tile_size=10.0, in_crs="EPSG:2154")
+    assert report.tiles_uncertified == 0
+    node_xy, _, faces = store.read_mesh(out)
+    meshcore.validate(meshcore.Mesh(np.asarray(node_xy), np.asarray(faces), np.arange(len(node_xy))))
+    ds = xr.open_zarr(out)
+    inside = _cells_inside_hull(ds, p[:, 0], p[:, 1])
+    assert np.isfinite(ds.elevation.values[inside]).all()
+
+
 def test_repeated_points_on_the_hull_leave_no_gap_between_tiles(tmp_path):
     """Points repeated at one x, y (overlapping strips): the stitched mesh still
     covers the convex hull, and the DEM has data wherever the hull does."""
