@@ -95,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
     run.add_argument("--in-crs", help="CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
     run.add_argument("--out-crs", help="reproject to this CRS (required for mixed or geographic inputs)")
-    run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest)")
+    run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest; first: the first read, files in sorted path order)")
     run.add_argument("--triangle-measure", choices=("delaunay", "s1", "s3"), help="flip measure (default s3)")
     run.add_argument("--quad-measure", choices=("s2", "s4", "none"), help="elimination measure (default s4; none: triangles only)")
     run.add_argument("--merge", choices=("greedy", "optimal"), help="elimination strategy (default greedy)")
