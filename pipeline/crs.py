@@ -498,10 +498,13 @@ class _Heights:
     """``declared``, or the custom for undeclared heights: the horizontal unit (metres beside degrees)."""
     unit: str | None
     """The unit of these heights in the output, when known."""
-    presumed_out: str
-    """``unit``, or the presumed one."""
     factor: float
     """Multiplies z after reprojection."""
+
+    @property
+    def presumed_out(self) -> str:
+        """The unit of these heights in the output, known or presumed."""
+        return self.unit or self.presumed
 
 
 def _heights(source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInfo]) -> _Heights:
@@ -509,13 +512,13 @@ def _heights(source: pyproj.CRS, target: pyproj.CRS, members: Sequence[SourceInf
     declared = _vertical_unit(source) or (declared_keys.pop() if len(declared_keys) == 1 else None)
     presumed = declared or ("metre" if _horizontal(source).is_geographic else _horizontal_unit(source))
     if not _has_vertical(target):
-        return _Heights(declared, presumed, declared, presumed, 1.0)
+        return _Heights(declared, presumed, declared, 1.0)
     target_unit = _vertical_unit(target) or "metre"
     if _has_vertical(source):  # PROJ converts z itself
-        return _Heights(declared, presumed, target_unit, target_unit, 1.0)
+        return _Heights(declared, presumed, target_unit, 1.0)
     have, want = unit_metres(presumed), unit_metres(target_unit)
     factor = 1.0 if have is None or want is None else have / want
-    return _Heights(declared, presumed, target_unit, target_unit, factor)
+    return _Heights(declared, presumed, target_unit, factor)
 
 
 def _output_heights(heights: Sequence[_Heights], target: pyproj.CRS, notes: list[str]) -> tuple[str | None, float]:
