@@ -153,6 +153,14 @@ def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float,
     return out
 
 
+def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDArray[np.float64]:
+    """Cross product of each edge of the closed polygon ``(px, py)`` with the way
+    from its start to each query point ``(qx[i], qy[i])``: row i is >= 0 on
+    every edge when the point lies in the (counter-clockwise, convex) polygon."""
+    ex, ey = np.roll(px, -1) - px, np.roll(py, -1) - py
+    return ex[None, :] * (np.asarray(qy)[:, None] - py[None, :]) - ey[None, :] * (np.asarray(qx)[:, None] - px[None, :])
+
+
 def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float64], box):
     """Bounding box of (disk ∩ convex polygon ``hull_xy`` (counter-clockwise)
     ∩ ``box``), a little grown against rounding, or None when they do not meet.
@@ -168,12 +176,11 @@ def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float6
     if clipped is None or hull_xy.shape[0] < 3:
         return clipped
     px, py = hull_xy[:, 0] - cx, hull_xy[:, 1] - cy  # centred: rounding relative to r
-    qx, qy = np.roll(px, -1), np.roll(py, -1)
-    xs, ys = [px[px * px + py * py <= r * r]], [py[px * px + py * py <= r * r]]
-    dx, dy = qx - px, qy - py
+    dx, dy = np.roll(px, -1) - px, np.roll(py, -1) - py
     a = dx * dx + dy * dy
     b = px * dx + py * dy
-    c = px * px + py * py - r * r
+    c = px * px + py * py - r * r  # <= 0: the corner is in the disk
+    xs, ys = [px[c <= 0]], [py[c <= 0]]
     disc = b * b - a * c
     ok = (a > 0) & (disc >= 0)
     root = np.sqrt(np.where(ok, disc, 0.0))
@@ -184,7 +191,7 @@ def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float6
         ys.append(py[on] + t[on] * dy[on])
     ex = np.array([r, -r, 0.0, 0.0])
     ey = np.array([0.0, 0.0, r, -r])
-    inside = ((dx[None, :] * (ey[:, None] - py[None, :]) - dy[None, :] * (ex[:, None] - px[None, :])) >= 0).all(axis=1)
+    inside = (_edge_sides(px, py, ex, ey) >= 0).all(axis=1)
     xs.append(ex[inside])
     ys.append(ey[inside])
     x = np.concatenate(xs)
@@ -265,11 +272,9 @@ def _covers_window(xy: NDArray[np.float64], window, hull_xy: NDArray[np.float64]
         return False
     h = meshcore.convex_hull(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]))
     hx, hy = xy[h, 0], xy[h, 1]
-    ex, ey = np.roll(hx, -1) - hx, np.roll(hy, -1) - hy
-    cross = ex[None, :] * (need[:, 1, None] - hy[None, :]) - ey[None, :] * (need[:, 0, None] - hx[None, :])
     scale = max(float(np.abs(hull_xy).max()), 1.0)
-    tol = 1e-9 * scale * np.hypot(ex, ey)[None, :]
-    return bool((cross >= -tol).all())
+    tol = 1e-9 * scale * np.hypot(np.roll(hx, -1) - hx, np.roll(hy, -1) - hy)[None, :]
+    return bool((_edge_sides(hx, hy, need[:, 0], need[:, 1]) >= -tol).all())
 
 
 def _merge_boxes(boxes: list) -> list:
