@@ -625,14 +625,13 @@ def _execute(
 
         t0 = time.perf_counter()
         node_offsets, face_offsets = mesh_offsets(grid, list(summaries.values()))
+        reached = {key: reached_tiles(grid, s.reach, *key) for key, s in summaries.items()}
         reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
-        for s in summaries.values():
-            for t in reached_tiles(grid, s.reach, s.row, s.col):
-                reaching[t].add((s.row, s.col))
+        for key, tiles in reached.items():
+            for t in tiles:
+                reaching[t].add(key)
         # the DEM under faces meshed again, however far they reach, is written again
-        store.reset_tiles_done(config.output, sorted({
-            t for job in pending for t in reached_tiles(grid, summaries[(job.row, job.col)].reach, job.row, job.col)
-        }))
+        store.reset_tiles_done(config.output, sorted({t for job in pending for t in reached[(job.row, job.col)]}))
         tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)]))) for job in tile_jobs]
         written = store.tiles_done(config.output)
         pending = [job for job in tile_jobs if not written[job.row, job.col]]
