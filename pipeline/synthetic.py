@@ -3,7 +3,10 @@
 The terrain is a smooth analytic function (hills and a valley), so the error of
 a DEM built from the points is known.  Points are written with laspy as real
 LAS/LAZ files in a projected CRS, with ground (class 2) and non-ground classes,
-a few withheld points and a few exact duplicates.  A scene can add a lake (no
+a few withheld points and a few exact duplicates.  Like a real survey's files,
+each strip holds its points in flight order (scan line after scan line) with
+the attributes of a pulse: GPS time, intensity, returns, scan angle and
+direction, flight line; so a file compresses and decodes as a real one does.  A scene can add a lake (no
 returns at all, as over water), buildings (class 6 roofs, no ground beneath)
 and trees (class 5 canopy over some ground returns).
 """
@@ -148,7 +151,54 @@ def write_survey(folder: str | Path, spec: SurveySpec = SurveySpec()) -> list[Pa
         las.z = z
         las.classification = cls
         las.withheld = rng.random(n) < spec.withheld_share
+        _as_flown(las, k, lo, hi, spec)
         path = folder / f"strip_{k:02d}.{'laz' if spec.laz else 'las'}"
         las.write(path)
         paths.append(path)
     return paths
+
+
+#: pulses per second of the simulated scanner
+_PULSE_RATE = 200_000.0
+
+
+def _as_flown(las, strip: int, lo: float, hi: float, spec: SurveySpec) -> None:
+    """Put a strip's points in flight order and give them a pulse's attributes.
+
+    The aircraft flies north along the strip's middle, scanning across it
+    (west-east, then back): points are sorted by scan line, and along each line
+    in the direction of the scan.  Attributes come from their own random
+    stream, so the geometry of a survey does not depend on them.
+    """
+    x = np.asarray(las.x) - spec.origin[0]
+    y = np.asarray(las.y) - spec.origin[1]
+    n = x.size
+    if n == 0:
+        return
+    spacing = ((hi - lo) * spec.height / n) ** 0.5  # one scan line per point spacing
+    line = np.floor(y / spacing).astype(np.int64)
+    backward = (line % 2) == 1
+    order = np.lexsort((np.where(backward, -x, x), line))
+    las.points = las.points[order]
+    x, y, line, backward = x[order], y[order], line[order], backward[order]
+    ground = np.asarray(las.classification) == 2
+    rng = np.random.default_rng([spec.seed, strip, 7])
+    names = set(las.point_format.dimension_names)
+    half = max((hi - lo) / 2.0, 1e-9)
+    angle = 20.0 * (x - (lo + hi) / 2.0) / half  # degrees off nadir
+    if "gps_time" in names:
+        las.gps_time = 4.0e8 + 3600.0 * strip + np.arange(n) / _PULSE_RATE
+    returns = np.where(ground, rng.choice([1, 1, 1, 2], n), rng.integers(1, 4, n)).astype(np.uint8)
+    las.number_of_returns = returns
+    # ground is the last return of its pulse; other returns are any of theirs
+    las.return_number = np.where(ground, returns, rng.integers(1, 4, n) % returns + 1).astype(np.uint8)
+    las.intensity = np.clip(rng.gamma(8.0, 1.0, n) * np.where(ground, 250.0, 110.0), 0, 65535).astype(np.uint16)
+    las.scan_direction_flag = (~backward).astype(np.uint8)
+    edge = np.zeros(n, dtype=bool)
+    edge[:-1] |= line[1:] != line[:-1]
+    las.edge_of_flight_line = edge.astype(np.uint8)
+    if "scan_angle" in names:
+        las.scan_angle = np.round(angle / 0.006).astype(np.int16)
+    else:
+        las.scan_angle_rank = np.round(angle).astype(np.int8)
+    las.point_source_id = np.full(n, strip + 1, dtype=np.uint16)
