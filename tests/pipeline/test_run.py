@@ -318,3 +318,18 @@ def test_repeated_points_on_the_hull_leave_no_gap_between_tiles(tmp_path):
     inside = _cells_inside_hull(ds, x, y)
     assert inside.sum() > 0.9 * 300 * 250
     assert np.isfinite(ds.elevation.values[inside]).all()
+
+
+def test_the_in_process_cluster_runs_no_statistical_profiler(tmp_path):
+    """The dashboard's profiler samples every thread 100 times a second: the
+    local cluster a run starts leaves it off (a run's own cluster has no page
+    to show it on)."""
+    from pipeline.runner import _client, _close
+
+    client, cluster = _client(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=1))
+    try:
+        (worker,) = cluster.workers.values()
+        assert "profile" not in worker.periodic_callbacks
+        assert "profile-cycle" not in worker.periodic_callbacks
+    finally:
+        _close(client, cluster)
