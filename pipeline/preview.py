@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .crs import unit_metres
 from .errors import UsageError
 
 __all__ = ["render_preview", "MAX_MESH_FACES"]
@@ -33,9 +34,11 @@ def _nice_length(span: float) -> float:
     return max(m * power for m in (1, 2, 5) if m * power <= target)
 
 
-def _hillshade(elevation: np.ndarray, resolution: float, ramp=None):
+def _hillshade(elevation: np.ndarray, resolution: float, ramp=None, height_scale: float = 1.0):
     """RGB of the elevation on a colour ramp (default: land colours), lit from
-    the north-west; NaN cells white.  Returns the RGB, the norm and the ramp."""
+    the north-west; NaN cells white.  ``height_scale`` puts a height in the unit
+    of ``resolution``, so the relief is drawn at its true steepness (times the
+    usual exaggeration).  Returns the RGB, the norm and the ramp."""
     from matplotlib.colors import LightSource, Normalize
 
     ramp = _ramp() if ramp is None else ramp
@@ -47,7 +50,7 @@ def _hillshade(elevation: np.ndarray, resolution: float, ramp=None):
     filled = np.where(valid, elevation, np.nanmean(elevation))
     light = LightSource(azdeg=315, altdeg=45)
     norm = Normalize(lo, hi)
-    rgb = light.shade(filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0, dx=resolution, dy=resolution)
+    rgb = light.shade(filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0 * height_scale, dx=resolution, dy=resolution)
     rgb[~valid] = (1.0, 1.0, 1.0, 1.0)
     return rgb, norm, ramp
 
@@ -57,6 +60,32 @@ def _crs_name(ds) -> str:
 
     wkt = ds["spatial_ref"].attrs.get("crs_wkt")
     return CRS.from_wkt(wkt).name if wkt else "no CRS"
+
+
+_UNIT_SYMBOLS = {"metre": "m", "foot": "ft", "US survey foot": "US ft"}
+
+
+def _units(ds) -> tuple[str, str, float]:
+    """Symbols of the horizontal and the height unit, and what turns a height
+    into horizontal units.  Heights without a CF ``units`` are taken to be in
+    the horizontal unit, as the run presumed them."""
+    from pyproj import CRS
+
+    wkt = ds["spatial_ref"].attrs.get("crs_wkt")
+    crs = CRS.from_wkt(wkt) if wkt else None
+    if crs is not None and crs.is_compound:
+        crs = crs.sub_crs_list[0]
+    axes = crs.axis_info if crs is not None else []
+    if not axes:
+        return "m", "m", 1.0
+    name, xy_metres = axes[0].unit_name, axes[0].unit_conversion_factor
+    xy = _UNIT_SYMBOLS.get(name, name)
+    units = str(ds["elevation"].attrs.get("units", "")).split()
+    if units and units[-1] == "metre":
+        z_metres = float(units[0]) if len(units) == 2 else 1.0
+        z = next((s for n, s in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(n) or 0.0, z_metres)), units[0] + " m")
+        return xy, z, z_metres / xy_metres
+    return xy, xy, 1.0
 
 
 def _window_faces(store_path: str, window: tuple[float, float, float, float]):
@@ -134,7 +163,8 @@ def render_preview(
     cell = res * step
     left, top = extent[0] + cols[0] * cell, extent[3] - rows[0] * cell
     extent = (left, left + elev.shape[1] * cell, top - elev.shape[0] * cell, top)
-    rgb, norm, ramp = _hillshade(elev, cell)
+    xy_unit, z_unit, height_scale = _units(ds)
+    rgb, norm, ramp = _hillshade(elev, cell, height_scale=height_scale)
 
     panels = 2 if window is not None else 1
     fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
@@ -142,15 +172,15 @@ def render_preview(
     ax.imshow(rgb, extent=extent, origin="upper", interpolation="nearest")
     span = extent[1] - extent[0]
     length = _nice_length(span)
-    ax.add_artist(AnchoredSizeBar(ax.transData, length, f"{length:g} m", "lower left", pad=0.5,
+    ax.add_artist(AnchoredSizeBar(ax.transData, length, f"{length:g} {xy_unit}", "lower left", pad=0.5,
                                   color="black", frameon=True, size_vertical=span / 250))
     ax.annotate("N", xy=(0.95, 0.93), xytext=(0.95, 0.8), xycoords="axes fraction", ha="center",
                 arrowprops={"arrowstyle": "-|>", "color": "black"}, fontsize=12, fontweight="bold")
     mappable = plt.cm.ScalarMappable(norm=norm, cmap=ramp)
-    fig.colorbar(mappable, ax=ax, shrink=0.8, label="elevation (m)")
-    ax.set_title(f"{Path(store_path).name}: DEM, {res:g} m cells ({_crs_name(ds)})", fontsize=10)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    fig.colorbar(mappable, ax=ax, shrink=0.8, label=f"elevation ({z_unit})")
+    ax.set_title(f"{Path(store_path).name}: DEM, {res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
+    ax.set_xlabel(f"x ({xy_unit})")
+    ax.set_ylabel(f"y ({xy_unit})")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=8)
 
@@ -178,7 +208,7 @@ def render_preview(
         sub = ds["elevation"].values[r0:r1, c0:c1].astype(np.float64)
         if np.isfinite(sub).any():
             # grey relief under the mesh, so the two face colours read clearly
-            zrgb, _, _ = _hillshade(sub, res, ramp=plt.get_cmap("Greys_r"))
+            zrgb, _, _ = _hillshade(sub, res, ramp=plt.get_cmap("Greys_r"), height_scale=height_scale)
             zoom.imshow(zrgb, extent=(xs[0] - res / 2 + c0 * res, xs[0] - res / 2 + c1 * res,
                                       ys[0] + res / 2 - r1 * res, ys[0] + res / 2 - r0 * res),
                         origin="upper", interpolation="nearest", alpha=0.5)
@@ -197,13 +227,13 @@ def render_preview(
             zoom.add_collection(PolyCollection(polys[bridged], facecolors="none", edgecolors="#808080",
                                                linewidths=0.4, linestyles="dashed"))
             handles.append(Patch(facecolor="white", edgecolor="#808080", linestyle="dashed",
-                                 label=f"edge > max_edge {max_edge:g} m: no DEM ({int(bridged.sum()):,})"))
+                                 label=f"edge > max_edge {max_edge:g} {xy_unit}: no DEM ({int(bridged.sum()):,})"))
         zoom.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
         zoom.set_xlim(x0, x1)
         zoom.set_ylim(y0, y1)
         zoom.set_aspect("equal")
         zlen = _nice_length(x1 - x0)
-        zoom.add_artist(AnchoredSizeBar(zoom.transData, zlen, f"{zlen:g} m", "lower left", pad=0.5,
+        zoom.add_artist(AnchoredSizeBar(zoom.transData, zlen, f"{zlen:g} {xy_unit}", "lower left", pad=0.5,
                                         color="black", frameon=True, size_vertical=(x1 - x0) / 250))
         zoom.set_title("combined mesh in the red box", fontsize=10)
         zoom.ticklabel_format(useOffset=False, style="plain")

@@ -50,3 +50,43 @@ def test_refusals_are_one_line_errors(store, tmp_path, capsys):
     assert "meets no face of the mesh" in capsys.readouterr().err
     assert not (tmp_path / "f.png").exists()
     assert main(["preview", str(tmp_path / "nothing.zarr"), "-o", str(tmp_path / "e.png")]) == 2
+
+
+def _dataset(crs: str, units: str | None):
+    import xarray as xr
+    from pyproj import CRS
+
+    elevation = xr.DataArray(np.zeros((2, 2), dtype=np.float32), dims=("y", "x"), attrs={} if units is None else {"units": units})
+    spatial_ref = xr.DataArray(0, attrs={"crs_wkt": CRS.from_user_input(crs).to_wkt()})
+    return xr.Dataset({"elevation": elevation, "spatial_ref": spatial_ref})
+
+
+@pytest.mark.parametrize(
+    "crs, units, expected",
+    [
+        ("EPSG:2154", "metre", ("m", "m", 1.0)),
+        ("EPSG:2154", None, ("m", "m", 1.0)),  # undeclared heights: in the horizontal unit
+        ("EPSG:2154", "0.3048 metre", ("m", "ft", 0.3048)),
+        ("EPSG:2994", None, ("ft", "ft", 1.0)),  # Oregon Lambert, international feet
+        ("EPSG:2994", "metre", ("ft", "m", 1 / 0.3048)),
+        ("EPSG:26913+5703", "metre", ("m", "m", 1.0)),
+    ],
+)
+def test_preview_reads_the_units_of_the_store(crs, units, expected):
+    from pipeline.preview import _units
+
+    xy, z, scale = _units(_dataset(crs, units))
+    assert (xy, z) == expected[:2]
+    assert scale == pytest.approx(expected[2])
+
+
+def test_relief_in_feet_over_metres_is_shaded_as_the_same_relief_in_metres():
+    from pipeline.preview import _hillshade
+
+    y, x = np.mgrid[0:60, 0:80].astype(np.float64)
+    metres = 100.0 + 10.0 * np.sin(x / 9.0) * np.cos(y / 7.0)
+    rgb_m, _, _ = _hillshade(metres, 1.0)
+    rgb_ft, _, _ = _hillshade(metres / 0.3048, 1.0, height_scale=0.3048)
+    unscaled, _, _ = _hillshade(metres / 0.3048, 1.0)
+    assert np.allclose(rgb_ft, rgb_m, atol=1e-6)
+    assert not np.allclose(unscaled, rgb_m, atol=1e-2)  # 3.3 times too steep
