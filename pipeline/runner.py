@@ -26,6 +26,7 @@ import math
 import os
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
@@ -586,11 +587,12 @@ def _execute(
         # where the points are: the headers' extent, grown where a stale header
         # understates it (the tiles' search for missing points must reach them)
         extent = _union_bounds([bounds, *(tuple(c["bounds"]) for c in counts if c is not None and "bounds" in c)])
+        run_id = uuid.uuid4().hex
         tile_jobs = [
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
                 config.quad_measure, config.merge, config.max_edge, config.layers, hull=hull,
-                height_scale=plan.height_scale,
+                height_scale=plan.height_scale, run_id=run_id,
             )
             for r, c in grid.tiles()
         ]

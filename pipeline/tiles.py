@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 import meshcore
 
 from .checkpoint import load_array
-from .tiling import TileGrid, intersect_boxes, load_tile_points, points_in_box, tile_dir
+from .tiling import TileGrid, intersect_boxes, load_tile_points, neighbour_tile_points, points_in_box, tile_dir
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
@@ -62,6 +62,9 @@ class TileJob:
     reaching: tuple[tuple[int, int], ...] | None = None
     """For the DEM: the other tiles whose faces may cover this tile's cells
     (see :func:`reached_tiles`); None: the eight around it."""
+    run_id: str = ""
+    """Names the run: tiles' points read for this one are kept in memory for
+    the other tiles of the same run (empty: never kept)."""
 
 
 @dataclass(frozen=True)
@@ -325,29 +328,38 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
     """Points inside any of ``boxes``, read once from each tile that owns some,
     minus the points inside the boxes already held."""
     g = job.grid
+    corners = np.array(boxes, dtype=np.float64).reshape(-1, 4)
+    row_lo, col_lo = g.owner(corners[:, 0], corners[:, 1])
+    row_hi, col_hi = g.owner(corners[:, 2], corners[:, 3])
     tiles = set()
-    for box in boxes:
-        r_lo, c_lo = (int(v[0]) for v in g.owner(np.array([box[0]]), np.array([box[1]])))
-        r_hi, c_hi = (int(v[0]) for v in g.owner(np.array([box[2]]), np.array([box[3]])))
+    for r_lo, c_lo, r_hi, c_hi in zip(row_lo.tolist(), col_lo.tolist(), row_hi.tolist(), col_hi.tolist()):
         tiles.update((r, c) for r in range(r_lo, r_hi + 1) for c in range(c_lo, c_hi + 1))
-    out = []
+    union = (*corners[:, :2].min(axis=0), *corners[:, 2:].max(axis=0))
+    # each tile's file cut to the boxes' union, then every other test at once
+    # over all of them (a void's search reads hundreds of small tiles)
+    parts, source = [], []
     for r, c in sorted(tiles):
-        pts = load_tile_points(Path(job.scratch), r, c)
+        pts = neighbour_tile_points(Path(job.scratch), r, c, job.run_id)
         if pts.shape[0] == 0:
             continue
-        union = (min(b[0] for b in boxes), min(b[1] for b in boxes), max(b[2] for b in boxes), max(b[3] for b in boxes))
         pts = np.compress(points_in_box(pts, union), pts, axis=0)
-        keep = np.zeros(pts.shape[0], dtype=bool)
-        for box in boxes:
-            keep |= points_in_box(pts, box)
-        for held in exclude:
-            keep &= ~points_in_box(pts, held)
-        if not keep.any():
-            continue
-        pts = np.compress(keep, pts, axis=0)
-        orow, ocol = g.owner(pts[:, 0], pts[:, 1])
-        out.append(np.compress((orow == r) & (ocol == c), pts, axis=0))
-    return np.concatenate(out) if out else np.empty((0, 3))
+        if pts.shape[0]:
+            parts.append(pts)
+            source.append((r, c, pts.shape[0]))
+    if not parts:
+        return np.empty((0, 3))
+    pts = np.concatenate(parts)
+    keep = np.zeros(pts.shape[0], dtype=bool)
+    for box in boxes:
+        keep |= points_in_box(pts, box)
+    for held in exclude:
+        keep &= ~points_in_box(pts, held)
+    # a tile's file also holds its neighbours' points within the buffer: each
+    # point is taken from its owner's file only
+    orow, ocol = g.owner(pts[:, 0], pts[:, 1])
+    counts = [n for _, _, n in source]
+    keep &= (orow == np.repeat([r for r, _, _ in source], counts)) & (ocol == np.repeat([c for _, c, _ in source], counts))
+    return np.compress(keep, pts, axis=0)
 
 
 def mesh_tile(job: TileJob) -> TileSummary:

@@ -11,6 +11,9 @@ tile's spill files on disk, so memory stays bounded whatever the archive size.
 from __future__ import annotations
 
 import math
+import os
+import threading
+from collections import OrderedDict
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,7 +25,7 @@ from .checkpoint import load_array
 from .errors import UsageError
 
 __all__ = [
-    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "points_in_box", "intersect_boxes",
+    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box", "intersect_boxes",
     "hull_candidates", "tile_key",
 ]
 
@@ -309,10 +312,63 @@ def spill_intact(scratch: Path, source: int, parts: list[list[int]]) -> bool:
 def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:
     """All points routed to a tile, ``(n, 3)``, in source then reading order."""
     folder = tile_dir(scratch, row, col)
-    parts = sorted(folder.glob("*.npy")) if folder.exists() else []
+    try:
+        parts = sorted(e.path for e in os.scandir(folder) if e.name.endswith(".npy"))
+    except FileNotFoundError:
+        parts = []
     if not parts:
         return np.empty((0, 3))
     return np.concatenate([load_array(p) for p in parts])
+
+
+class _RecentTilePoints:
+    """Tiles' points read by this process, the most recently used first, up to
+    a budget of bytes; read only.  Keys hold a run's id: a later run (whose
+    routing may have rewritten a tile) never sees an earlier run's points."""
+
+    def __init__(self, budget: int) -> None:
+        self.budget = budget
+        self._arrays: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, key: tuple) -> NDArray[np.float64] | None:
+        with self._lock:
+            found = self._arrays.get(key)
+            if found is not None:
+                self._arrays.move_to_end(key)
+            return found
+
+    def put(self, key: tuple, points: NDArray[np.float64]) -> None:
+        if points.nbytes > self.budget // 4:  # a few large tiles would flush every small one
+            return
+        with self._lock:
+            if key in self._arrays:
+                return
+            self._arrays[key] = points
+            self._bytes += points.nbytes
+            while self._bytes > self.budget:
+                _, old = self._arrays.popitem(last=False)
+                self._bytes -= old.nbytes
+
+
+_RECENT = _RecentTilePoints(64 * 2**20)
+
+
+def neighbour_tile_points(scratch: Path, row: int, col: int, run_id: str) -> NDArray[np.float64]:
+    """:func:`load_tile_points` (read only) for a tile that is not the caller's:
+    kept in memory for later calls of the same run (``run_id``; empty: not
+    kept).  A tile whose window lies in a data void reads tile after tile
+    around it, and so do its neighbours: each file is read once, not once per
+    tile and round of the search."""
+    key = (str(scratch), run_id, row, col)
+    points = _RECENT.get(key) if run_id else None
+    if points is None:
+        points = load_tile_points(scratch, row, col)
+        points.flags.writeable = False
+        if run_id:
+            _RECENT.put(key, points)
+    return points
 
 
 def points_in_box(

@@ -333,3 +333,37 @@ def test_the_in_process_cluster_runs_no_statistical_profiler(tmp_path):
         assert "profile-cycle" not in worker.periodic_callbacks
     finally:
         _close(client, cluster)
+
+
+def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_piece(tmp_path, monkeypatch):
+    """Clusters of points with wide voids between them, in tiles far smaller
+    than the voids: every empty tile searches outward through hundreds of
+    tiles.  Each tile's file is read once for the whole search (it was read
+    again for every tile and every round), and the stitched mesh is still the
+    untiled one."""
+    from pipeline import tiling
+
+    rng = np.random.default_rng(4)
+    centres = rng.uniform(0, 120, (6, 2))
+    p = np.round(np.concatenate([c + rng.normal(0, 4, (25, 2)) for c in centres]), 2)
+    path = _write_ground(tmp_path / "sparse.las", p[:, 0], p[:, 1], 20 + 0.1 * p[:, 0])
+    reads = []
+    real_load = tiling.load_tile_points
+    monkeypatch.setattr(tiling, "load_tile_points", lambda *a: reads.append(a[1:]) or real_load(*a))
+    # the Delaunay triangulation is unique: tiled and untiled runs must agree on every face
+    delaunay = dict(resolution=1.0, in_crs="EPSG:2154", triangle_measure="delaunay", quad_measure="none")
+    tiled = _run(path, tmp_path / "tiled.zarr", tile_size=8.0, workers=1, **delaunay)
+    assert tiled.tiles_uncertified == 0
+    assert tiled.tiles > 60
+    assert len(reads) > 30  # the voids were searched
+    assert len(reads) == len(set(reads)) <= tiled.tiles
+    monkeypatch.setattr(tiling, "load_tile_points", real_load)
+    _run(path, tmp_path / "whole.zarr", tile_size=4096.0, **delaunay)
+
+    def faces(out):
+        xy, _, f = store.read_mesh(out)
+        xy, f = np.asarray(xy), np.asarray(f)
+        meshcore.validate(meshcore.Mesh(xy, f, np.arange(len(xy))))
+        return _face_set(xy, f)
+
+    assert faces(tmp_path / "tiled.zarr") == faces(tmp_path / "whole.zarr")
