@@ -42,7 +42,8 @@ from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
-    TileGrid, TileSpiller, check_cells, drop_source_spill, hull_candidates, load_tile_points, spill_intact, tile_key,
+    TileGrid, TileSpiller, check_cells, drop_source_spill, grow_hull, hull_candidates, load_tile_points, spill_intact,
+    tile_key,
 )
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
@@ -270,7 +271,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
             b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
         spill.add(x, y, z)
-        hull = hull_candidates(np.concatenate([hull, np.column_stack([x, y, z])]))
+        hull = grow_hull(hull, x, y, z)
     spill.flush()
     counts["parts"] = spill.parts  # a resume checks they are still there
     counts["sha256"] = file_digest(job.path)

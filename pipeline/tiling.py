@@ -26,7 +26,7 @@ from .errors import UsageError
 
 __all__ = [
     "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box", "intersect_boxes",
-    "hull_candidates", "tile_key",
+    "hull_candidates", "grow_hull", "tile_key",
 ]
 
 
@@ -391,9 +391,24 @@ def check_cells(grid: TileGrid, max_cells: int) -> None:
 
 def hull_candidates(points: NDArray[np.float64]) -> NDArray[np.float64]:
     """The points of ``points`` (n, 3) on their convex hull (exact; collinear ones kept)."""
-    from meshcore import convex_hull
-
     if points.shape[0] == 0:
         return points.copy()
-    hull = convex_hull(np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1]))
-    return points[hull]
+    return grow_hull(points[:0], points[:, 0], points[:, 1], points[:, 2])
+
+
+def grow_hull(
+    hull: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The points (n, 3) on the convex hull of ``hull`` and the points x, y, z.
+
+    The hull of a union is the hull of the parts' hulls (points on its edges
+    are on their part's hull's edges), so only the new points' hull is
+    gathered: a chunk of millions is never copied whole.
+    """
+    from meshcore import convex_hull
+
+    if x.shape[0] == 0:
+        return hull.copy()
+    own = convex_hull(x, y)
+    merged = np.concatenate([hull, np.column_stack([x[own], y[own], z[own]])])
+    return merged[convex_hull(merged[:, 0], merged[:, 1])]

@@ -148,3 +148,25 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     lens = _disk_box_in_hull(cx, cy, r, hull, extent)
     area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
     assert area(lens) < 0.5 * area(full)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
+    """Routing grows the survey's hull one chunk at a time from each chunk's
+    own hull: the same points, in the same order (repeated and collinear
+    points included), as the hull of everything at once."""
+    from pipeline.tiling import grow_hull, hull_candidates
+
+    rng = np.random.default_rng(seed)
+    chunks = []
+    for _ in range(4):
+        n = int(rng.integers(0, 300))
+        x = rng.integers(0, 12, n).astype(float)  # a coarse lattice: many repeats and collinear runs
+        y = 2.0 * x if seed % 2 else rng.integers(0, 12, n).astype(float)
+        chunks.append(np.column_stack([x, y, rng.random(n)]))
+    hull = np.empty((0, 3))
+    for c in chunks:
+        hull = grow_hull(hull, c[:, 0], c[:, 1], c[:, 2])
+    everything = hull_candidates(np.concatenate(chunks))
+    assert np.array_equal(hull, everything)
+    assert len(hull) >= 2
