@@ -3,6 +3,9 @@
 Kernels are compiled once and cached on disk (``cache=True``) and release the
 GIL (``nogil=True``) so that dask threads run them in parallel.  ``fastmath``
 stays off: the exact predicates rely on IEEE round-to-nearest arithmetic.
+Helpers called per element with the caller's arrays that allocate nothing can
+be compiled without reference counting (:data:`njit_borrowing`), with scratch
+space on the stack (:func:`stack_array`).
 """
 
 from __future__ import annotations
@@ -12,10 +15,55 @@ import sys
 from pathlib import Path
 
 import numba
+import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
-__all__ = ["njit", "drop_stale_kernels"]
+__all__ = ["njit", "njit_borrowing", "stack_array", "drop_stale_kernels"]
 
 njit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+#: for a helper that a kernel calls per element with its arrays, and that
+#: creates none (scratch space: :func:`stack_array`): compiled without
+#: reference counting.  Otherwise it takes and drops a reference to every
+#: array it is given, two atomic operations each per call, which the compiler
+#: cannot remove from a helper with loops and calls: a third of the Delaunay
+#: sweep's time went there.
+njit_borrowing = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+
+
+@intrinsic(prefer_literal=True)
+def _stack_array(typingctx, count):
+    """A float64 array of ``count`` (a literal) elements on the calling
+    function's stack, uninitialised; valid until that function returns.
+
+    Scratch space that needs no allocation, for helpers compiled with
+    :data:`njit_borrowing` (which cannot allocate).
+    """
+    if not isinstance(count, types.IntegerLiteral):
+        return None
+    size = count.literal_value
+    array_type = types.Array(types.float64, 1, "C")
+
+    def codegen(context, builder, signature, args):
+        data = cgutils.alloca_once(builder, context.get_value_type(types.float64), size=size)
+        array = context.make_array(array_type)(context, builder)
+        intp = context.get_value_type(types.intp)
+        context.populate_array(
+            array, data=data, shape=[intp(size)], strides=[intp(8)], itemsize=intp(8), meminfo=None
+        )
+        return array._getvalue()
+
+    return array_type(count), codegen
+
+
+def _heap_array(count: int) -> np.ndarray:
+    return np.empty(count)
+
+
+#: kernels running as Python (``NUMBA_DISABLE_JIT``) take their scratch from the heap
+stack_array = _heap_array if numba.config.DISABLE_JIT else _stack_array
+
 
 #: the name of the file, beside the cached kernels, that says which sources they were compiled from
 SOURCES_STAMP = "meshcore-sources.sha256"

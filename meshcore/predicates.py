@@ -18,7 +18,10 @@ differences are formed exactly (``two_diff``), multiplied exactly
 (``scale_expansion``) and summed exactly (``fast_expansion_sum``).  The sign
 is that of the largest component.  When coordinate differences are exact (the
 usual case for survey data), the expansions stay short and the exact path is
-only a few times slower than the filter.
+only a few times slower than the filter.  Every expansion has a fixed largest
+length, so the exact path works in one scratch buffer on the stack: it
+allocates nothing, and kernels compiled without reference counting can call
+it.
 
 As with Shewchuk's predicates, exactness assumes no product of coordinate
 differences underflows (differences are either 0 or larger than about 1e-150)
@@ -30,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, stack_array
 
 __all__ = ["orient2d", "incircle", "incircle_sos"]
 
@@ -82,29 +85,28 @@ def _two_product(a: float, b: float) -> tuple[float, float]:
 
 
 @njit
-def _diff_expansion(a: float, b: float) -> np.ndarray:
-    """``a - b`` exactly, as an expansion (increasing magnitude, zeros removed)."""
+def _diff_into(a: float, b: float, out: np.ndarray) -> int:
+    """``a - b`` exactly, as an expansion in ``out`` (increasing magnitude,
+    zeros removed); returns its length (1 or 2)."""
     x, y = _two_diff(a, b)
     if y == 0.0:
-        out = np.empty(1)
         out[0] = x
-        return out
-    out = np.empty(2)
+        return 1
     out[0] = y
     out[1] = x
-    return out
+    return 2
 
 
 @njit
-def _scale_expansion(e: np.ndarray, b: float) -> np.ndarray:
-    """``e * b`` exactly (Shewchuk's scale_expansion_zeroelim)."""
-    h = np.empty(2 * e.shape[0])
+def _scale_into(e: np.ndarray, elen: int, b: float, h: np.ndarray) -> int:
+    """``e[:elen] * b`` exactly into ``h`` (room for ``2 elen``); returns its
+    length (Shewchuk's scale_expansion_zeroelim)."""
     q, hh = _two_product(e[0], b)
     n = 0
     if hh != 0.0:
         h[n] = hh
         n += 1
-    for i in range(1, e.shape[0]):
+    for i in range(1, elen):
         p1, p0 = _two_product(e[i], b)
         s, hh = _two_sum(q, p0)
         if hh != 0.0:
@@ -117,15 +119,13 @@ def _scale_expansion(e: np.ndarray, b: float) -> np.ndarray:
     if q != 0.0 or n == 0:
         h[n] = q
         n += 1
-    return h[:n]
+    return n
 
 
 @njit
-def _sum_expansions(e: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """``e + f`` exactly (Shewchuk's fast_expansion_sum_zeroelim)."""
-    elen = e.shape[0]
-    flen = f.shape[0]
-    h = np.empty(elen + flen)
+def _sum_into(e: np.ndarray, elen: int, f: np.ndarray, flen: int, h: np.ndarray) -> int:
+    """``e[:elen] + f[:flen]`` exactly into ``h`` (room for ``elen + flen``);
+    returns its length (Shewchuk's fast_expansion_sum_zeroelim)."""
     ei = 0
     fi = 0
     enow = e[0]
@@ -176,21 +176,28 @@ def _sum_expansions(e: np.ndarray, f: np.ndarray) -> np.ndarray:
     if q != 0.0 or n == 0:
         h[n] = q
         n += 1
-    return h[:n]
+    return n
 
 
 @njit
-def _product_expansions(e: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """``e * f`` exactly."""
-    acc = _scale_expansion(e, f[0])
-    for i in range(1, f.shape[0]):
-        acc = _sum_expansions(acc, _scale_expansion(e, f[i]))
-    return acc
+def _product_into(
+    e: np.ndarray, elen: int, f: np.ndarray, flen: int, h: np.ndarray, scaled: np.ndarray, acc: np.ndarray
+) -> int:
+    """``e[:elen] * f[:flen]`` exactly into ``h`` (room for ``2 elen flen``);
+    ``scaled`` (``2 elen``) and ``acc`` (``2 elen flen``) are scratch."""
+    n = _scale_into(e, elen, f[0], h)
+    for i in range(1, flen):
+        m = _scale_into(e, elen, f[i], scaled)
+        n = _sum_into(h, n, scaled, m, acc)
+        for k in range(n):  # (a slice assignment could raise on a size mismatch)
+            h[k] = acc[k]
+    return n
 
 
 @njit
-def _negate(e: np.ndarray) -> np.ndarray:
-    return -e
+def _negate(e: np.ndarray, elen: int) -> None:
+    for i in range(elen):
+        e[i] = -e[i]
 
 
 @njit
@@ -204,14 +211,18 @@ def _sign(value: float) -> int:
 
 @njit
 def _orient2d_exact(ax, ay, bx, by, cx, cy) -> int:
-    acx = _diff_expansion(ax, cx)
-    acy = _diff_expansion(ay, cy)
-    bcx = _diff_expansion(bx, cx)
-    bcy = _diff_expansion(by, cy)
-    det = _sum_expansions(
-        _product_expansions(acx, bcy), _negate(_product_expansions(acy, bcx))
-    )
-    return _sign(det[det.shape[0] - 1])
+    buf = stack_array(64)
+    acx, acy, bcx, bcy = buf[0:2], buf[2:4], buf[4:6], buf[6:8]
+    left, right, scaled, acc, det = buf[8:16], buf[16:24], buf[24:28], buf[28:36], buf[36:52]
+    n_acx = _diff_into(ax, cx, acx)
+    n_acy = _diff_into(ay, cy, acy)
+    n_bcx = _diff_into(bx, cx, bcx)
+    n_bcy = _diff_into(by, cy, bcy)
+    n_left = _product_into(acx, n_acx, bcy, n_bcy, left, scaled, acc)
+    n_right = _product_into(acy, n_acy, bcx, n_bcx, right, scaled, acc)
+    _negate(right, n_right)
+    n = _sum_into(left, n_left, right, n_right, det)
+    return _sign(det[n - 1])
 
 
 @njit
@@ -245,24 +256,63 @@ def orient2d(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -
 
 
 @njit
+def _lift_into(dx, ndx, dy, ndy, h, small) -> int:
+    """``dx^2 + dy^2`` of 2-term expansions exactly into ``h`` (room for 16);
+    ``small`` (28) is scratch."""
+    xx, yy, scaled, acc = small[0:8], small[8:16], small[16:20], small[20:28]
+    nxx = _product_into(dx, ndx, dx, ndx, xx, scaled, acc)
+    nyy = _product_into(dy, ndy, dy, ndy, yy, scaled, acc)
+    return _sum_into(xx, nxx, yy, nyy, h)
+
+
+@njit
+def _cross_into(ux, nux, vy, nvy, uy, nuy, vx, nvx, h, small) -> int:
+    """``ux vy - uy vx`` of 2-term expansions exactly into ``h`` (room for 16);
+    ``small`` (28) is scratch."""
+    left, right, scaled, acc = small[0:8], small[8:16], small[16:20], small[20:28]
+    nl = _product_into(ux, nux, vy, nvy, left, scaled, acc)
+    nr = _product_into(uy, nuy, vx, nvx, right, scaled, acc)
+    _negate(right, nr)
+    return _sum_into(left, nl, right, nr, h)
+
+
+#: doubles of scratch the exact in-circle test needs on the stack (38 KB)
+_INCIRCLE_WORK = 4800
+
+
+@njit
 def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
-    adx = _diff_expansion(ax, dx)
-    ady = _diff_expansion(ay, dy)
-    bdx = _diff_expansion(bx, dx)
-    bdy = _diff_expansion(by, dy)
-    cdx = _diff_expansion(cx, dx)
-    cdy = _diff_expansion(cy, dy)
-    alift = _sum_expansions(_product_expansions(adx, adx), _product_expansions(ady, ady))
-    blift = _sum_expansions(_product_expansions(bdx, bdx), _product_expansions(bdy, bdy))
-    clift = _sum_expansions(_product_expansions(cdx, cdx), _product_expansions(cdy, cdy))
-    bc = _sum_expansions(_product_expansions(bdx, cdy), _negate(_product_expansions(cdx, bdy)))
-    ca = _sum_expansions(_product_expansions(cdx, ady), _negate(_product_expansions(adx, cdy)))
-    ab = _sum_expansions(_product_expansions(adx, bdy), _negate(_product_expansions(bdx, ady)))
-    det = _sum_expansions(
-        _sum_expansions(_product_expansions(alift, bc), _product_expansions(blift, ca)),
-        _product_expansions(clift, ab),
-    )
-    return _sign(det[det.shape[0] - 1])
+    # every expansion has a fixed upper length (differences 2, squares and
+    # cross products 16, their products 512), so one buffer on the stack holds
+    # them all: the test allocates nothing and so cannot fail, and kernels
+    # that call it keep no exceptional exit (which would cost them the
+    # pruning of their reference counts)
+    w = stack_array(_INCIRCLE_WORK)
+    adx, ady, bdx, bdy, cdx, cdy = w[0:2], w[2:4], w[4:6], w[6:8], w[8:10], w[10:12]
+    nadx = _diff_into(ax, dx, adx)
+    nady = _diff_into(ay, dy, ady)
+    nbdx = _diff_into(bx, dx, bdx)
+    nbdy = _diff_into(by, dy, bdy)
+    ncdx = _diff_into(cx, dx, cdx)
+    ncdy = _diff_into(cy, dy, cdy)
+    small = w[12:40]
+    alift, blift, clift = w[40:56], w[56:72], w[72:88]
+    bc, ca, ab = w[88:104], w[104:120], w[120:136]
+    nal = _lift_into(adx, nadx, ady, nady, alift, small)
+    nbl = _lift_into(bdx, nbdx, bdy, nbdy, blift, small)
+    ncl = _lift_into(cdx, ncdx, cdy, ncdy, clift, small)
+    nbc = _cross_into(bdx, nbdx, cdy, ncdy, bdy, nbdy, cdx, ncdx, bc, small)
+    nca = _cross_into(cdx, ncdx, ady, nady, cdy, ncdy, adx, nadx, ca, small)
+    nab = _cross_into(adx, nadx, bdy, nbdy, ady, nady, bdx, nbdx, ab, small)
+    scaled, acc = w[136:168], w[168:680]
+    pa, pb, pc = w[680:1192], w[1192:1704], w[1704:2216]
+    npa = _product_into(alift, nal, bc, nbc, pa, scaled, acc)
+    npb = _product_into(blift, nbl, ca, nca, pb, scaled, acc)
+    npc = _product_into(clift, ncl, ab, nab, pc, scaled, acc)
+    pab, det = w[2216:3240], w[3240:4776]
+    nab2 = _sum_into(pa, npa, pb, npb, pab)
+    n = _sum_into(pab, nab2, pc, npc, det)
+    return _sign(det[n - 1])
 
 
 @njit
@@ -358,20 +408,17 @@ def _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     s = _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
     if s != 0:
         return s
-    xs = np.array([ax, bx, cx, dx])
-    ys = np.array([ay, by, cy, dy])
-    done = np.zeros(4, dtype=np.bool_)
-    for _ in range(4):
-        k = -1
-        for j in range(4):
-            if not done[j] and (k < 0 or lex_before(xs[j], ys[j], xs[k], ys[k])):
-                k = j
-        done[k] = True
-        if k == 0:
+    # the points in lexicographic order, equal points in argument order: the
+    # rank of each is how many come before it
+    ra = int(lex_before(bx, by, ax, ay)) + int(lex_before(cx, cy, ax, ay)) + int(lex_before(dx, dy, ax, ay))
+    rb = int(not lex_before(bx, by, ax, ay)) + int(lex_before(cx, cy, bx, by)) + int(lex_before(dx, dy, bx, by))
+    rc = int(not lex_before(cx, cy, ax, ay)) + int(not lex_before(cx, cy, bx, by)) + int(lex_before(dx, dy, cx, cy))
+    for rank in range(4):
+        if rank == ra:
             c = orient2d(bx, by, cx, cy, dx, dy)
-        elif k == 1:
+        elif rank == rb:
             c = -orient2d(ax, ay, cx, cy, dx, dy)
-        elif k == 2:
+        elif rank == rc:
             c = orient2d(ax, ay, bx, by, dx, dy)
         else:
             c = -orient2d(ax, ay, bx, by, cx, cy)

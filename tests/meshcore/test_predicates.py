@@ -86,3 +86,33 @@ def test_translation_by_exact_amounts_keeps_signs(rng, shift):
         a, b, c, d = q
         assert orient2d(*a, *b, *c) == orient2d(*(a + shift), *(b + shift), *(c + shift))
         assert incircle(*a, *b, *c, *d) == incircle(*(a + shift), *(b + shift), *(c + shift), *(d + shift))
+
+
+def test_the_exact_path_runs_inside_kernels_without_reference_counting():
+    """The exact stage allocates nothing (its scratch is on the stack), so a
+    kernel compiled without reference counting can call it; its signs still
+    match rational arithmetic where the filter cannot decide (cocircular and
+    collinear lattice points far from the origin)."""
+    from meshcore._jit import njit_borrowing
+    from meshcore.predicates import incircle_sos
+
+    @njit_borrowing
+    def signs(p, out):  # an allocating callee would not compile here
+        for k in range(p.shape[0]):
+            r = p[k]
+            out[k, 0] = orient2d(r[0], r[1], r[2], r[3], r[4], r[5])
+            out[k, 1] = incircle(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7])
+            out[k, 2] = incircle_sos(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7])
+
+    rng = np.random.default_rng(3)
+    p = (rng.integers(-2, 3, (3000, 8)) * 0.25 + 6.5e5).astype(np.float64)
+    out = np.zeros((3000, 3), dtype=np.int64)
+    signs(p, out)
+    rows = p.reshape(-1, 4, 2).tolist()
+    expected_orient = [exact_orient(*r[:3]) for r in rows]
+    expected_incircle = [exact_incircle(*r) for r in rows]
+    assert out[:, 0].tolist() == expected_orient
+    assert out[:, 1].tolist() == expected_incircle
+    assert sum(e == 0 for e in expected_incircle) > 500  # the exact stage had work to do
+    decided = out[:, 1] != 0
+    assert np.all(out[decided, 2] == out[decided, 1])
