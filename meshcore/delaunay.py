@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_borrowing
 from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
@@ -191,11 +191,14 @@ def _sweep_order(xy, ox, oy, cx, cy) -> np.ndarray:
     return ids
 
 
-@njit
-def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack):
+@njit_borrowing
+def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack) -> int:
     """Lawson flips after adding a triangle during the sweep (clockwise triangles).
 
-    Returns the half-edge that ends up on the hull, and the (possibly grown) stack.
+    Returns the half-edge that ends up on the hull.  ``stack`` must hold as
+    many entries as there are points: each flip raises the new point's degree
+    by one and pushes one edge, so no legalization pushes more (a stack that
+    could grow would have to be allocated here).
     """
     i = 0
     ar = 0
@@ -234,10 +237,8 @@ def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack):
             _link(he, b, he[ar])
             _link(he, ar, bl)
             br = b0 + (b + 1) % 3
-            if i == stack.shape[0]:
-                grown = np.empty(2 * stack.shape[0], dtype=stack.dtype)
-                grown[:i] = stack
-                stack = grown
+            if i == stack.shape[0]:  # unreachable (see above); memory is not written past the end
+                raise RuntimeError("Delaunay sweep: legalization stack exhausted")
             stack[i] = br
             i += 1
         else:
@@ -245,7 +246,7 @@ def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack):
                 break
             i -= 1
             a = stack[i]
-    return ar, stack
+    return ar
 
 
 @njit
@@ -550,7 +551,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
     max_tri = max(2 * n - 5, 1)
     tri = np.empty(3 * max_tri, dtype=np.int32)
     he = np.empty(3 * max_tri, dtype=np.int32)
-    stack = np.empty(512, dtype=np.int32)
+    stack = np.empty(n + 16, dtype=np.int32)  # see _legalize_sweep
     deferred = np.empty(16, dtype=np.int32)
     n_deferred = 0
 
@@ -599,7 +600,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
 
         t = _add_triangle(tri, he, nt, e, i, hull_next[e], -1, -1, hull_tri[e])
         nt += 1
-        ar, stack = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
+        ar = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
         hull_tri[i] = ar
         hull_tri[e] = t
 
@@ -610,7 +611,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
                 break
             t = _add_triangle(tri, he, nt, nn, i, q, hull_tri[i], -1, hull_tri[nn])
             nt += 1
-            ar, stack = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
+            ar = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
             hull_tri[i] = ar
             hull_next[nn] = nn
             nn = q
@@ -622,7 +623,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
                     break
                 t = _add_triangle(tri, he, nt, q, i, e, -1, hull_tri[e], hull_tri[q])
                 nt += 1
-                ar, stack = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
+                ar = _legalize_sweep(t + 2, tri, he, x, y, hull_start, hull_tri, hull_prev, stack)
                 hull_tri[q] = t
                 hull_next[e] = e
                 e = q
