@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_borrowing
 from ._order import geometric_order
 from .delaunay import _next, _prev, circumcenter_offset, delaunay
 from .errors import InvalidInputError
@@ -153,7 +153,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
     return out[:n].copy()
 
 
-@njit
+@njit_borrowing
 def _emit(faces, k, x, y, vertex_of, a, b, c, d) -> None:
     """Write a face (``d < 0``: a triangle) starting at its lexicographically
     smallest vertex (by coordinates).

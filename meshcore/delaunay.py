@@ -261,7 +261,7 @@ def _add_triangle(tri, he, nt, i0, i1, i2, a, b, c) -> int:
     return t
 
 
-@njit
+@njit_borrowing
 def _flip(tri: np.ndarray, he: np.ndarray, e: int) -> None:
     """Flip the diagonal ``e`` of the quadrangle formed by its two (CCW) triangles.
 
