@@ -210,18 +210,26 @@ def _sign(value: float) -> int:
 
 
 @njit
+def _two_products_into(a, na, b, nb, c, nc, d, nd, sign, h, small) -> int:
+    """``a b + sign c d`` (``sign`` +1 or -1) of expansions of at most 2 terms,
+    exactly into ``h`` (room for 16); ``small`` (28) is scratch."""
+    left, right, scaled, acc = small[0:8], small[8:16], small[16:20], small[20:28]
+    nl = _product_into(a, na, b, nb, left, scaled, acc)
+    nr = _product_into(c, nc, d, nd, right, scaled, acc)
+    if sign < 0:
+        _negate(right, nr)
+    return _sum_into(left, nl, right, nr, h)
+
+
+@njit
 def _orient2d_exact(ax, ay, bx, by, cx, cy) -> int:
     buf = stack_array(64)
-    acx, acy, bcx, bcy = buf[0:2], buf[2:4], buf[4:6], buf[6:8]
-    left, right, scaled, acc, det = buf[8:16], buf[16:24], buf[24:28], buf[28:36], buf[36:52]
+    acx, acy, bcx, bcy, det, small = buf[0:2], buf[2:4], buf[4:6], buf[6:8], buf[8:24], buf[24:52]
     n_acx = _diff_into(ax, cx, acx)
     n_acy = _diff_into(ay, cy, acy)
     n_bcx = _diff_into(bx, cx, bcx)
     n_bcy = _diff_into(by, cy, bcy)
-    n_left = _product_into(acx, n_acx, bcy, n_bcy, left, scaled, acc)
-    n_right = _product_into(acy, n_acy, bcx, n_bcx, right, scaled, acc)
-    _negate(right, n_right)
-    n = _sum_into(left, n_left, right, n_right, det)
+    n = _two_products_into(acx, n_acx, bcy, n_bcy, acy, n_acy, bcx, n_bcx, -1, det, small)
     return _sign(det[n - 1])
 
 
@@ -255,38 +263,16 @@ def orient2d(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -
     return _orient2d_exact(ax, ay, bx, by, cx, cy)
 
 
-@njit
-def _lift_into(dx, ndx, dy, ndy, h, small) -> int:
-    """``dx^2 + dy^2`` of 2-term expansions exactly into ``h`` (room for 16);
-    ``small`` (28) is scratch."""
-    xx, yy, scaled, acc = small[0:8], small[8:16], small[16:20], small[20:28]
-    nxx = _product_into(dx, ndx, dx, ndx, xx, scaled, acc)
-    nyy = _product_into(dy, ndy, dy, ndy, yy, scaled, acc)
-    return _sum_into(xx, nxx, yy, nyy, h)
-
-
-@njit
-def _cross_into(ux, nux, vy, nvy, uy, nuy, vx, nvx, h, small) -> int:
-    """``ux vy - uy vx`` of 2-term expansions exactly into ``h`` (room for 16);
-    ``small`` (28) is scratch."""
-    left, right, scaled, acc = small[0:8], small[8:16], small[16:20], small[20:28]
-    nl = _product_into(ux, nux, vy, nvy, left, scaled, acc)
-    nr = _product_into(uy, nuy, vx, nvx, right, scaled, acc)
-    _negate(right, nr)
-    return _sum_into(left, nl, right, nr, h)
-
-
 #: doubles of scratch the exact in-circle test needs on the stack (38 KB)
 _INCIRCLE_WORK = 4800
 
 
 @njit
 def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
-    # every expansion has a fixed upper length (differences 2, squares and
-    # cross products 16, their products 512), so one buffer on the stack holds
-    # them all: the test allocates nothing and so cannot fail, and kernels
-    # that call it keep no exceptional exit (which would cost them the
-    # pruning of their reference counts)
+    # every expansion has a fixed largest length (differences 2, lifts and
+    # cross products 16, their products 512), so one buffer on the stack
+    # holds them all: the test allocates nothing, and kernels compiled
+    # without reference counting can run it
     w = stack_array(_INCIRCLE_WORK)
     adx, ady, bdx, bdy, cdx, cdy = w[0:2], w[2:4], w[4:6], w[6:8], w[8:10], w[10:12]
     nadx = _diff_into(ax, dx, adx)
@@ -298,12 +284,12 @@ def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     small = w[12:40]
     alift, blift, clift = w[40:56], w[56:72], w[72:88]
     bc, ca, ab = w[88:104], w[104:120], w[120:136]
-    nal = _lift_into(adx, nadx, ady, nady, alift, small)
-    nbl = _lift_into(bdx, nbdx, bdy, nbdy, blift, small)
-    ncl = _lift_into(cdx, ncdx, cdy, ncdy, clift, small)
-    nbc = _cross_into(bdx, nbdx, cdy, ncdy, bdy, nbdy, cdx, ncdx, bc, small)
-    nca = _cross_into(cdx, ncdx, ady, nady, cdy, ncdy, adx, nadx, ca, small)
-    nab = _cross_into(adx, nadx, bdy, nbdy, ady, nady, bdx, nbdx, ab, small)
+    nal = _two_products_into(adx, nadx, adx, nadx, ady, nady, ady, nady, 1, alift, small)
+    nbl = _two_products_into(bdx, nbdx, bdx, nbdx, bdy, nbdy, bdy, nbdy, 1, blift, small)
+    ncl = _two_products_into(cdx, ncdx, cdx, ncdx, cdy, ncdy, cdy, ncdy, 1, clift, small)
+    nbc = _two_products_into(bdx, nbdx, cdy, ncdy, cdx, ncdx, bdy, nbdy, -1, bc, small)
+    nca = _two_products_into(cdx, ncdx, ady, nady, adx, nadx, cdy, ncdy, -1, ca, small)
+    nab = _two_products_into(adx, nadx, bdy, nbdy, bdx, nbdx, ady, nady, -1, ab, small)
     scaled, acc = w[136:168], w[168:680]
     pa, pb, pc = w[680:1192], w[1192:1704], w[1704:2216]
     npa = _product_into(alift, nal, bc, nbc, pa, scaled, acc)
