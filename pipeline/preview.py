@@ -50,7 +50,9 @@ def _hillshade(elevation: np.ndarray, resolution: float, ramp=None, height_scale
     filled = np.where(valid, elevation, np.nanmean(elevation))
     light = LightSource(azdeg=315, altdeg=45)
     norm = Normalize(lo, hi)
-    rgb = light.shade(filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0 * height_scale, dx=resolution, dy=resolution)
+    rgb = light.shade(
+        filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0 * height_scale, dx=resolution, dy=resolution
+    )
     rgb[~valid] = (1.0, 1.0, 1.0, 1.0)
     return rgb, norm, ramp
 
@@ -83,7 +85,8 @@ def _units(ds) -> tuple[str, str, float]:
     units = str(ds["elevation"].attrs.get("units", "")).split()
     if units and units[-1] == "metre":
         z_metres = float(units[0]) if len(units) == 2 else 1.0
-        z = next((s for n, s in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(n) or 0.0, z_metres)), units[0] + " m")
+        known = (symbol for name, symbol in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(name) or 0.0, z_metres))
+        z = next(known, units[0] + " m")
         return xy, z, z_metres / xy_metres
     return xy, xy, 1.0
 

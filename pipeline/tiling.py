@@ -25,8 +25,8 @@ from .checkpoint import load_array
 from .errors import UsageError
 
 __all__ = [
-    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box", "intersect_boxes",
-    "hull_candidates", "grow_hull", "tile_key",
+    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
+    "intersect_boxes", "hull_candidates", "grow_hull", "tile_key",
 ]
 
 
