@@ -31,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,6 +45,9 @@ from .tiling import (
     TileGrid, TileSpiller, check_cells, drop_source_spill, grow_hull, hull_candidates, load_tile_points, spill_intact,
     tile_key,
 )
+
+if TYPE_CHECKING:
+    from .crs import CrsPlan
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -332,15 +335,22 @@ def _skipped_note(skipped: list) -> str:
     return f"{len(skipped)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
 
 
-def job_frame_record(grid: TileGrid, bounds, buffer: float) -> dict[str, Any]:
-    """The provenance entries that fix a job's tiles."""
-    return {"grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer}
+def job_frame_record(grid: TileGrid, bounds, buffer: float, plan: CrsPlan) -> dict[str, Any]:
+    """The provenance entries that fix a job's tiles, and the unit of its
+    heights (a slope compares heights with distances)."""
+    return {
+        "grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer,
+        "heights": {"unit": plan.height_unit, "scale": plan.height_scale},
+    }
 
 
 def frame_moved(before: dict[str, Any], now: dict[str, Any]) -> bool:
-    """Whether two provenances differ in the entries that fix the tiles (every
-    tile is then computed again)."""
-    return any(before.get(k) != now.get(k) for k in ("grid", "extent", "buffer"))
+    """Whether two provenances differ in the entries that fix the tiles or in
+    the heights' unit (every tile is then computed again: a new file in
+    another height unit changes the slopes of tiles it does not touch)."""
+    if any(before.get(k) != now.get(k) for k in ("grid", "extent", "buffer")):
+        return True
+    return "heights" in before and before["heights"] != now.get("heights")  # stores of 0.x record none
 
 
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
@@ -472,14 +482,14 @@ def _execute(
             for i, b in zip(infos, file_bounds)
         ],
         "crs_wkt": plan.target_wkt,
-        **job_frame_record(grid, bounds, buffer),
+        **job_frame_record(grid, bounds, buffer, plan),
     }
     spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
     work = WorkDir(work_dir_for(config.output, config.scratch_dir))
     previous = _existing_job(config, provenance, allow_new_inputs=incremental)
     fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
     if incremental and fresh_frame:
-        report.notes.append("the grid, extent or buffer changed: every tile was computed again")
+        report.notes.append("the grid, extent, buffer or height unit changed: every tile was computed again")
         previous = None
     elif fresh_frame:
         raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")

@@ -167,11 +167,12 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
 
     try:
         paths, infos, _ = read_headers(config)
-        grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, resolve_crs(infos, config.in_crs, config.out_crs))
+        plan = resolve_crs(infos, config.in_crs, config.out_crs)
+        grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, plan)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"
-    if frame_moved(provenance, job_frame_record(grid, bounds, buffer)):
-        return "all (the grid, extent or buffer changes)"
+    if frame_moved(provenance, job_frame_record(grid, bounds, buffer, plan)):
+        return "all (the grid, extent, buffer or height unit changes)"
     if not work.exists():
         return "all"
     now = dict(zip(map(str, paths), file_bounds))

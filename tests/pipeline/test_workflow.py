@@ -167,7 +167,7 @@ def test_status_sees_a_new_file_that_moves_the_grid(job, tmp_path):
     assert status["new_files"] == [str(tmp_path / "archive" / "beyond.laz")]
     assert str(status["tiles_pending"]).startswith("all")
     report = run_workflow(workflow, progress=False)
-    assert any("grid, extent or buffer changed" in note for note in report.notes), report.notes
+    assert any("grid, extent, buffer or height unit changed" in note for note in report.notes), report.notes
     assert workflow_status(workflow)["tiles_pending"] == 0
 
 
@@ -219,4 +219,28 @@ def test_a_plain_run_on_a_workflow_store_keeps_its_work(job, tmp_path):
     (note,) = [n for n in report.notes if "inputs changed" in n]
     done, total = (int(w) for w in note.split(": ")[1].split(" tile")[0].split(" of "))
     assert 0 < done < total
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_a_new_file_in_another_height_unit_recomputes_every_slope(tmp_path):
+    """The archive's heights are declared in US survey feet over metres, so
+    slopes scale them by 0.3048.  A new file of heights in metres makes the
+    units mixed (scale 1, with a warning): the slopes of tiles the file does
+    not touch change too, so every tile is computed again."""
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=24_000, files=2, seed=1,
+                                     crs="EPSG:2154+6360"))
+    path = tmp_path / "heights.toml"
+    path.write_text(JOB + 'out_crs = "EPSG:2154"\n')
+    workflow = Workflow.load(path)
+    run_workflow(workflow, progress=False)
+    before = _chunk_times(workflow.config.output)
+    _patch(archive, "patch_m", (20.0, 20.0), seed=2)  # plain EPSG:2154: heights presumed in metres
+
+    assert workflow_status(workflow)["tiles_pending"] == "all (the grid, extent, buffer or height unit changes)"
+    report = run_workflow(workflow, progress=False)
+    assert any("height unit changed: every tile" in note for note in report.notes), report.notes
+    assert any("heights are in different units" in note for note in report.notes), report.notes
+    after = _chunk_times(workflow.config.output)
+    assert all(after[k] != t for k, t in before.items())
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
