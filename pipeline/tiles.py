@@ -324,6 +324,10 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     return bands
 
 
+#: points of other tiles' files tested together by :func:`_load_boxes` (bounds its memory)
+_LOAD_BATCH = 1_000_000
+
+
 def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]:
     """Points inside any of ``boxes``, read once from each tile that owns some,
     minus the points inside the boxes already held."""
@@ -335,9 +339,9 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
     for r_lo, c_lo, r_hi, c_hi in zip(row_lo.tolist(), col_lo.tolist(), row_hi.tolist(), col_hi.tolist()):
         tiles.update((r, c) for r in range(r_lo, r_hi + 1) for c in range(c_lo, c_hi + 1))
     union = (*corners[:, :2].min(axis=0), *corners[:, 2:].max(axis=0))
-    # each tile's file cut to the boxes' union, then every other test at once
-    # over all of them (a void's search reads hundreds of small tiles)
-    parts, source = [], []
+    # each tile's file cut to the boxes' union, then the other tests at once
+    # over a batch of tiles (a void's search reads hundreds of small ones)
+    out, parts, source, batch = [], [], [], 0
     for r, c in sorted(tiles):
         pts = neighbour_tile_points(Path(job.scratch), r, c, job.run_id)
         if pts.shape[0] == 0:
@@ -346,16 +350,26 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
         if pts.shape[0]:
             parts.append(pts)
             source.append((r, c, pts.shape[0]))
-    if not parts:
-        return np.empty((0, 3))
+            batch += pts.shape[0]
+        if batch >= _LOAD_BATCH:
+            out.append(_owned_in_boxes(g, parts, source, boxes, exclude))
+            parts, source, batch = [], [], 0
+    if parts:
+        out.append(_owned_in_boxes(g, parts, source, boxes, exclude))
+    return np.concatenate(out) if out else np.empty((0, 3))
+
+
+def _owned_in_boxes(g: TileGrid, parts: list, source: list, boxes: list, exclude: list) -> NDArray[np.float64]:
+    """The points of ``parts`` (read from the tiles ``source`` lists, with their
+    counts) inside any of ``boxes`` and none of ``exclude``, each taken from its
+    owner's file only (a tile's file also holds its neighbours' points within
+    the buffer)."""
     pts = np.concatenate(parts)
     keep = np.zeros(pts.shape[0], dtype=bool)
     for box in boxes:
         keep |= points_in_box(pts, box)
     for held in exclude:
         keep &= ~points_in_box(pts, held)
-    # a tile's file also holds its neighbours' points within the buffer: each
-    # point is taken from its owner's file only
     orow, ocol = g.owner(pts[:, 0], pts[:, 1])
     counts = [n for _, _, n in source]
     keep &= (orow == np.repeat([r for r, _, _ in source], counts)) & (ocol == np.repeat([c for _, c, _ in source], counts))

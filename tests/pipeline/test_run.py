@@ -341,7 +341,7 @@ def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_pi
     tiles.  Each tile's file is read once for the whole search (it was read
     again for every tile and every round), and the stitched mesh is still the
     untiled one."""
-    from pipeline import tiling
+    from pipeline import tiles, tiling
 
     rng = np.random.default_rng(4)
     centres = rng.uniform(0, 120, (6, 2))
@@ -350,6 +350,7 @@ def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_pi
     reads = []
     real_load = tiling.load_tile_points
     monkeypatch.setattr(tiling, "load_tile_points", lambda *a: reads.append(a[1:]) or real_load(*a))
+    monkeypatch.setattr(tiles, "_LOAD_BATCH", 40)  # the points read are tested in several batches
     # the Delaunay triangulation is unique: tiled and untiled runs must agree on every face
     delaunay = dict(resolution=1.0, in_crs="EPSG:2154", triangle_measure="delaunay", quad_measure="none")
     tiled = _run(path, tmp_path / "tiled.zarr", tile_size=8.0, workers=1, **delaunay)
