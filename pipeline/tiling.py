@@ -340,7 +340,10 @@ class _RecentTilePoints:
             return found
 
     def put(self, key: tuple, points: NDArray[np.float64]) -> None:
-        if points.nbytes > self.budget // 4:  # a few large tiles would flush every small one
+        # small tiles only: a search that reads many tiles is slow when they
+        # are many and small (sparse points, tiny tiles), while a dense
+        # survey's large tiles are few, and would only fill the memory
+        if points.nbytes > self.budget // 64:
             return
         with self._lock:
             if key in self._arrays:
