@@ -350,7 +350,8 @@ def frame_moved(before: dict[str, Any], now: dict[str, Any]) -> bool:
     another height unit changes the slopes of tiles it does not touch)."""
     if any(before.get(k) != now.get(k) for k in ("grid", "extent", "buffer")):
         return True
-    return "heights" in before and before["heights"] != now.get("heights")  # stores of 0.x record none
+    # stores written before the heights were recorded have none: taken as unchanged
+    return "heights" in before and before["heights"] != now.get("heights")
 
 
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
