@@ -97,9 +97,7 @@ def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | Non
             for r in range(max(0, row - 1), min(grid.n_rows, row + 2))
             for c in range(max(0, col - 1), min(grid.n_cols, col + 2))
         ]
-    c0, c1 = (int(v) for v in grid.bins(np.array([reach[0], reach[2]]), 0))
-    r0, r1 = (int(v) for v in grid.bins(np.array([reach[1], reach[3]]), 1))
-    return [(r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)]
+    return grid.tiles_meeting([reach])
 
 
 def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
@@ -333,16 +331,11 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
     minus the points inside the boxes already held."""
     g = job.grid
     corners = np.array(boxes, dtype=np.float64).reshape(-1, 4)
-    row_lo, col_lo = g.owner(corners[:, 0], corners[:, 1])
-    row_hi, col_hi = g.owner(corners[:, 2], corners[:, 3])
-    tiles = set()
-    for r_lo, c_lo, r_hi, c_hi in zip(row_lo.tolist(), col_lo.tolist(), row_hi.tolist(), col_hi.tolist()):
-        tiles.update((r, c) for r in range(r_lo, r_hi + 1) for c in range(c_lo, c_hi + 1))
     union = (*corners[:, :2].min(axis=0), *corners[:, 2:].max(axis=0))
     # each tile's file cut to the boxes' union, then the other tests at once
     # over a batch of tiles (a void's search reads hundreds of small ones)
     out, parts, source, batch = [], [], [], 0
-    for r, c in sorted(tiles):
+    for r, c in g.tiles_meeting(corners):
         pts = neighbour_tile_points(Path(job.scratch), r, c, job.run_id)
         if pts.shape[0] == 0:
             continue

@@ -145,6 +145,17 @@ class TileGrid:
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.n_rows) for c in range(self.n_cols)]
 
+    def tiles_meeting(self, boxes) -> list[tuple[int, int]]:
+        """The tiles (row, col), in order, whose windows hold a point of any of
+        the closed ``boxes`` (x_min, y_min, x_max, y_max)."""
+        corners = np.array(boxes, dtype=np.float64).reshape(-1, 4)
+        row_lo, col_lo = self.owner(corners[:, 0], corners[:, 1])
+        row_hi, col_hi = self.owner(corners[:, 2], corners[:, 3])
+        found = set()
+        for r0, c0, r1, c1 in zip(row_lo.tolist(), col_lo.tolist(), row_hi.tolist(), col_hi.tolist()):
+            found.update((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1))
+        return sorted(found)
+
     def to_dict(self) -> dict[str, float | int]:
         return asdict(self)
 
