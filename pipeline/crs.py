@@ -134,6 +134,17 @@ def cf_units(name: str | None) -> str | None:
     return "metre" if metres == 1.0 else f"{metres!r} metre"
 
 
+def cf_metres(units: str) -> float | None:
+    """Metres in a unit of length written by :func:`cf_units`, or None if it is not one."""
+    words = units.split()
+    if not words or words[-1] != "metre" or len(words) > 2:
+        return None
+    try:
+        return float(words[0]) if len(words) == 2 else 1.0
+    except ValueError:
+        return None
+
+
 def _user_crs(text: str, option: str) -> pyproj.CRS:
     if not isinstance(text, str) or not text.strip():
         raise CrsError(f"{option} must be a CRS such as EPSG:2154, a WKT or a PROJ string, got {text!r}")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .crs import unit_metres
+from .crs import cf_metres, unit_metres
 from .errors import UsageError
 
 __all__ = ["render_preview", "MAX_MESH_FACES"]
@@ -82,13 +82,11 @@ def _units(ds) -> tuple[str, str, float]:
         return "m", "m", 1.0
     name, xy_metres = axes[0].unit_name, axes[0].unit_conversion_factor
     xy = _UNIT_SYMBOLS.get(name, name)
-    units = str(ds["elevation"].attrs.get("units", "")).split()
-    if units and units[-1] == "metre":
-        z_metres = float(units[0]) if len(units) == 2 else 1.0
-        known = (symbol for name, symbol in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(name) or 0.0, z_metres))
-        z = next(known, units[0] + " m")
-        return xy, z, z_metres / xy_metres
-    return xy, xy, 1.0
+    z_metres = cf_metres(str(ds["elevation"].attrs.get("units", "")))
+    if z_metres is None:
+        return xy, xy, 1.0
+    known = (symbol for name, symbol in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(name) or 0.0, z_metres))
+    return xy, next(known, f"{z_metres!r} m"), z_metres / xy_metres
 
 
 def _window_faces(store_path: str, window: tuple[float, float, float, float]):
