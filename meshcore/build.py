@@ -9,7 +9,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit, njit_borrowing
 from ._order import geometric_order
-from .delaunay import _next, _prev, circumcenter_offset, delaunay
+from .delaunay import _next, _prev, delaunay
 from .errors import InvalidInputError
 from .flip import flip_edges
 from .merge import merge_triangles
@@ -120,6 +120,46 @@ def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
     )
 
 
+_U = 2.0**-53
+"""The unit roundoff of float64."""
+
+
+@njit
+def _safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
+    """Circumcentre of ``a, b, c`` relative to ``a``, and a radius whose disk
+    around that centre holds the exact circumdisk (a forward error bound of
+    the floating-point evaluation; infinite when the triangle is too thin to
+    bound it).
+
+    A fixed relative margin will not do: the slivers along a straight survey
+    edge have circles of thousands of kilometres, where 1e-9 of the radius is
+    centimetres, which is the spacing of the points themselves.
+    """
+    dx = bx - ax
+    dy = by - ay
+    ex = cx - ax
+    ey = cy - ay
+    bl = dx * dx + dy * dy
+    cl = ex * ex + ey * ey
+    d = dx * ey - dy * ex
+    err_d = 16.0 * _U * (abs(dx * ey) + abs(dy * ex))
+    if not abs(d) > 2.0 * err_d:
+        return 0.0, 0.0, math.inf
+    nx = ey * bl - dy * cl
+    ny = dx * cl - ex * bl
+    err_nx = 16.0 * _U * (abs(ey) * bl + abs(dy) * cl)
+    err_ny = 16.0 * _U * (abs(dx) * cl + abs(ex) * bl)
+    ux = nx * 0.5 / d
+    uy = ny * 0.5 / d
+    # |N/d - N*/d*| <= (err_N + |N| err_d / |d|) / (|d| - err_d), halved, plus the division's rounding
+    lo = abs(d) - err_d
+    eu = 0.5 * (err_nx + abs(nx) * err_d / abs(d)) / lo + 2.0 * _U * abs(ux)
+    eu += 0.5 * (err_ny + abs(ny) * err_d / abs(d)) / lo + 2.0 * _U * abs(uy)
+    # the exact disk lies within |u - u*| + r* <= |u| + 2|u - u*| of the computed centre
+    r = math.sqrt(ux * ux + uy * uy) * (1.0 + 4.0 * _U) + 2.0 * eu
+    return ux, uy, r
+
+
 @njit
 def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
@@ -136,10 +176,11 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
             x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
         ):
             continue
-        ux, uy = circumcenter_offset(x[a], y[a], x[b], y[b], x[c], y[c])
-        r = math.sqrt(ux * ux + uy * uy) * (1.0 + 1e-9) + 1e-12
+        ux, uy, r = _safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
         ux += x[a] + ox
         uy += y[a] + oy
+        # the sums' rounding moves the centre by at most an ulp of each coordinate
+        r += _U * 4.0 * (abs(ux) + abs(uy))
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         if n == out.shape[0]:

@@ -36,6 +36,9 @@ class Mesh:
         its Delaunay triangles that leave the ``known`` box passed to
         :func:`meshcore.build_mesh`.  The piece is exactly the global mesh's
         piece when no point missing from the input lies in one of them.
+        Each radius is an upper bound (the exact circumdisk lies inside the
+        disk given); it is infinite for a triangle too thin for the bound,
+        whose disk may then be any half-plane through its vertices.
     """
 
     vertices: NDArray[np.float64]

@@ -85,11 +85,14 @@ _NONE_WORDS = {"classes": "all", "quad_measure": "none"}
 _NEUTRAL = {"workers", "scheduler", "overwrite", "scratch_dir", "max_cells", "inputs", "output", "extra"}
 
 
-def _positive(name: str, value: object, allow_none: bool = False) -> float | None:
+def _positive(name: str, value: object, allow_none: bool = False, allow_zero: bool = False) -> float | None:
     if value is None and allow_none:
         return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise UsageError(f"{name} must be a positive number, got {value!r}")
+    if (
+        isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+        or value < 0 or (value == 0 and not allow_zero)
+    ):
+        raise UsageError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
     return float(value)
 
 
@@ -151,7 +154,7 @@ class RunConfig:
                     f"tile_size={tile:g} must be a whole multiple of the resolution {self.resolution:g}"
                 )
         object.__setattr__(self, "tile_size", tile)
-        object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True))
+        object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True, allow_zero=True))
         object.__setattr__(self, "max_edge", _positive("max_edge", self.max_edge, allow_none=True))
         classes = self.classes
         if isinstance(classes, str):  # "all", or "2,9" as on the command line

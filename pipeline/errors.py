@@ -7,7 +7,9 @@ Messages are one line; errors about a file start with the file's path.
 
 from __future__ import annotations
 
-__all__ = ["CrsError", "InputFileError", "OutputWriteError", "PipelineError", "UsageError", "os_error_reason"]
+__all__ = [
+    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "UsageError", "os_error_reason",
+]
 
 
 class PipelineError(Exception):
@@ -48,6 +50,15 @@ class OutputWriteError(PipelineError, OSError):
 
     def __init__(self, message: str) -> None:
         super().__init__(message)
+
+
+class SeamError(PipelineError, RuntimeError):
+    """A tile's piece of the mesh cannot be shown to fit its neighbours'.
+
+    On valid input this never happens (every tile's search for the points its
+    seams depend on ends once it holds them all): it is a bug, reported with
+    the tile, and the store is left incomplete.
+    """
 
 
 def os_error_reason(exc: OSError) -> str:

@@ -37,7 +37,7 @@ import numpy as np
 
 from .config import RunConfig
 from .checkpoint import WorkDir, output_lock, work_dir_for
-from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, UsageError
+from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
@@ -635,10 +635,11 @@ def _execute(
                 f"{names}: no surface: the {report.vertices:,} distinct kept point(s) are fewer than three "
                 "or all on one line"
             )
-        if report.tiles_uncertified:
-            report.notes.append(
-                f"{report.tiles_uncertified} tile(s) could not load every point their seams depend on; "
-                "a larger --buffer may help"
+        uncertified = sorted(key for key, s in summaries.items() if not s.certified)
+        if uncertified:  # recorded by an older version that gave up: mesh them again
+            raise SeamError(
+                f"{config.output}: {len(uncertified)} tile(s), first {uncertified[0]}, were meshed by a version "
+                "that could not certify their seams; run again with overwrite to mesh every tile again"
             )
         report.stages["mesh"] = time.perf_counter() - t0
 

@@ -28,16 +28,13 @@ from numpy.typing import NDArray
 import meshcore
 
 from .checkpoint import load_array
+from .errors import SeamError
 from .tiling import TileGrid, intersect_boxes, load_tile_points, neighbour_tile_points, points_in_box, tile_dir
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
     "reached_tiles",
 ]
-
-MAX_EXPANSIONS = 6
-"""Rounds of loading missing points before a tile is reported uncertified."""
-
 
 @dataclass(frozen=True)
 class TileJob:
@@ -78,6 +75,8 @@ class TileSummary:
     quads: int
     expansions: int
     certified: bool
+    """Always true from this version on (a piece that cannot be certified is an
+    error); false in records of older runs that gave up."""
     seconds: float
     held: tuple[tuple[float, float, float, float], ...] = ()
     """The boxes whose points the tile held: its piece depends on no other point
@@ -85,6 +84,8 @@ class TileSummary:
     reach: tuple[float, float, float, float] | None = None
     """The bounding box of the tile's faces that leave its box (None: none do).
     A sliver along the convex hull may cross several tiles."""
+    points_loaded: int = 0
+    """Points read from other tiles beyond the buffer, to certify the piece."""
 
 
 def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
@@ -137,17 +138,26 @@ def hull_near(hull: NDArray[np.float64], box) -> NDArray[np.float64]:
     return hull[keep]
 
 
+_U = 2.0**-53
+"""The unit roundoff of float64: the boxes below are rounded outwards by bounds of their errors."""
+
+
 def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float, float]):
-    """Bounding box of (disk ∩ box), or None when they do not meet."""
+    """Bounding box of (disk ∩ box), rounded outwards, or None when they do not meet."""
     x0, y0, x1, y1 = box
+    if not math.isfinite(r):
+        return box
     yc = min(max(cy, y0), y1)
-    hx = r * r - (yc - cy) ** 2
     xc = min(max(cx, x0), x1)
-    hy = r * r - (xc - cx) ** 2
+    # r^2 - d^2 loses the digits r and d share: near a tangent the half-chord is
+    # far less certain than either
+    hx = r * r - (yc - cy) ** 2 + 4 * _U * (r * r + (yc - cy) ** 2)
+    hy = r * r - (xc - cx) ** 2 + 4 * _U * (r * r + (xc - cx) ** 2)
     if hx < 0 or hy < 0:
         return None
-    hx = math.sqrt(hx)
-    hy = math.sqrt(hy)
+    grow = 4 * _U * (abs(cx) + abs(cy) + r)
+    hx = math.sqrt(hx) + grow
+    hy = math.sqrt(hy) + grow
     out = (max(x0, cx - hx), max(y0, cy - hy), min(x1, cx + hx), min(y1, cy + hy))
     if out[0] > out[2] or out[1] > out[3]:
         return None
@@ -164,42 +174,58 @@ def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDA
 
 def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float64], box):
     """Bounding box of (disk ∩ convex polygon ``hull_xy`` (counter-clockwise)
-    ∩ ``box``), a little grown against rounding, or None when they do not meet.
+    ∩ ``box``), rounded outwards by a bound of its rounding errors, or None
+    when they do not meet.
 
     No point lies outside the global hull, so the part of an escaping circle
-    beyond it needs no points loaded: along a survey edge that is not
-    axis-aligned the circles of the slivers there reach far out of the hull
-    but only a thin lens into it.  The box's corners are those of the polygon
-    inside the disk, the crossings of its edges with the circle, and the
-    disk's own extreme points inside the polygon.
+    beyond it needs no points loaded: along a survey edge the circles of the
+    slivers there reach far out of the hull but only a thin lens into it.
+    The box's corners are those of the polygon inside the disk, the crossings
+    of its edges with the circle, and the disk's own extreme points inside the
+    polygon.  An infinite radius (a triangle too thin to bound its circle)
+    gives the whole of ``box``.
     """
     clipped = _disk_box_in(cx, cy, r, box)
-    if clipped is None or hull_xy.shape[0] < 3:
+    if clipped is None or hull_xy.shape[0] < 3 or not math.isfinite(r):
         return clipped
     px, py = hull_xy[:, 0] - cx, hull_xy[:, 1] - cy  # centred: rounding relative to r
+    # the centring's rounding, as a larger circle
+    r = r + 4 * _U * (abs(cx) + abs(cy) + r + float(np.abs(hull_xy).max()))
     dx, dy = np.roll(px, -1) - px, np.roll(py, -1) - py
     a = dx * dx + dy * dy
     b = px * dx + py * dy
     c = px * px + py * py - r * r  # <= 0: the corner is in the disk
-    xs, ys = [px[c <= 0]], [py[c <= 0]]
+    err_c = 4 * _U * (px * px + py * py + r * r)
+    corner = c <= err_c
+    xs, ys = [px[corner]], [py[corner]]
     disc = b * b - a * c
-    ok = (a > 0) & (disc >= 0)
-    root = np.sqrt(np.where(ok, disc, 0.0))
+    err_disc = 8 * _U * ((np.abs(px * dx) + np.abs(py * dy)) ** 2 + a * np.abs(c)) + a * err_c
+    ok = (a > 0) & (disc + err_disc >= 0)
+    safe_a = np.where(ok, a, 1.0)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    # how far a crossing may be from where it is computed, along its edge
+    spread = np.sqrt(np.maximum(disc + err_disc, 0.0)) - np.sqrt(np.maximum(disc - err_disc, 0.0))
+    dt = (spread + 8 * _U * (np.abs(b) + root)) / safe_a
+    grow = 0.0
     for sign in (-1.0, 1.0):
-        t = np.where(ok, (-b + sign * root) / np.where(ok, a, 1.0), -1.0)
-        on = ok & (t >= 0.0) & (t <= 1.0)
-        xs.append(px[on] + t[on] * dx[on])
-        ys.append(py[on] + t[on] * dy[on])
+        t = np.where(ok, (-b + sign * root) / safe_a, -np.inf)
+        on = ok & (t >= -dt) & (t <= 1.0 + dt)
+        tc = np.clip(t[on], 0.0, 1.0)
+        xs.append(px[on] + tc * dx[on])
+        ys.append(py[on] + tc * dy[on])
+        if on.any():
+            grow = max(grow, float((dt[on] * np.sqrt(a[on])).max()))
     ex = np.array([r, -r, 0.0, 0.0])
     ey = np.array([0.0, 0.0, r, -r])
-    inside = (_edge_sides(px, py, ex, ey) >= 0).all(axis=1)
+    tol = 8 * _U * np.hypot(dx, dy)[None, :] * (r + np.hypot(px, py)[None, :])
+    inside = (_edge_sides(px, py, ex, ey) >= -tol).all(axis=1)
     xs.append(ex[inside])
     ys.append(ey[inside])
     x = np.concatenate(xs)
     y = np.concatenate(ys)
     if x.size == 0:
         return None
-    grow = 1e-9 * r + 1e-9 * max(abs(cx), abs(cy))
+    grow += 8 * _U * (abs(cx) + abs(cy) + 2 * r)
     out = (
         max(clipped[0], cx + float(x.min()) - grow), max(clipped[1], cy + float(y.min()) - grow),
         min(clipped[2], cx + float(x.max()) + grow), min(clipped[3], cy + float(y.max()) + grow),
@@ -385,8 +411,11 @@ def mesh_tile(job: TileJob) -> TileSummary:
         hull = hull_near(job.hull, held[0])
         points = np.concatenate([own, hull[~points_in_box(hull, held[0])]])
     bands = _edge_bands(job, held[0])
+    loaded = 0  # points read beyond the buffer
     if bands:
-        points = np.concatenate([points, _load_boxes(job, bands, held)])
+        extra = _load_boxes(job, bands, held)
+        loaded += extra.shape[0]
+        points = np.concatenate([points, extra])
         held.extend(bands)
     expansions = 0
     hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
@@ -397,16 +426,18 @@ def mesh_tile(job: TileJob) -> TileSummary:
         )
 
     mesh, meshed = build(points), points  # ``meshed``: the points of the last build
+    ext = job.extent
     while True:
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
         # points usually break it)
         circles = []
         requests = []
-        reach = job.grid.tile_size * 2**expansions
+        reach = g.tile_size * 2.0**expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
+        everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         for cx, cy, r in mesh.window_escapes:
-            box = _disk_box_in_hull(cx, cy, r, hull_xy, job.extent)
+            box = _disk_box_in_hull(cx, cy, r, hull_xy, ext)
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
                 continue
@@ -414,29 +445,35 @@ def mesh_tile(job: TileJob) -> TileSummary:
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
         gap = not _covers_window(meshed[:, :2], window, hull_xy)
         if gap:  # points beyond a void: look around, farther each time
-            around = intersect_boxes(near, job.extent)
+            around = intersect_boxes(near, ext)
             requests.extend([] if around is None else _uncovered(around, held))
-        if not (circles or gap) or expansions >= MAX_EXPANSIONS:
+        if not (circles or gap):
             break
         expansions += 1
         if not requests:
-            continue
+            if everywhere:
+                # every point that could lie in the circles is held: only a bug gets here
+                raise SeamError(
+                    f"tile ({job.row}, {job.col}): its piece cannot be certified although it holds every point "
+                    f"its {len(circles)} open circle(s) reach (gap in its window: {gap})"
+                )
+            continue  # what is missing lies farther than this round reaches
         requests = _merge_boxes(requests)
         extra = _load_boxes(job, requests, held)
         held.extend(requests)
         if extra.shape[0] == 0:
             continue
+        loaded += extra.shape[0]
         # kept even when no circle holds it: its box now counts as held, so a
         # circle of a later build that reaches it is vouched for by it
         points = np.concatenate([points, extra])
         c = np.array(circles).reshape(-1, 3)
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
-        if gap or np.any(d2 <= (c[None, :, 2] * (1.0 + 1e-9)) ** 2):
+        if gap or np.any(d2 <= c[None, :, 2] ** 2):
             # a loaded point lies in a circle, or may close the gap: build again
             mesh, meshed = build(points), points
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
-    certified = not (circles or gap)
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
     owned = (orow == job.row) & (ocol == job.col)
@@ -486,7 +523,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         faces=int(faces.shape[0]),
         quads=int(np.count_nonzero(faces[:, 3] >= 0)),
         expansions=expansions,
-        certified=certified,
+        certified=True,
+        points_loaded=loaded,
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in held),
         reach=None if border_v.shape[0] == 0 else (

@@ -223,6 +223,9 @@ class TileSpiller:
         self._held = 0
 
 
+_ROUNDOFF = 2.0**-53
+
+
 @numba.njit(cache=True, nogil=True)
 def _bin(v: float, origin: float, inv_size: float, below: NDArray[np.float64], above: NDArray[np.float64]) -> int:
     """:meth:`TileGrid.bins` of one value: bin ``k`` is ``[below[k], above[k])``
@@ -257,10 +260,15 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     for i in range(n):
         xi = x[i]
         yi = y[i]
-        c0 = _bin(xi - buffer, x0, inv_size, below_x, above_x)
-        r0 = _bin(yi - buffer, y0, inv_size, below_y, above_y)
-        sc = _bin(xi + buffer, x0, inv_size, below_x, above_x) - c0 + 1
-        sr = _bin(yi + buffer, y0, inv_size, below_y, above_y) - r0 + 1
+        # a tile claims every point of its closed window grown by the buffer
+        # (``held_box``): a point on that box's edge, or a rounding away from
+        # it, goes to the tile too (to both tiles, on a shared edge)
+        mx = 8.0 * _ROUNDOFF * (abs(xi) + buffer)
+        my = 8.0 * _ROUNDOFF * (abs(yi) + buffer)
+        c0 = _bin(xi - buffer - mx, x0, inv_size, below_x, above_x)
+        r0 = _bin(yi - buffer - my, y0, inv_size, below_y, above_y)
+        sc = _bin(xi + buffer + mx, x0, inv_size, below_x, above_x) - c0 + 1
+        sr = _bin(yi + buffer + my, y0, inv_size, below_y, above_y) - r0 + 1
         c_lo[i] = c0
         r_lo[i] = r0
         c_span[i] = sc
