@@ -72,7 +72,9 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
         e = int(stack[n])
         queued[e] = 0
         f = he[e]
-        if f < 0:
+        # a queued slot may hold another edge by now (flips around it move
+        # edges between slots), one whose twin lies outside the active region
+        if f < 0 or not (active[e // 3] and active[f // 3]):
             continue
         t1 = e // 3
         t2 = f // 3

@@ -245,6 +245,34 @@ def test_property_local_optimality(xy, measures):
     assert (quad_gains(mesh, quad_measure, quads) > -1e-9).all()
 
 
+@pytest.mark.parametrize("seed", [4, 5])
+def test_flips_of_a_window_never_touch_a_triangle_outside_it_on_survey_scan_lines(seed):
+    # scan lines of a survey (dense along, sparse across, slanted, mm-rounded):
+    # slivers around which flips move edges from slot to slot.  A queued slot
+    # whose edge had moved to the window's border was once flipped with a
+    # neighbour's triangle, and the tiles' pieces overlapped (seed 4, the last
+    # window, did it)
+    from meshcore._order import geometric_order
+    from meshcore.build import _window_mask, as_points
+    from meshcore.delaunay import delaunay
+    from meshcore.flip import flip_edges
+
+    rng = np.random.default_rng(seed)
+    line = rng.integers(0, 60, 20_000)
+    x = rng.random(20_000) * 40
+    y = line * 0.6 + 0.02 * x + rng.normal(0, 0.01, 20_000)
+    xy = np.unique(np.round(np.c_[x, y], 3), axis=0)
+    for w in range(8):
+        t = geometric_order(delaunay(as_points(xy)))
+        x0, y0 = rng.random(2) * [30, 25]
+        window = (x0, y0, x0 + rng.uniform(3, 15), y0 + rng.uniform(3, 15))
+        active = _window_mask(t.x, t.y, float(t.origin[0]), float(t.origin[1]), t.triangles, *window)
+        before = t.triangles.reshape(-1, 3).copy()
+        assert flip_edges(t, "s3" if w % 2 else "s1", active) > 0
+        outside = active == 0
+        assert (t.triangles.reshape(-1, 3)[outside] == before[outside]).all(), window
+
+
 @pytest.mark.parametrize("triangle_measure, quad_measure", [("s1", "s2"), ("s3", "s4"), ("delaunay", None)])
 def test_window_pieces_stitch_into_one_conforming_mesh(rng, triangle_measure, quad_measure):
     # four windows over a 2 x 2 split, each meshed from its own points plus a

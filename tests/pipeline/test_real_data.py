@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -102,3 +103,51 @@ def test_single_point(tmp_path):
     with pytest.raises(PipelineError, match=r"single_point\.laz: no surface: the 1 distinct kept point"):
         _run(path, out, classes=None, in_crs="EPSG:2154")
     assert store.read_attrs(out)["complete"] is False
+
+
+GROUND_SAMPLES = [
+    "ign_semis_lambert93.laz", "extra_byte_blocks_lambert93.laz", "autzen_trim.las",
+    "startinpy_small_extrabytes.laz", "4_6_crop_us_feet.las",
+]
+
+
+def _faces(node_xy, faces) -> set:
+    out = set()
+    for row in np.asarray(faces).tolist():
+        pts = [tuple(node_xy[v]) for v in row if v >= 0]
+        k = pts.index(min(pts))
+        out.add(tuple(pts[k:] + pts[:k]))
+    return out
+
+
+@pytest.mark.parametrize("tile", [10.0, 20.0, 50.0])
+@pytest.mark.parametrize("name", GROUND_SAMPLES)
+def test_real_surveys_certify_every_tile_and_tile_into_the_whole_delaunay(tmp_path, name, tile):
+    """A box over the survey's south-west corner (its own edges, and the box's
+    straight cuts at round coordinates), 100 CRS units across or four tiles,
+    whichever is larger."""
+    import laspy
+
+    path = sample(name)
+    las = laspy.read(path)
+    ground = np.asarray(las.classification) == 2
+    x, y = np.asarray(las.x)[ground], np.asarray(las.y)[ground]
+    corner = int(np.argmin(x + y))  # the south-west-most ground point
+    side = max(100.0, 4 * tile)
+    x0, y0 = math.floor(x[corner]) - tile, math.floor(y[corner]) - tile
+    bbox = (x0, y0, x0 + side, y0 + side)
+    out = tmp_path / "d.zarr"
+    report = _run(
+        path, out, resolution=tile / 8.0, tile_size=tile, bbox=bbox, triangle_measure="delaunay", quad_measure=None
+    )
+    assert report.tiles_uncertified == 0
+    node_xy, _, faces = store.read_mesh(out)
+    node_xy, faces = np.asarray(node_xy), np.asarray(faces)
+    meshcore.validate(meshcore.Mesh(node_xy, faces, np.arange(len(node_xy))))
+    assert len(node_xy) == report.vertices > 100
+    whole = meshcore.build_mesh(node_xy, "delaunay", None)
+    assert _faces(node_xy, faces) == _faces(whole.vertices, whole.faces)
+    if tile == 20.0:  # the combined mesh: flips and merges stay inside the pieces
+        combined = _run(path, tmp_path / "c.zarr", resolution=tile / 8.0, tile_size=tile, bbox=bbox)
+        _check_store(tmp_path / "c.zarr", combined)
+        assert combined.vertices == report.vertices
