@@ -3,6 +3,7 @@
     python bench/bench_pipeline.py throughput [--points 20000000] [--files 10] [--repeat 3]
     python bench/bench_pipeline.py memory [--small 5000000] [--large 50000000]
     python bench/bench_pipeline.py seams [--points 4000000] [--tile-size 256]
+    python bench/bench_pipeline.py certify [--tile-sizes 10,20,50]
 
 throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage
     (of the median run), and the wall time scaled to a machine that decodes LAZ
@@ -11,6 +12,9 @@ throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage
     decoded too, to show that the archive decodes as real files do).
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
 seams: the same archive tiled and untiled: share of identical faces and DEM cells.
+certify: the real samples with ground (../shared/data) at several tile sizes:
+    every tile certifies, and what that costs: the points each tile reads
+    beyond its buffer against the points it holds (median and worst tile).
 Archives are generated once into --cache (default /tmp/terrain-bench).
 """
 
@@ -120,10 +124,66 @@ def seams(folder: Path, cache: Path, tile_size: float) -> None:
     print(f"faces identical      {np.isin(b, a).mean():.4%}  ({b.size:,} faces)")
     print(f"DEM cells identical  {(ea[both] == eb[both]).mean():.4%}  ({both.sum():,} cells)")
 
+_CERTIFY = textwrap.dedent(
+    """
+    import json, sys, time
+    import pipeline.runner as runner
+    from pipeline import RunConfig, run
+    mesh_tile, log = runner.mesh_tile, sys.argv[4]
+
+    def logged(job):
+        s = mesh_tile(job)
+        with open(log, "a") as f:
+            f.write(json.dumps([s.points_held, s.points_loaded, s.expansions]) + "\\n")
+        return s
+
+    runner.mesh_tile = logged
+    tile = float(sys.argv[3])
+    cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=tile / 4, tile_size=tile, overwrite=True)
+    t0 = time.perf_counter()
+    report = run(cfg, progress=False)
+    print(json.dumps({"wall": time.perf_counter() - t0, "report": report.to_dict()}))
+    """
+)
+
+GROUND_SAMPLES = (
+    "ign_semis_lambert93.laz", "extra_byte_blocks_lambert93.laz", "autzen_trim.las",
+    "startinpy_small_extrabytes.laz", "4_6_crop_us_feet.las",
+)
+
+
+def certify(cache: Path, tile_sizes: list[float]) -> None:
+    """Whole real samples at each tile size: uncertified tiles (an error now,
+    so a failed run), and the points read beyond the buffer per tile."""
+    import numpy as np
+
+    print(f"\n{'sample':34} {'tile':>5} {'tiles':>6} {'exit':>4} {'wall s':>7} {'rounds':>7} "
+          f"{'median read/held':>17} {'worst read/held':>16} {'read/held, all':>15}")
+    for name in GROUND_SAMPLES:
+        path = REAL_SAMPLES / name
+        if not path.exists():
+            continue
+        for tile in tile_sizes:
+            log = cache / "certify.jsonl"
+            log.unlink(missing_ok=True)
+            out = subprocess.run(
+                [sys.executable, "-c", _CERTIFY, str(path), str(cache / "certify.zarr"), str(tile), str(log)],
+                capture_output=True, text=True,
+            )
+            rows = np.array([json.loads(line) for line in log.read_text().splitlines()]).reshape(-1, 3)
+            held, read, rounds = rows[:, 0], rows[:, 1], rows[:, 2]
+            share = read / np.maximum(held, 1)
+            wall = json.loads(out.stdout.splitlines()[-1])["wall"] if out.returncode == 0 else float("nan")
+            print(f"{name:34} {tile:5g} {len(rows):6} {out.returncode:4} {wall:7.1f} {int(rounds.sum()):7} "
+                  f"{np.median(share):17.1%} {share.max():16.1%} {read.sum() / max(held.sum(), 1):15.1%}")
+            if out.returncode:
+                print("   " + out.stderr.strip().splitlines()[-1])
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["throughput", "memory", "seams"])
+    parser.add_argument("what", choices=["throughput", "memory", "seams", "certify"])
+    parser.add_argument("--tile-sizes", default="10,20,50", help="certify: tile sizes in CRS units")
     parser.add_argument("--tile-size", type=float, default=256.0)
     parser.add_argument("--points", type=int, default=20_000_000)
     parser.add_argument("--files", type=int, default=10)
@@ -133,6 +193,9 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path("/tmp/terrain-bench"))
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
+    if args.what == "certify":
+        certify(args.cache, [float(v) for v in args.tile_sizes.split(",")])
+        return
     if args.what == "seams":
         n = args.points if "--points" in sys.argv else 4_000_000
         seams(archive(args.cache, n, max(1, n // 2_000_000)), args.cache, args.tile_size)

@@ -15,6 +15,7 @@ import contextlib
 import fcntl
 import hashlib
 import json
+import math
 import os
 import shutil
 import threading
@@ -33,8 +34,14 @@ __all__ = ["WorkDir", "work_dir_for", "output_lock"]
 _NPY_HEADER_LOCK = threading.Lock()
 
 
+_MAP_ABOVE = 1 << 20
+"""Work files up to this size are read, not memory-mapped: reading a small
+file costs half as much as mapping it."""
+
+
 def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
-    """``np.load`` of a work file, safe in threads.
+    """``np.load`` of a work file, safe in threads; memory-mapped (read only)
+    with ``mmap`` when the file is larger than 1 MiB.
 
     numpy parses a ``.npy`` header with ``ast.literal_eval``, and CPython 3.11
     builds ASTs with interpreter-wide state: two threads parsing at once can
@@ -42,9 +49,19 @@ def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
     SystemError (CPython gh-106905).  Headers are parsed one at a time (a
     memory map costs only its header); the data is read outside the lock.
     """
-    with _NPY_HEADER_LOCK:
-        mapped = np.load(path, mmap_mode="r")
-    return mapped if mmap else np.array(mapped)
+    if mmap and os.path.getsize(path) > _MAP_ABOVE:
+        with _NPY_HEADER_LOCK:
+            return np.load(path, mmap_mode="r")
+    with open(path, "rb") as handle:
+        with _NPY_HEADER_LOCK:
+            version = np.lib.format.read_magic(handle)
+            read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, fortran, dtype = read_header(handle)
+        count = math.prod(shape)
+        values = np.fromfile(handle, dtype=dtype, count=count)
+    if values.size != count:
+        raise OSError(f"{path}: truncated work file ({values.size} of {count} values)")
+    return values.reshape(shape, order="F" if fortran else "C")
 
 
 def work_dir_for(output: str, scratch_dir: str | None) -> Path:

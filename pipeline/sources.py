@@ -362,9 +362,12 @@ class SourceInfo:
     @property
     def bounds_usable(self) -> bool:
         """Whether the header's bounds can place the file: finite, min <= max,
-        and not all zero (never filled in) when it announces points."""
+        with a finite span, and not all zero (never filled in) when it
+        announces points."""
         b = self.bounds
         if not all(np.isfinite(b)) or b[0] > b[3] or b[1] > b[4] or b[2] > b[5]:
+            return False
+        if not all(math.isfinite(b[k + 3] - b[k]) for k in range(3)):  # a span past the largest float
             return False
         return self.point_count == 0 or any(v != 0 for v in b)
 
@@ -464,8 +467,9 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
     except InputFileError as exc:
         notes.append(str(exc).removeprefix(f"{path}: "))
     scales = tuple(float(s) for s in header.scales)
-    if not _usable_scales(path, scales, total):
-        notes.append(f"unusable scale factors {scales}")
+    offsets = tuple(float(o) for o in header.offsets)
+    if not _usable_scaling(path, scales, offsets, total):
+        notes.append(_scaling_problem(scales, offsets))
     if total == 0:
         notes.append("the header announces no points")
 
@@ -478,7 +482,7 @@ def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceI
         point_count=total,
         bounds=tuple(float(v) for v in (*header.mins, *header.maxs)),  # type: ignore[arg-type]
         scales=scales,  # type: ignore[arg-type]
-        offsets=tuple(float(o) for o in header.offsets),  # type: ignore[arg-type]
+        offsets=offsets,  # type: ignore[arg-type]
         crs_wkt=crs_wkt,
         crs_problem=crs_problem,
         has_extra_bytes=bool(extra_dims),
@@ -802,13 +806,36 @@ def iter_points(
     return _iter_points(Path(path), point_filter, _check_chunk_size(chunk_size))
 
 
-def _usable_scales(path: Path, scales: tuple[float, ...], points: int) -> bool:
-    """Whether every scale factor is finite and not zero; unusable ones are an
-    error for a file with points (its coordinates cannot be decoded)."""
-    if all(math.isfinite(s) and s != 0 for s in scales):
+#: the largest magnitude a stored coordinate (a 32-bit integer) can have
+_STORED_MAX = 2.0**31
+
+
+def _scaling_problem(scales: tuple[float, ...], offsets: tuple[float, ...]) -> str | None:
+    """Why these scale factors and offsets cannot decode coordinates, or None.
+
+    Every number the decoding takes from the header is checked for finiteness
+    and range before any arithmetic: a scale must be finite and non-zero, and
+    so must its reciprocal (the decoder divides by it); an offset must be
+    finite; and no stored integer may scale to an infinite coordinate.
+    """
+    if not all(math.isfinite(s) and s != 0 and math.isfinite(1.0 / s) for s in scales):
+        return f"unusable scale factors {scales}"
+    if not all(math.isfinite(o) for o in offsets):
+        return f"unusable offsets {offsets}"
+    if not all(math.isfinite(abs(s) * _STORED_MAX + abs(o)) for s, o in zip(scales, offsets)):
+        return f"scale factors {scales} and offsets {offsets} give infinite coordinates"
+    return None
+
+
+def _usable_scaling(path: Path, scales: tuple[float, ...], offsets: tuple[float, ...], points: int) -> bool:
+    """Whether the header's scale factors and offsets decode coordinates
+    (:func:`_scaling_problem`); unusable ones are an error for a file with
+    points."""
+    problem = _scaling_problem(scales, offsets)
+    if problem is None:
         return True
     if points:
-        raise InputFileError(f"{path}: unusable scale factors {scales}: its coordinates cannot be decoded")
+        raise InputFileError(f"{path}: {problem}: its coordinates cannot be decoded")
     return False
 
 
@@ -823,13 +850,15 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
     coordinate is ``k / (1 / scale)`` rounded once: with a scale like 0.01 the
     float nearest the decimal value itself, whatever the scale of the file.
     """
-    steps = offset / scale if scale else math.nan
+    if _scaling_problem((scale,), (offset,)) is not None:
+        raise InputFileError(f"unusable scale factor {scale} or offset {offset}")  # read_info and the reader check first
+    steps = offset / scale
+    per_unit = 1.0 / scale
     # offset / scale is off a whole number by its own rounding at most (a few ulps of it)
     on_lattice = math.isfinite(steps) and abs(steps - round(steps)) <= max(1e-6, 8.0 * math.ulp(steps))
-    if not (on_lattice and abs(steps) < 2.0**52 - 2.0**32):
+    if not (on_lattice and abs(steps) < 2.0**52 - 2.0**32 and abs(per_unit) < 2.0**52):
         return lambda stored: stored * scale + offset  # off the lattice: as the header says
     shift = float(round(steps))
-    per_unit = 1.0 / scale
     whole = abs(per_unit - round(per_unit)) <= 4.0 * math.ulp(per_unit)  # 1 / 0.01, not 1 / 0.010000000009
     divisor = float(round(per_unit))
 
@@ -853,8 +882,10 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
     with _open(path, _POINT_SELECTION) as (reader, size):
         header = reader.header
         scales = tuple(float(s) for s in header.scales)
-        _usable_scales(path, scales, _point_counts(header, size)[0])
-        decoders = [_decoder(s, float(o)) for s, o in zip(scales, header.offsets)]
+        offsets = tuple(float(o) for o in header.offsets)
+        if not _usable_scaling(path, scales, offsets, _point_counts(header, size)[0]):
+            return  # no points to decode
+        decoders = [_decoder(s, o) for s, o in zip(scales, offsets)]
         for chunk in _chunks(path, reader, size, chunk_size):
             n = len(chunk)
             keep = np.ones(n, dtype=bool)

@@ -84,6 +84,8 @@ class TileSummary:
     reach: tuple[float, float, float, float] | None = None
     """The bounding box of the tile's faces that leave its box (None: none do).
     A sliver along the convex hull may cross several tiles."""
+    points_held: int = 0
+    """Points of the tile's own file (its window plus buffer)."""
     points_loaded: int = 0
     """Points read from other tiles beyond the buffer, to certify the piece."""
 
@@ -173,9 +175,14 @@ def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDA
 
 
 def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float64], box):
-    """Bounding box of (disk ∩ convex polygon ``hull_xy`` (counter-clockwise)
-    ∩ ``box``), rounded outwards by a bound of its rounding errors, or None
-    when they do not meet.
+    """:func:`_disk_boxes_in_hull` of one circle."""
+    return _disk_boxes_in_hull(np.array([[cx, cy, r]]), hull_xy, box)[0]
+
+
+def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box) -> list:
+    """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
+    polygon ``hull_xy`` (counter-clockwise) ∩ ``box``), rounded outwards by a
+    bound of its rounding errors, or None when they do not meet.
 
     No point lies outside the global hull, so the part of an escaping circle
     beyond it needs no points loaded: along a survey edge the circles of the
@@ -183,21 +190,32 @@ def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float6
     The box's corners are those of the polygon inside the disk, the crossings
     of its edges with the circle, and the disk's own extreme points inside the
     polygon.  An infinite radius (a triangle too thin to bound its circle)
-    gives the whole of ``box``.
+    gives the whole of ``box``.  All circles are computed at once.
     """
-    clipped = _disk_box_in(cx, cy, r, box)
-    if clipped is None or hull_xy.shape[0] < 3 or not math.isfinite(r):
-        return clipped
-    px, py = hull_xy[:, 0] - cx, hull_xy[:, 1] - cy  # centred: rounding relative to r
+    clipped = [_disk_box_in(float(cx), float(cy), float(r), box) for cx, cy, r in circles]
+    out: list = list(clipped)
+    finite = np.array([c is not None and math.isfinite(r) for c, r in zip(clipped, circles[:, 2])], dtype=bool)
+    if hull_xy.shape[0] < 3 or not finite.any():
+        return out
+    todo = np.flatnonzero(finite)
+    cx, cy, r = (circles[todo, k][:, None] for k in range(3))
+    px, py = hull_xy[None, :, 0] - cx, hull_xy[None, :, 1] - cy  # centred: rounding relative to r
     # the centring's rounding, as a larger circle
-    r = r + 4 * _U * (abs(cx) + abs(cy) + r + float(np.abs(hull_xy).max()))
-    dx, dy = np.roll(px, -1) - px, np.roll(py, -1) - py
+    r = r + 4 * _U * (np.abs(cx) + np.abs(cy) + r + float(np.abs(hull_xy).max()))
+    dx, dy = np.roll(px, -1, axis=1) - px, np.roll(py, -1, axis=1) - py
     a = dx * dx + dy * dy
     b = px * dx + py * dy
     c = px * px + py * py - r * r  # <= 0: the corner is in the disk
     err_c = 4 * _U * (px * px + py * py + r * r)
-    corner = c <= err_c
-    xs, ys = [px[corner]], [py[corner]]
+    xs_lo, xs_hi, ys_lo, ys_hi = [], [], [], []
+
+    def take(mask, x, y):
+        xs_lo.append(np.where(mask, x, np.inf).min(axis=1))
+        xs_hi.append(np.where(mask, x, -np.inf).max(axis=1))
+        ys_lo.append(np.where(mask, y, np.inf).min(axis=1))
+        ys_hi.append(np.where(mask, y, -np.inf).max(axis=1))
+
+    take(c <= err_c, px, py)
     disc = b * b - a * c
     err_disc = 8 * _U * ((np.abs(px * dx) + np.abs(py * dy)) ** 2 + a * np.abs(c)) + a * err_c
     ok = (a > 0) & (disc + err_disc >= 0)
@@ -206,32 +224,34 @@ def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float6
     # how far a crossing may be from where it is computed, along its edge
     spread = np.sqrt(np.maximum(disc + err_disc, 0.0)) - np.sqrt(np.maximum(disc - err_disc, 0.0))
     dt = (spread + 8 * _U * (np.abs(b) + root)) / safe_a
-    grow = 0.0
+    grow = np.zeros(todo.size)
     for sign in (-1.0, 1.0):
         t = np.where(ok, (-b + sign * root) / safe_a, -np.inf)
         on = ok & (t >= -dt) & (t <= 1.0 + dt)
-        tc = np.clip(t[on], 0.0, 1.0)
-        xs.append(px[on] + tc * dx[on])
-        ys.append(py[on] + tc * dy[on])
-        if on.any():
-            grow = max(grow, float((dt[on] * np.sqrt(a[on])).max()))
-    ex = np.array([r, -r, 0.0, 0.0])
-    ey = np.array([0.0, 0.0, r, -r])
-    tol = 8 * _U * np.hypot(dx, dy)[None, :] * (r + np.hypot(px, py)[None, :])
-    inside = (_edge_sides(px, py, ex, ey) >= -tol).all(axis=1)
-    xs.append(ex[inside])
-    ys.append(ey[inside])
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
-    if x.size == 0:
-        return None
-    grow += 8 * _U * (abs(cx) + abs(cy) + 2 * r)
-    out = (
-        max(clipped[0], cx + float(x.min()) - grow), max(clipped[1], cy + float(y.min()) - grow),
-        min(clipped[2], cx + float(x.max()) + grow), min(clipped[3], cy + float(y.max()) + grow),
-    )
-    if out[0] > out[2] or out[1] > out[3]:
-        return None
+        tc = np.clip(t, 0.0, 1.0)
+        take(on, px + tc * dx, py + tc * dy)
+        grow = np.maximum(grow, np.where(on, dt * np.sqrt(a), 0.0).max(axis=1))
+    # the disk's extreme points (east, west, north, south) inside the polygon
+    ex = np.concatenate([r, -r, 0 * r, 0 * r], axis=1)[:, :, None]
+    ey = np.concatenate([0 * r, 0 * r, r, -r], axis=1)[:, :, None]
+    sides = dx[:, None, :] * (ey - py[:, None, :]) - dy[:, None, :] * (ex - px[:, None, :])
+    tol = 8 * _U * np.hypot(dx, dy)[:, None, :] * (r[:, :, None] + np.hypot(px, py)[:, None, :])
+    inside = (sides >= -tol).all(axis=2)
+    take(inside, ex[:, :, 0], ey[:, :, 0])
+    lo_x, hi_x = np.min(xs_lo, axis=0), np.max(xs_hi, axis=0)
+    lo_y, hi_y = np.min(ys_lo, axis=0), np.max(ys_hi, axis=0)
+    grow += 8 * _U * (np.abs(cx[:, 0]) + np.abs(cy[:, 0]) + 2 * r[:, 0])
+    for k, i in enumerate(todo.tolist()):
+        if not math.isfinite(lo_x[k]):  # no part of the polygon in the disk
+            out[i] = None
+            continue
+        full = clipped[i]
+        x0, y0 = float(cx[k, 0]), float(cy[k, 0])
+        lens = (
+            max(full[0], x0 + float(lo_x[k]) - grow[k]), max(full[1], y0 + float(lo_y[k]) - grow[k]),
+            min(full[2], x0 + float(hi_x[k]) + grow[k]), min(full[3], y0 + float(hi_y[k]) + grow[k]),
+        )
+        out[i] = None if lens[0] > lens[2] or lens[1] > lens[3] else lens
     return out
 
 
@@ -436,8 +456,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         reach = g.tile_size * 2.0**expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
-        for cx, cy, r in mesh.window_escapes:
-            box = _disk_box_in_hull(cx, cy, r, hull_xy, ext)
+        escapes = mesh.window_escapes
+        for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
                 continue
@@ -524,6 +544,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         quads=int(np.count_nonzero(faces[:, 3] >= 0)),
         expansions=expansions,
         certified=True,
+        points_held=int(own.shape[0]),
         points_loaded=loaded,
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in held),

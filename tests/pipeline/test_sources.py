@@ -31,6 +31,7 @@ DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 _VERSION_MINOR = 25
 _LEGACY_POINT_COUNT = 107
 _X_SCALE = 131
+_X_OFFSET = 155
 _POINT_COUNT_14 = 247
 
 
@@ -495,6 +496,27 @@ def test_an_unusable_scale_factor_is_an_error_not_a_broken_axis(tmp_path: Path, 
     patch(w.path, _X_SCALE, "<d", scale)  # NaN coordinates, or every x the offset
     for read in (read_info, lambda path: list(iter_points(path))):
         with pytest.raises(InputFileError, match=rf"unusable scale factors \({shown}, 0\.01, 0\.01\)") as exc:
+            read(w.path)
+        assert_names(exc, w.path)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "problem"),
+    [
+        (_X_SCALE, 1e-310, "unusable scale factors"),  # 1 / scale overflows
+        (_X_SCALE, -5e-324, "unusable scale factors"),
+        (_X_SCALE, 1e300, "give infinite coordinates"),
+        (_X_OFFSET, float("inf"), "unusable offsets"),
+        (_X_OFFSET, float("nan"), "unusable offsets"),
+    ],
+)
+def test_header_numbers_are_checked_before_any_arithmetic(tmp_path: Path, field: int, value: float, problem: str) -> None:
+    # the Python API as the command line: one error naming the file, never an
+    # OverflowError or a coordinate of inf
+    w = write_las(tmp_path / "numbers.las", n=10)
+    patch(w.path, field, "<d", value)
+    for read in (read_info, lambda path: list(iter_points(path))):
+        with pytest.raises(InputFileError, match=problem) as exc:
             read(w.path)
         assert_names(exc, w.path)
 
