@@ -222,8 +222,9 @@ def _laszip_record(fh: BinaryIO, head: _Head) -> bytes | None:
         user_id = raw[2:18].split(b"\0", 1)[0]  # as laspy reads it: up to the first NUL
         record_id, length = struct.unpack_from("<HH", raw, 18)
         at += _VLR_HEADER_BYTES
-        if user_id == _LASZIP_USER_ID and record_id == _LASZIP_RECORD_ID and at + length <= offset:
-            return fh.read(length)
+        if user_id == _LASZIP_USER_ID and record_id == _LASZIP_RECORD_ID:
+            # a length past the point data is read as laspy reads it: up to the point data
+            return fh.read(max(0, min(length, offset - at)))
         at += length
     return None
 

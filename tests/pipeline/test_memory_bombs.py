@@ -107,6 +107,15 @@ def _chunk_size_bomb(path: Path) -> None:
     path.write_bytes(bytes(data))
 
 
+def _long_laszip_record_bomb(path: Path) -> None:
+    """A chunk size bomb in a LASzip VLR whose length runs past the point data:
+    laspy reads the record up to the point data all the same."""
+    _chunk_size_bomb(path)
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<H", data, _laszip_at(bytes(data)) - 54 + 20, 60_000)
+    path.write_bytes(bytes(data))
+
+
 def _item_size_bomb(path: Path) -> None:
     data = bytearray(path.read_bytes())
     struct.pack_into("<H", data, _laszip_at(bytes(data)) + 36, 31_774)  # the POINT14 item's size
@@ -123,6 +132,7 @@ CASES = {
     "chunk byte count": (6, "1.4", ".laz", _chunk_bytes_bomb, "claim 2,"),
     "chunk size": (6, "1.4", ".laz", _chunk_size_bomb, "chunks of 100,000,000 points"),
     "item size": (6, "1.4", ".laz", _item_size_bomb, "31,774-byte points"),
+    "chunk size, record past the points": (6, "1.4", ".laz", _long_laszip_record_bomb, "chunks of 100,000,000 points"),
     "layer size, first chunk": (6, "1.4", ".laz", lambda p: _layer_size_bomb(p, 0), "LAZ chunk 0"),
     "layer size, later chunk": (6, "1.4", ".laz", lambda p: _layer_size_bomb(p, 1), "LAZ chunk 1"),
     "point count (LAS)": (6, "1.4", ".las", lambda p: patch(p, _POINT_COUNT_14, "<Q", 2**62), "truncated"),

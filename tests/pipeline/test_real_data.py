@@ -124,7 +124,7 @@ def _faces(node_xy, faces) -> set:
 @pytest.mark.parametrize("name", GROUND_SAMPLES)
 def test_real_surveys_certify_every_tile_and_tile_into_the_whole_delaunay(tmp_path, name, tile):
     """A box over the survey's south-west corner (its own edges, and the box's
-    straight cuts at round coordinates), 100 CRS units across or four tiles,
+    straight cuts at round coordinates), 60 CRS units across or three tiles,
     whichever is larger."""
     import laspy
 
@@ -133,7 +133,7 @@ def test_real_surveys_certify_every_tile_and_tile_into_the_whole_delaunay(tmp_pa
     ground = np.asarray(las.classification) == 2
     x, y = np.asarray(las.x)[ground], np.asarray(las.y)[ground]
     corner = int(np.argmin(x + y))  # the south-west-most ground point
-    side = max(100.0, 4 * tile)
+    side = max(60.0, 3 * tile)
     x0, y0 = math.floor(x[corner]) - tile, math.floor(y[corner]) - tile
     bbox = (x0, y0, x0 + side, y0 + side)
     out = tmp_path / "d.zarr"
