@@ -93,6 +93,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground)")
     run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
     run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
+    run.add_argument(
+        "--extent", help="xmin,ymin,xmax,ymax in the output CRS: the survey's planned area, which the grid covers "
+        "(files inside it never move the grid)"
+    )
     run.add_argument("--in-crs", help="CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
     run.add_argument("--out-crs", help="reproject to this CRS (required for mixed or geographic inputs)")
     run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest; first: the first read, files in sorted path order)")
@@ -186,8 +190,9 @@ def _run_config(args: argparse.Namespace):
         data["quad_measure"] = None if args.quad_measure == "none" else args.quad_measure
     if args.classes is not None:
         data["classes"] = None if args.classes.strip().lower() == "all" else _int_list(args.classes, "--classes")
-    if args.bbox is not None:
-        data["bbox"] = tuple(_float_list(args.bbox, "--bbox", 4))
+    for flag in ("bbox", "extent"):
+        if getattr(args, flag) is not None:
+            data[flag] = tuple(_float_list(getattr(args, flag), f"--{flag}", 4))
     if args.layers is not None:
         data["layers"] = tuple(name.strip() for name in args.layers.split(",") if name.strip())
     for needed in ("inputs", "output", "resolution"):

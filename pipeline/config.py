@@ -96,6 +96,19 @@ def _positive(name: str, value: object, allow_none: bool = False, allow_zero: bo
     return float(value)
 
 
+def _box(name: str, value: object) -> tuple[float, float, float, float] | None:
+    """A finite (xmin, ymin, xmax, ymax) with min < max, or None."""
+    if value is None:
+        return None
+    try:
+        box = tuple(float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise UsageError(f"{name} must be (xmin, ymin, xmax, ymax), got {value!r}") from None
+    if len(box) != 4 or not all(math.isfinite(v) for v in box) or not (box[0] < box[2] and box[1] < box[3]):
+        raise UsageError(f"{name} must be (xmin, ymin, xmax, ymax) with min < max, got {value!r}")
+    return box  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Everything a run needs; see ``terrain run --help`` for the meaning of each field.
@@ -117,6 +130,9 @@ class RunConfig:
     classes: tuple[int, ...] | None = DEFAULT_CLASSES
     keep_withheld: bool = False
     bbox: tuple[float, float, float, float] | None = None
+    extent: tuple[float, float, float, float] | None = None
+    """The survey's planned area (output CRS): the grid covers it, so files
+    inside it never move the grid (an archive that grows file by file)."""
     in_crs: str | None = None
     out_crs: str | None = None
     duplicates: str = DuplicatePolicy.LOWEST.value
@@ -168,14 +184,8 @@ class RunConfig:
             if not classes or any(c < 0 or c > 255 for c in classes):
                 raise UsageError(f"classes must be integers 0-255 or \"all\", got {self.classes!r}")
         object.__setattr__(self, "classes", classes)
-        if self.bbox is not None:
-            try:
-                bbox = tuple(float(v) for v in self.bbox)
-            except (TypeError, ValueError):
-                raise UsageError(f"bbox must be (xmin, ymin, xmax, ymax), got {self.bbox!r}") from None
-            if len(bbox) != 4 or not (bbox[0] < bbox[2] and bbox[1] < bbox[3]):
-                raise UsageError(f"bbox must be (xmin, ymin, xmax, ymax) with min < max, got {self.bbox!r}")
-            object.__setattr__(self, "bbox", bbox)
+        for name in ("bbox", "extent"):
+            object.__setattr__(self, name, _box(name, getattr(self, name)))
         object.__setattr__(self, "duplicates", _choice(DuplicatePolicy, self.duplicates, "duplicates"))
         object.__setattr__(
             self, "triangle_measure", _choice(TriangleMeasure, self.triangle_measure, "triangle_measure")
@@ -226,7 +236,7 @@ class RunConfig:
         if unknown:
             raise UsageError(f"unknown parameter(s) {unknown}; known: {', '.join(sorted(known))}")
         values = dict(data)
-        for key in ("inputs", "classes", "bbox", "layers"):
+        for key in ("inputs", "classes", "bbox", "extent", "layers"):
             if isinstance(values.get(key), list):
                 values[key] = tuple(values[key])
         return cls(**values)

@@ -317,6 +317,8 @@ def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, f
         bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
     if not all(math.isfinite(v) for v in bounds) or bounds[0] > bounds[2] or bounds[1] > bounds[3]:
         raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
+    if config.extent is not None:  # the planned area: files inside it never move the grid
+        bounds = _union_bounds([bounds, config.extent])
     if not (math.isfinite(bounds[2] - bounds[0]) and math.isfinite(bounds[3] - bounds[1])):
         raise UsageError(f"the inputs span more than the largest float: x {bounds[0]:.6g} .. {bounds[2]:.6g}, "
                          f"y {bounds[1]:.6g} .. {bounds[3]:.6g}")

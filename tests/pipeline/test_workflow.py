@@ -244,3 +244,37 @@ def test_a_new_file_in_another_height_unit_recomputes_every_slope(tmp_path):
     after = _chunk_times(workflow.config.output)
     assert all(after[k] != t for k, t in before.items())
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+# a new flight block beside the survey, inside the planned area: (corner, side)
+BLOCKS = {"north": (60.0, 160.0), "east": (240.0, 40.0), "south": (60.0, -80.0), "west": (-80.0, 40.0)}
+
+
+@pytest.mark.parametrize("side", list(BLOCKS))
+def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touches(tmp_path, side):
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
+    extent = [ORIGIN[0] - 100.0, ORIGIN[1] - 100.0, ORIGIN[0] + 340.0, ORIGIN[1] + 260.0]
+    job = tmp_path / "nightly.toml"
+    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0").replace("layers = ", f"extent = {extent}\nlayers = "))
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    before = _chunk_times(workflow.config.output)
+
+    _patch(archive, side, BLOCKS[side], seed=7, size=80.0)
+    status = workflow_status(workflow)
+    assert status["new_files"] == [str(archive / f"{side}.laz")]
+    assert 0 < status["tiles_pending"] < status["tiles_total"] / 2, status
+    run_workflow(workflow, progress=False)
+    after = _chunk_times(workflow.config.output)
+    assert set(after) == set(before)  # the grid did not move
+    untouched = [k for k in before if after[k] == before[k]]
+    assert len(untouched) >= len(before) / 3  # far tiles' chunk files were not written again
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_without_an_extent_a_block_that_grows_the_survey_says_why_every_tile_is_pending(job, tmp_path):
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    _patch(tmp_path / "archive", "north", BLOCKS["north"], seed=7, size=80.0)
+    assert workflow_status(workflow)["tiles_pending"] == "all (the grid, extent, buffer or height unit changes)"
