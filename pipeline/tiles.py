@@ -174,11 +174,6 @@ def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDA
     return ex[None, :] * (np.asarray(qy)[:, None] - py[None, :]) - ey[None, :] * (np.asarray(qx)[:, None] - px[None, :])
 
 
-def _disk_box_in_hull(cx: float, cy: float, r: float, hull_xy: NDArray[np.float64], box):
-    """:func:`_disk_boxes_in_hull` of one circle."""
-    return _disk_boxes_in_hull(np.array([[cx, cy, r]]), hull_xy, box)[0]
-
-
 def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box) -> list:
     """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
     polygon ``hull_xy`` (counter-clockwise) ∩ ``box``), rounded outwards by a

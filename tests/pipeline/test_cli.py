@@ -166,3 +166,24 @@ def test_an_unreachable_scheduler_leaves_nothing_behind(survey, tmp_path, capsys
     assert _run(survey, out, "--no-progress", "--scheduler", "tcp://127.0.0.1:1") == 2
     assert "cannot reach the Dask scheduler at tcp://127.0.0.1:1" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / ".e.zarr.work").exists()
+
+
+def _seam_fault(job):
+    """A tile that cannot be certified: only a bug does this."""
+    from pipeline.errors import SeamError
+    from pipeline.tiles import mesh_tile
+
+    if (job.row, job.col) == (0, 1):
+        raise SeamError(f"tile ({job.row}, {job.col}): its piece cannot be certified")
+    return mesh_tile(job)
+
+
+def test_a_tile_that_cannot_be_certified_fails_the_run_naming_it(survey, tmp_path, capsys, monkeypatch):
+    from pipeline import store
+
+    monkeypatch.setattr(runner, "mesh_tile", _seam_fault)
+    out = tmp_path / "seam.zarr"
+    assert _run(survey, out, "--no-progress") == 1
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1 and "tile (0, 1)" in err[0] and "certified" in err[0], err
+    assert store.read_attrs(out)["complete"] is False

@@ -121,7 +121,7 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     """The box of points to load for a circle: it holds every point of (disk ∩
     hull ∩ extent), and for the sliver circles along a slanted survey edge it is
     a thin strip, not the disk's whole span over the extent."""
-    from pipeline.tiles import _disk_box_in, _disk_box_in_hull
+    from pipeline.tiles import _disk_box_in, _disk_boxes_in_hull
 
     a = math.radians(20.0)
     rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
@@ -134,7 +134,7 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     for _ in range(200):
         cx, cy = rng.uniform(500.0, 2000.0, 2)
         r = rng.uniform(1.0, 800.0)
-        box = _disk_box_in_hull(cx, cy, r, hull, extent)
+        box = _disk_boxes_in_hull(np.array([[cx, cy, r]]), hull, extent)[0]
         hit = samples[(samples[:, 0] - cx) ** 2 + (samples[:, 1] - cy) ** 2 <= r * r]
         if box is None:
             assert hit.shape[0] == 0
@@ -145,7 +145,7 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     cx, cy = mid + normal * 20_000.0
     r = 20_000.0 + 0.5
     full = _disk_box_in(cx, cy, r, extent)
-    lens = _disk_box_in_hull(cx, cy, r, hull, extent)
+    lens = _disk_boxes_in_hull(np.array([[cx, cy, r]]), hull, extent)[0]
     area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
     assert area(lens) < 0.5 * area(full)
 
