@@ -5,11 +5,13 @@
     python bench/bench_pipeline.py seams [--points 4000000] [--tile-size 256]
     python bench/bench_pipeline.py certify [--tile-sizes 10,20,50]
 
-throughput: an all-ground synthetic LAZ archive to DEM + mesh, time per stage
-    (of the median run), and the wall time scaled to a machine that decodes LAZ
-    at 3.3M points/s on one core (decoding of the archive measured here before
-    and after the runs; the real samples in ../shared/data, when present, are
-    decoded too, to show that the archive decodes as real files do).
+throughput: two all-ground synthetic LAZ archives to DEM + mesh, side by side
+    (runs interleaved, medians): "flown" (strips, points in flight order,
+    default tiles) and "tiles" (adjacent 1 km tiles, points in random order,
+    --tile-size 500).  Each run's wall time against decoding the same archive
+    on one core (measured here before and after the runs), CPU/wall, peak RSS
+    and time per stage.  The real samples in ../shared/data, when present, are
+    decoded too, to show that the archives decode as real files do.
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
 seams: the same archive tiled and untiled: share of identical faces and DEM cells.
 certify: the real samples with ground (../shared/data) at several tile sizes:
@@ -53,18 +55,52 @@ _RUN = textwrap.dedent(
     """
     import json, resource, sys, time
     from pipeline import RunConfig, run
-    cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=1.0, overwrite=True)
+    tile = float(sys.argv[3]) if len(sys.argv) > 3 and sys.argv[3] != "auto" else None
+    cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=1.0, tile_size=tile, overwrite=True)
     t0 = time.perf_counter()
+    c0 = resource.getrusage(resource.RUSAGE_SELF)
     report = run(cfg, progress=False)
     wall = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-    print(json.dumps({"wall": wall, "peak": peak, "report": report.to_dict()}))
+    c1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = c1.ru_utime - c0.ru_utime + c1.ru_stime - c0.ru_stime
+    peak = c1.ru_maxrss * 1024
+    print(json.dumps({"wall": wall, "cpu": cpu, "peak": peak, "report": report.to_dict()}))
     """
 )
 
 
-def run_once(folder: Path, out: Path) -> dict:
-    res = subprocess.run([sys.executable, "-c", _RUN, str(folder), str(out)], capture_output=True, text=True)
+def tiled_archive(cache: Path, points: int, files: int) -> Path:
+    """The second shape: all-ground points in adjacent 1 km tiles (two rows),
+    in random order inside each file, as a tiled delivery of a survey is cut."""
+    import laspy
+    import numpy as np
+
+    from pipeline.synthetic import terrain_height
+
+    folder = cache / f"tiles_{points}_{files}"
+    done = folder / ".complete"
+    if done.exists():
+        return folder
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(2)
+    per = points // files
+    for k in range(files):
+        x0, y0 = 650_000.0 + 1000.0 * (k // 2), 6_860_000.0 + 1000.0 * (k % 2)
+        header = laspy.LasHeader(point_format=6, version="1.4")
+        header.scales, header.offsets = np.array([0.01, 0.01, 0.01]), np.array([x0, y0, 0.0])
+        header.add_crs(__import__("pyproj").CRS.from_epsg(2154))
+        las = laspy.LasData(header)
+        x, y = x0 + rng.random(per) * 1000.0, y0 + rng.random(per) * 1000.0
+        las.x, las.y, las.z = x, y, terrain_height(x, y, (650_000.0, 6_860_000.0))
+        las.classification = np.full(per, 2, dtype=np.uint8)
+        las.write(folder / f"tile_{k:02d}.laz")
+    done.write_text("ok")
+    return folder
+
+
+def run_once(folder: Path, out: Path, tile_size: float | None = None) -> dict:
+    tile = "auto" if tile_size is None else str(tile_size)
+    res = subprocess.run([sys.executable, "-c", _RUN, str(folder), str(out), tile], capture_output=True, text=True)
     if res.returncode:
         raise SystemExit(res.stderr)
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -152,14 +188,14 @@ GROUND_SAMPLES = (
 )
 
 
-def certify(cache: Path, tile_sizes: list[float]) -> None:
+def certify(cache: Path, tile_sizes: list[float], samples: tuple[str, ...] = GROUND_SAMPLES) -> None:
     """Whole real samples at each tile size: uncertified tiles (an error now,
     so a failed run), and the points read beyond the buffer per tile."""
     import numpy as np
 
     print(f"\n{'sample':34} {'tile':>5} {'tiles':>6} {'exit':>4} {'wall s':>7} {'rounds':>7} "
           f"{'median read/held':>17} {'worst read/held':>16} {'read/held, all':>15}")
-    for name in GROUND_SAMPLES:
+    for name in samples:
         path = REAL_SAMPLES / name
         if not path.exists():
             continue
@@ -170,6 +206,9 @@ def certify(cache: Path, tile_sizes: list[float]) -> None:
                 [sys.executable, "-c", _CERTIFY, str(path), str(cache / "certify.zarr"), str(tile), str(log)],
                 capture_output=True, text=True,
             )
+            if not log.exists():
+                print(f"{name:34} {tile:5g}  failed: " + (out.stderr.strip().splitlines() or ["?"])[-1])
+                continue
             rows = np.array([json.loads(line) for line in log.read_text().splitlines()]).reshape(-1, 3)
             held, read, rounds = rows[:, 0], rows[:, 1], rows[:, 2]
             share = read / np.maximum(held, 1)
@@ -184,6 +223,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=["throughput", "memory", "seams", "certify"])
     parser.add_argument("--tile-sizes", default="10,20,50", help="certify: tile sizes in CRS units")
+    parser.add_argument("--samples", default=",".join(GROUND_SAMPLES), help="certify: the samples (file names)")
     parser.add_argument("--tile-size", type=float, default=256.0)
     parser.add_argument("--points", type=int, default=20_000_000)
     parser.add_argument("--files", type=int, default=10)
@@ -194,31 +234,32 @@ def main() -> None:
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     if args.what == "certify":
-        certify(args.cache, [float(v) for v in args.tile_sizes.split(",")])
+        certify(args.cache, [float(v) for v in args.tile_sizes.split(",")], tuple(args.samples.split(",")))
         return
     if args.what == "seams":
         n = args.points if "--points" in sys.argv else 4_000_000
         seams(archive(args.cache, n, max(1, n // 2_000_000)), args.cache, args.tile_size)
         return
     if args.what == "throughput":
-        folder = archive(args.cache, args.points, args.files)
-        before = decode_rate(folder)
+        # both shapes side by side, runs interleaved: (name, folder, tile size)
+        shapes = [("flown", archive(args.cache, args.points, args.files), None),
+                  ("tiles", tiled_archive(args.cache, args.points, args.files), 500.0)]
+        decode = {name: [args.points / decode_rate(folder)] for name, folder, _ in shapes}
         real = decode_rate(REAL_SAMPLES, repeat=5) if any(REAL_SAMPLES.glob("*.laz")) else None
-        runs = sorted((run_once(folder, args.cache / "out.zarr") for _ in range(args.repeat)), key=lambda r: r["wall"])
-        res = runs[len(runs) // 2]
-        rate = (before + decode_rate(folder)) / 2  # the machine's speed drifts: decode before and after
-        rep = res["report"]
-        walls = ", ".join(f"{r['wall']:.2f}" for r in runs)
-        print(f"\n{args.points:,} points, {args.files} LAZ files -> DEM + mesh"
-              + (f"; walls {walls} s, the median run's stages:" if len(runs) > 1 else ""))
-        print(f"{'stage':12} {'seconds':>8}")
-        for stage, sec in rep["stages"].items():
-            print(f"{stage:12} {sec:8.2f}")
-        print(f"{'wall':12} {res['wall']:8.2f}   ({args.points / res['wall'] / 1e6:.2f} M points/s)")
-        print(f"tiles {rep['tiles']}, faces {rep['faces']:,}, quads {100 * rep['quad_share']:.1f} %, peak RSS {res['peak'] / 2**30:.2f} GiB")
-        scale = rate / ANCHOR_DECODE_RATE
-        print(f"LAZ decode alone here: {rate / 1e6:.2f} M points/s on one core ({scale:.2f}x the "
-              f"{ANCHOR_DECODE_RATE / 1e6:.1f} M/s yardstick): wall on a yardstick machine ~ {res['wall'] * scale:.1f} s")
+        runs: dict[str, list[dict]] = {name: [] for name, _, _ in shapes}
+        for _ in range(args.repeat):
+            for name, folder, tile in shapes:
+                runs[name].append(run_once(folder, args.cache / f"out_{name}.zarr", tile))
+        for name, folder, _ in shapes:
+            decode[name].append(args.points / decode_rate(folder))  # the machine drifts: before and after
+        print(f"\n{args.points:,} points, {args.files} LAZ files -> DEM + mesh; median of {args.repeat} run(s)")
+        print(f"{'shape':6} {'decode s':>9} {'wall s':>7} {'x decode':>9} {'cpu/wall':>9} {'peak GiB':>9}  stages (s)")
+        for name, _, _ in shapes:
+            res = sorted(runs[name], key=lambda r: r["wall"])[len(runs[name]) // 2]
+            dec = sum(decode[name]) / len(decode[name])
+            stages = ", ".join(f"{k} {v:.1f}" for k, v in res["report"]["stages"].items() if k != "total")
+            print(f"{name:6} {dec:9.2f} {res['wall']:7.2f} {res['wall'] / dec:9.2f} {res['cpu'] / res['wall']:9.2f} "
+                  f"{res['peak'] / 2**30:9.2f}  {stages}")
         if real is not None:
             print(f"the real LAZ samples decode here at {real / 1e6:.2f} M points/s ({real / ANCHOR_DECODE_RATE:.2f}x the yardstick)")
     else:

@@ -9,7 +9,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit, njit_borrowing
 from ._order import geometric_order
-from .delaunay import _next, _prev, delaunay
+from .delaunay import _next, _prev, circumcenter_terms, delaunay
 from .errors import InvalidInputError
 from .flip import flip_edges
 from .merge import merge_triangles
@@ -135,13 +135,7 @@ def _safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
     edge have circles of thousands of kilometres, where 1e-9 of the radius is
     centimetres, which is the spacing of the points themselves.
     """
-    dx = bx - ax
-    dy = by - ay
-    ex = cx - ax
-    ey = cy - ay
-    bl = dx * dx + dy * dy
-    cl = ex * ex + ey * ey
-    d = dx * ey - dy * ex
+    dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
     err_d = 16.0 * _U * (abs(dx * ey) + abs(dy * ex))
     if not abs(d) > 2.0 * err_d:
         return 0.0, 0.0, math.inf

@@ -58,15 +58,20 @@ def _link(halfedges: np.ndarray, a: int, b: int) -> None:
 
 
 @njit
-def circumcenter_offset(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
-    """Circumcentre of ``a, b, c`` relative to ``a`` (infinite or NaN when collinear)."""
+def circumcenter_terms(ax, ay, bx, by, cx, cy) -> tuple[float, float, float, float, float, float, float]:
+    """What the circumcentre of ``a, b, c`` is made of: ``b - a``, ``c - a``,
+    their squared lengths and their cross product (twice the signed area)."""
     dx = bx - ax
     dy = by - ay
     ex = cx - ax
     ey = cy - ay
-    bl = dx * dx + dy * dy
-    cl = ex * ex + ey * ey
-    d = dx * ey - dy * ex
+    return dx, dy, ex, ey, dx * dx + dy * dy, ex * ex + ey * ey, dx * ey - dy * ex
+
+
+@njit
+def circumcenter_offset(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
+    """Circumcentre of ``a, b, c`` relative to ``a`` (infinite or NaN when collinear)."""
+    dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
     return (ey * bl - dy * cl) * 0.5 / d, (dx * cl - ex * bl) * 0.5 / d
 
 

@@ -339,8 +339,8 @@ def _merge_boxes(boxes: list) -> list:
 
 
 def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
-    """Strips along the data extent's edges that the tile's box reaches, one
-    buffer deep and one tile longer than the box on either side.
+    """Strips along the data extent's edges that the tile's box reaches, a
+    twentieth of the buffer deep and one tile longer than the box on either side.
 
     Near a straight survey edge the Delaunay triangles are slivers whose
     circumcircles reach far along the edge, just inside it; holding these
@@ -348,7 +348,10 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     """
     x0, y0, x1, y1 = job.extent
     reach = min(job.grid.tile_size, 32.0 * job.buffer)
-    depth = job.buffer
+    # the lenses of those circles inside the survey are centimetres deep: a
+    # twentieth of the buffer (about half a point spacing) holds them; a whole
+    # buffer read up to twice a small edge tile's points for the same rounds
+    depth = job.buffer / 20.0
     lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
     lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
     bands = []
