@@ -850,10 +850,8 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
     coordinate is ``k / (1 / scale)`` rounded once: with a scale like 0.01 the
     float nearest the decimal value itself, whatever the scale of the file.
     """
-    if _scaling_problem((scale,), (offset,)) is not None:
-        raise InputFileError(f"unusable scale factor {scale} or offset {offset}")  # read_info and the reader check first
-    steps = offset / scale
-    per_unit = 1.0 / scale
+    steps = offset / scale if scale else math.nan
+    per_unit = 1.0 / scale if scale else math.inf  # inf for a scale so small: the plain decoding below
     # offset / scale is off a whole number by its own rounding at most (a few ulps of it)
     on_lattice = math.isfinite(steps) and abs(steps - round(steps)) <= max(1e-6, 8.0 * math.ulp(steps))
     if not (on_lattice and abs(steps) < 2.0**52 - 2.0**32 and abs(per_unit) < 2.0**52):

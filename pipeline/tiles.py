@@ -192,8 +192,8 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     finite = np.array([c is not None and math.isfinite(r) for c, r in zip(clipped, circles[:, 2])], dtype=bool)
     if hull_xy.shape[0] < 3 or not finite.any():
         return out
-    todo = np.flatnonzero(finite)
-    cx, cy, r = (circles[todo, k][:, None] for k in range(3))
+    rows = np.flatnonzero(finite)
+    cx, cy, r = (circles[rows, k][:, None] for k in range(3))
     px, py = hull_xy[None, :, 0] - cx, hull_xy[None, :, 1] - cy  # centred: rounding relative to r
     # the centring's rounding, as a larger circle
     r = r + 4 * _U * (np.abs(cx) + np.abs(cy) + r + float(np.abs(hull_xy).max()))
@@ -219,7 +219,7 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     # how far a crossing may be from where it is computed, along its edge
     spread = np.sqrt(np.maximum(disc + err_disc, 0.0)) - np.sqrt(np.maximum(disc - err_disc, 0.0))
     dt = (spread + 8 * _U * (np.abs(b) + root)) / safe_a
-    grow = np.zeros(todo.size)
+    grow = np.zeros(rows.size)
     for sign in (-1.0, 1.0):
         t = np.where(ok, (-b + sign * root) / safe_a, -np.inf)
         on = ok & (t >= -dt) & (t <= 1.0 + dt)
@@ -236,7 +236,7 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     lo_x, hi_x = np.min(xs_lo, axis=0), np.max(xs_hi, axis=0)
     lo_y, hi_y = np.min(ys_lo, axis=0), np.max(ys_hi, axis=0)
     grow += 8 * _U * (np.abs(cx[:, 0]) + np.abs(cy[:, 0]) + 2 * r[:, 0])
-    for k, i in enumerate(todo.tolist()):
+    for k, i in enumerate(rows.tolist()):
         if not math.isfinite(lo_x[k]):  # no part of the polygon in the disk
             out[i] = None
             continue
