@@ -36,3 +36,14 @@ def assert_same_store(path: Path, reference: Path) -> None:
         f"only in the reference: {sorted(set(want_files) - set(got_files))}, different bytes: {differ}"
     )
     assert got.attrs["complete"] is True
+
+
+def face_set(node_xy, faces) -> set:
+    """A mesh's faces as tuples of corner coordinates, each from its smallest
+    corner: the same set for the same mesh whatever its vertex numbering."""
+    out = set()
+    for row in np.asarray(faces).tolist():
+        pts = [tuple(node_xy[v]) for v in row if v >= 0]
+        k = pts.index(min(pts))
+        out.add(tuple(pts[k:] + pts[:k]))
+    return out

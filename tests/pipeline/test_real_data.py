@@ -16,6 +16,8 @@ from pipeline.config import RunConfig
 from pipeline.errors import CrsError, PipelineError
 from pipeline.runner import run
 
+from .store_checks import face_set
+
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
 
@@ -111,15 +113,6 @@ GROUND_SAMPLES = [
 ]
 
 
-def _faces(node_xy, faces) -> set:
-    out = set()
-    for row in np.asarray(faces).tolist():
-        pts = [tuple(node_xy[v]) for v in row if v >= 0]
-        k = pts.index(min(pts))
-        out.add(tuple(pts[k:] + pts[:k]))
-    return out
-
-
 @pytest.mark.parametrize("tile", [10.0, 20.0, 50.0])
 @pytest.mark.parametrize("name", GROUND_SAMPLES)
 def test_real_surveys_certify_every_tile_and_tile_into_the_whole_delaunay(tmp_path, name, tile):
@@ -146,7 +139,7 @@ def test_real_surveys_certify_every_tile_and_tile_into_the_whole_delaunay(tmp_pa
     meshcore.validate(meshcore.Mesh(node_xy, faces, np.arange(len(node_xy))))
     assert len(node_xy) == report.vertices > 50
     whole = meshcore.build_mesh(node_xy, "delaunay", None)
-    assert _faces(node_xy, faces) == _faces(whole.vertices, whole.faces)
+    assert face_set(node_xy, faces) == face_set(whole.vertices, whole.faces)
     if tile == 20.0:  # the combined mesh: flips and merges stay inside the pieces
         combined = _run(path, tmp_path / "c.zarr", resolution=tile / 8.0, tile_size=tile, bbox=bbox)
         _check_store(tmp_path / "c.zarr", combined)

@@ -15,6 +15,8 @@ from pipeline.config import RunConfig
 from pipeline.runner import run
 from pipeline.synthetic import SurveySpec, terrain_height, write_survey
 
+from .store_checks import face_set
+
 SPEC = SurveySpec(points=60_000, files=3, width=300.0, height=200.0, seed=3)
 
 
@@ -29,16 +31,6 @@ def _run(survey, out, **kw):
     values = dict(inputs=(str(survey),), output=str(out), resolution=2.0, workers=2)
     values.update(kw)
     return run(RunConfig(**values), progress=False)
-
-
-def _face_set(node_xy, faces):
-    out = set()
-    for row in faces.tolist():
-        ids = [v for v in row if v >= 0]
-        pts = [tuple(node_xy[v]) for v in ids]
-        k = pts.index(min(pts))
-        out.add(tuple(pts[k:] + pts[:k]))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +91,7 @@ def test_stitched_mesh_is_one_conforming_mesh(tiled, untiled):
     assert len(np.unique(node_xy[:, 0] + 1j * node_xy[:, 1])) == len(node_xy)
     ref_xy, _, ref_faces = store.read_mesh(untiled[0])
     assert len(ref_xy) == len(node_xy)
-    same = len(_face_set(node_xy, faces) & _face_set(ref_xy, ref_faces)) / len(ref_faces)
+    same = len(face_set(node_xy, faces) & face_set(ref_xy, ref_faces)) / len(ref_faces)
     print(f"faces identical to the untiled run: {same:.4%}")
     # tiles here hold ~2,000 points each, so seams are a large share of the
     # mesh; bench/bench_pipeline.py measures the share at realistic sizes
@@ -365,6 +357,6 @@ def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_pi
         xy, _, f = store.read_mesh(out)
         xy, f = np.asarray(xy), np.asarray(f)
         meshcore.validate(meshcore.Mesh(xy, f, np.arange(len(xy))))
-        return _face_set(xy, f)
+        return face_set(xy, f)
 
     assert faces(tmp_path / "tiled.zarr") == faces(tmp_path / "whole.zarr")

@@ -21,6 +21,8 @@ from pipeline import store
 from pipeline.config import RunConfig
 from pipeline.runner import run
 
+from .store_checks import face_set
+
 
 def _survey(path: Path, seed: int, width: float, height: float) -> tuple[np.ndarray, dict]:
     """A ground-only LAS file; returns its points' x, y as stored and the draw."""
@@ -64,15 +66,6 @@ def _survey(path: Path, seed: int, width: float, height: float) -> tuple[np.ndar
     return np.column_stack([np.asarray(back.x), np.asarray(back.y)]), draw
 
 
-def _faces(node_xy: np.ndarray, faces: np.ndarray) -> set:
-    out = set()
-    for row in faces.tolist():
-        pts = [tuple(node_xy[v]) for v in row if v >= 0]
-        k = pts.index(min(pts))
-        out.add(tuple(pts[k:] + pts[:k]))
-    return out
-
-
 def _run(path: Path, out: Path, **kw):
     config = RunConfig(inputs=(str(path),), output=str(out), in_crs="EPSG:2154", workers=2, **kw)
     return run(config, progress=False)
@@ -106,8 +99,8 @@ def test_every_tile_certifies_and_the_delaunay_pieces_are_the_whole_triangulatio
     # float nearest its decimal value, which may be an ulp from laspy's)
     assert len(node_xy) == len(np.unique(xy, axis=0))
     whole = meshcore.build_mesh(node_xy, "delaunay", None)
-    want = _faces(whole.vertices, whole.faces)
-    got = _faces(node_xy, faces)
+    want = face_set(whole.vertices, whole.faces)
+    got = face_set(node_xy, faces)
     assert got == want, (draw, len(got - want), len(want - got))
 
     combined = _run(tmp_path / "ground.las", tmp_path / "combined.zarr", **sizes)
