@@ -2,8 +2,9 @@
 
 Pure numeric kernels over arrays: robust Delaunay triangulation, flips under a
 triangle quality measure, elimination of diagonals under a quadrangle measure
-("Surface design based upon a combined mesh"), linear/bilinear interpolation
-and rasterization.  No I/O.
+("Surface design based upon a combined mesh"), interpolation and
+rasterization of its linear/bilinear surface or of a smooth one (cubic
+patches through every point, the paper's section 4).  No I/O.
 
 >>> import numpy as np, meshcore
 >>> rng = np.random.default_rng(0)
@@ -19,11 +20,13 @@ from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh
-from .options import MergeMethod, QuadMeasure, TriangleMeasure
+from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure
+from .patches import NODES_PER_FACE
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
+from .smooth import DEFAULT_NEIGHBOURS, Variogram, fit_variogram, neighbourhood_radii, smooth_nodes
 from .validate import convex_hull, validate
 
 drop_stale_kernels()
@@ -37,6 +40,13 @@ __all__ = [
     "interpolate",
     "gradient",
     "rasterize",
+    "smooth_nodes",
+    "fit_variogram",
+    "neighbourhood_radii",
+    "Variogram",
+    "Surface",
+    "NODES_PER_FACE",
+    "DEFAULT_NEIGHBOURS",
     "validate",
     "convex_hull",
     "s1",

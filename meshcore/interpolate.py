@@ -1,4 +1,4 @@
-"""Evaluate the surface of a mesh: linear on triangles, bilinear on quadrangles.
+"""Evaluate the surface of a mesh: linear on triangles, bilinear on quadrangles, or smooth.
 
 The surface
 -----------
@@ -12,6 +12,10 @@ with the same weights on z.  Along an edge both reduce to linear interpolation
 between the edge's end vertices, so the surface is continuous across every
 shared edge of a conforming mesh; the gradient is not.  The gradient of a
 patch is ``J^-T [dz/du, dz/dv]`` with ``J = d(x, y) / d(u, v)``.
+
+With ``surface="smooth"`` each face carries a cubic patch through the same
+corners instead (:mod:`meshcore.patches`), whose other nodes are kriged from
+the points around (:mod:`meshcore.smooth`); it is continuous too.
 
 The inverse map
 ---------------
@@ -51,6 +55,9 @@ from numpy.typing import ArrayLike, NDArray
 from ._jit import njit
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
+from .options import Surface, parse_option
+from .patches import NODES_PER_FACE, quad_patch, triangle_patch
+from .smooth import Variogram, smooth_nodes
 
 __all__ = ["interpolate", "gradient"]
 
@@ -253,6 +260,41 @@ def _face_value_and_gradient(
 
 
 @njit
+def _face_patch(
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, f: int, px: float, py: float
+) -> tuple[float, float, float]:
+    """Value and gradient of face ``f``'s cubic patch at ``p`` (no inside test)."""
+    a = faces[f, 0]
+    b = faces[f, 1]
+    c = faces[f, 2]
+    d = faces[f, 3]
+    if d < 0:
+        return triangle_patch(
+            vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
+            vertices[c, 0], vertices[c, 1], z[a], z[b], z[c], nodes[f], px, py,
+        )
+    u, v = _bilinear_inverse(
+        vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
+        vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1], px, py,
+    )
+    return quad_patch(
+        vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
+        vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1],
+        z[a], z[b], z[c], z[d], nodes[f], u, v,
+    )
+
+
+@njit
+def _surface_at(
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, f: int, px: float, py: float
+) -> tuple[float, float, float]:
+    """The linear formula when ``nodes`` has no rows, else the cubic patch."""
+    if nodes.shape[0] == 0:
+        return _face_value_and_gradient(vertices, faces, z, f, px, py)
+    return _face_patch(vertices, faces, z, nodes, f, px, py)
+
+
+@njit
 def _grow_bbox(
     xmin: float, ymin: float, xmax: float, ymax: float
 ) -> tuple[float, float, float, float]:
@@ -428,7 +470,7 @@ def _locate_kernel(
 
 @njit
 def _evaluate_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
     px: np.ndarray, py: np.ndarray, face: np.ndarray, out: np.ndarray,
 ) -> None:
     for k in range(px.shape[0]):
@@ -436,12 +478,12 @@ def _evaluate_kernel(
         if f < 0:
             out[k] = math.nan
         else:
-            out[k] = _face_value_and_gradient(vertices, faces, z, f, px[k], py[k])[0]
+            out[k] = _surface_at(vertices, faces, z, nodes, f, px[k], py[k])[0]
 
 
 @njit
 def _gradient_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
     px: np.ndarray, py: np.ndarray, face: np.ndarray, out_x: np.ndarray, out_y: np.ndarray,
 ) -> None:
     for k in range(px.shape[0]):
@@ -450,7 +492,7 @@ def _gradient_kernel(
             out_x[k] = math.nan
             out_y[k] = math.nan
         else:
-            _, out_x[k], out_y[k] = _face_value_and_gradient(vertices, faces, z, f, px[k], py[k])
+            _, out_x[k], out_y[k] = _surface_at(vertices, faces, z, nodes, f, px[k], py[k])
 
 
 # --------------------------------------------------------------------------
@@ -535,7 +577,43 @@ def _locate(
     return face
 
 
-def interpolate(mesh: Mesh, z: ArrayLike, x: ArrayLike, y: ArrayLike) -> NDArray[np.float64]:
+def surface_nodes(
+    mesh: Mesh,
+    z: NDArray[np.float64],
+    surface: str | Surface,
+    nodes: ArrayLike | None,
+    variogram: Variogram | None,
+) -> NDArray[np.float64]:
+    """The node rows a kernel takes: none for the linear surface, else given or computed.
+
+    ``z`` is already checked (:func:`meshcore.mesh.vertex_values`).
+    """
+    kind = parse_option(Surface, surface, "surface")
+    n_f = np.shape(mesh.faces)[0]
+    if kind is Surface.LINEAR:
+        if nodes is not None:
+            raise InvalidInputError("nodes are the smooth surface's: give them with surface='smooth'")
+        return np.empty((0, NODES_PER_FACE))
+    if nodes is None:
+        return smooth_nodes(mesh, z, variogram)
+    arr = np.asarray(nodes)
+    if arr.dtype.kind not in "fiu" or arr.shape != (n_f, NODES_PER_FACE):
+        raise InvalidInputError(
+            f"nodes must be a real array of shape (n_faces, {NODES_PER_FACE}) = ({n_f}, {NODES_PER_FACE}), "
+            f"got {arr.dtype} {arr.shape}"
+        )
+    return np.ascontiguousarray(arr, dtype=np.float64)
+
+
+def interpolate(
+    mesh: Mesh,
+    z: ArrayLike,
+    x: ArrayLike,
+    y: ArrayLike,
+    surface: str | Surface = "linear",
+    nodes: ArrayLike | None = None,
+    variogram: Variogram | None = None,
+) -> NDArray[np.float64]:
     """Evaluate the mesh surface at points ``(x, y)``.
 
     Linear on triangles, isoparametric bilinear on quadrangles (see the module
@@ -549,6 +627,14 @@ def interpolate(mesh: Mesh, z: ArrayLike, x: ArrayLike, y: ArrayLike) -> NDArray
         One value per vertex, finite or NaN (NaN spreads to the faces using it).
     x, y : arrays of one shape, or scalars
         The query points.
+    surface : {"linear", "smooth"}
+        The paper's linear/bilinear faces, or cubic patches through the same
+        vertices (:mod:`meshcore.patches`, :mod:`meshcore.smooth`).
+    nodes : (n_f, 12) array, optional
+        The smooth surface's node values (:func:`meshcore.smooth_nodes`);
+        computed when omitted.
+    variogram : Variogram, optional
+        For computed nodes: the kriging model (fitted to the vertices when omitted).
 
     Returns
     -------
@@ -572,20 +658,28 @@ def interpolate(mesh: Mesh, z: ArrayLike, x: ArrayLike, y: ArrayLike) -> NDArray
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
+    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
     face = _locate(vertices, faces, px, py)
     out = np.empty(px.shape[0])
-    _evaluate_kernel(vertices, faces, zv, px, py, face, out)
+    _evaluate_kernel(vertices, faces, zv, rows, px, py, face, out)
     return out.reshape(shape)
 
 
 def gradient(
-    mesh: Mesh, z: ArrayLike, x: ArrayLike, y: ArrayLike
+    mesh: Mesh,
+    z: ArrayLike,
+    x: ArrayLike,
+    y: ArrayLike,
+    surface: str | Surface = "linear",
+    nodes: ArrayLike | None = None,
+    variogram: Variogram | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The gradient ``(dz/dx, dz/dy)`` of the mesh surface at points ``(x, y)``.
 
-    Constant on a triangle; ``J^-T [dz/du, dz/dv]`` on a quadrangle.  The
-    gradient jumps across edges: a point on a shared edge takes the gradient of
-    either face.  Arguments as for :func:`interpolate`.
+    Linear surface: constant on a triangle, ``J^-T [dz/du, dz/dv]`` on a
+    quadrangle.  Smooth surface: the cubic patch's.  The gradient jumps
+    across edges: a point on a shared edge takes the gradient of either face.
+    Arguments as for :func:`interpolate`.
 
     Returns
     -------
@@ -605,8 +699,9 @@ def gradient(
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
+    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
     face = _locate(vertices, faces, px, py)
     gx = np.empty(px.shape[0])
     gy = np.empty(px.shape[0])
-    _gradient_kernel(vertices, faces, zv, px, py, face, gx, gy)
+    _gradient_kernel(vertices, faces, zv, rows, px, py, face, gx, gy)
     return gx.reshape(shape), gy.reshape(shape)

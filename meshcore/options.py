@@ -1,4 +1,4 @@
-"""The options of :func:`meshcore.build_mesh` as string enums with clear errors."""
+"""The options of :func:`meshcore.build_mesh` and of the surface, as string enums with clear errors."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import TypeVar
 
 from .errors import InvalidInputError
 
-__all__ = ["TriangleMeasure", "QuadMeasure", "MergeMethod", "parse_option"]
+__all__ = ["TriangleMeasure", "QuadMeasure", "MergeMethod", "Surface", "parse_option"]
 
 
 class TriangleMeasure(str, Enum):
@@ -30,6 +30,13 @@ class MergeMethod(str, Enum):
 
     GREEDY = "greedy"
     OPTIMAL = "optimal"
+
+
+class Surface(str, Enum):
+    """The surface over the faces: the paper's linear/bilinear one, or cubic patches through the same points."""
+
+    LINEAR = "linear"
+    SMOOTH = "smooth"
 
 
 E = TypeVar("E", bound=Enum)

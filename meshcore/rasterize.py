@@ -30,13 +30,18 @@ from numpy.typing import ArrayLike, NDArray
 from ._jit import njit
 from .errors import InvalidInputError
 from .interpolate import (
+    _bilinear_inverse,
     _grow_bbox,
     _quad_contains,
     _quad_value_and_gradient,
     _triangle_contains,
     _triangle_value_and_gradient,
+    surface_nodes,
 )
 from .mesh import Mesh, mesh_arrays, vertex_values
+from .options import Surface
+from .patches import quad_patch, triangle_patch
+from .smooth import Variogram
 
 __all__ = ["rasterize"]
 
@@ -103,9 +108,11 @@ def _gather_chunk(
 
 @njit
 def _rasterize_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
     x0: float, y0: float, resolution: float, max_edge2: float, out: np.ndarray,
 ) -> None:
+    """Fill ``out`` face by face; cubic patches when ``nodes`` has rows, else linear."""
+    smooth = nodes.shape[0] > 0
     ny, nx = out.shape
     inv_res = 1.0 / resolution
     n_f = faces.shape[0]
@@ -152,14 +159,27 @@ def _rasterize_kernel(
                         continue
                     if not is_quad:
                         if _triangle_contains(ax, ay, bx, by, cx, cy, qx, qy):
-                            out[j, i] = _triangle_value_and_gradient(
-                                ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2], qx, qy
-                            )[0]
+                            if smooth:
+                                out[j, i] = triangle_patch(
+                                    ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2],
+                                    nodes[start + k], qx, qy,
+                                )[0]
+                            else:
+                                out[j, i] = _triangle_value_and_gradient(
+                                    ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2], qx, qy
+                                )[0]
                     elif _quad_contains(ax, ay, bx, by, cx, cy, dx, dy, qx, qy):
-                        out[j, i] = _quad_value_and_gradient(
-                            ax, ay, bx, by, cx, cy, dx, dy,
-                            zs[k, 0], zs[k, 1], zs[k, 2], zs[k, 3], qx, qy,
-                        )[0]
+                        if smooth:
+                            u, v = _bilinear_inverse(ax, ay, bx, by, cx, cy, dx, dy, qx, qy)
+                            out[j, i] = quad_patch(
+                                ax, ay, bx, by, cx, cy, dx, dy,
+                                zs[k, 0], zs[k, 1], zs[k, 2], zs[k, 3], nodes[start + k], u, v,
+                            )[0]
+                        else:
+                            out[j, i] = _quad_value_and_gradient(
+                                ax, ay, bx, by, cx, cy, dx, dy,
+                                zs[k, 0], zs[k, 1], zs[k, 2], zs[k, 3], qx, qy,
+                            )[0]
 
 
 def _finite_float(name: str, value: object) -> float:
@@ -183,6 +203,9 @@ def rasterize(
     nx: int,
     ny: int,
     max_edge: float | None = None,
+    surface: str | Surface = "linear",
+    nodes: ArrayLike | None = None,
+    variogram: Variogram | None = None,
 ) -> NDArray[np.float64]:
     """Sample the mesh surface at the centres of a regular grid.
 
@@ -201,6 +224,8 @@ def rasterize(
     max_edge : float or None
         When given (``> 0``), faces with an edge longer than this are left out,
         so their cells stay NaN (long edges span data gaps).
+    surface, nodes, variogram
+        Which surface, as for :func:`meshcore.interpolate`.
 
     Returns
     -------
@@ -241,6 +266,7 @@ def rasterize(
         ):
             raise InvalidInputError(f"max_edge must be None or a number > 0, got {max_edge!r}")
         max_edge2 = float(max_edge) ** 2
+    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
     out = np.full((ny, nx), np.nan)
-    _rasterize_kernel(vertices, faces, zv, x0, y0, resolution, max_edge2, out)
+    _rasterize_kernel(vertices, faces, zv, rows, x0, y0, resolution, max_edge2, out)
     return out

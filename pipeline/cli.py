@@ -104,6 +104,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quad-measure", choices=("s2", "s4", "none"), help="elimination measure (default s4; none: triangles only)")
     run.add_argument("--merge", choices=("greedy", "optimal"), help="elimination strategy (default greedy)")
     run.add_argument("--max-edge", type=float, help="leave cells of faces with a longer edge as nodata")
+    run.add_argument(
+        "--surface", choices=("linear", "smooth"),
+        help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
+        "every point, kriged between them (more accurate, about twice the time)",
+    )
     run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
     run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
@@ -175,6 +180,7 @@ def _run_config(args: argparse.Namespace):
         "triangle_measure": args.triangle_measure,
         "merge": args.merge,
         "max_edge": args.max_edge,
+        "surface": args.surface,
         "workers": args.workers,
         "scheduler": args.scheduler,
         "zarr_format": args.zarr_format,

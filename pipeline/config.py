@@ -140,6 +140,9 @@ class RunConfig:
     quad_measure: str | None = "s4"
     merge: str = "greedy"
     max_edge: float | None = None
+    surface: str = "linear"
+    """The surface the DEM samples: "linear" (the mesh's own faces) or
+    "smooth" (cubic patches through every point, kriged between them)."""
     layers: tuple[str, ...] = ("elevation",)
     workers: int | None = None
     scheduler: str | None = None
@@ -151,7 +154,7 @@ class RunConfig:
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        from meshcore import MergeMethod, QuadMeasure, TriangleMeasure
+        from meshcore import MergeMethod, QuadMeasure, Surface, TriangleMeasure
 
         inputs = (self.inputs,) if isinstance(self.inputs, (str, Path)) else self.inputs
         inputs = tuple(str(p) for p in inputs)
@@ -195,6 +198,7 @@ class RunConfig:
         else:
             object.__setattr__(self, "quad_measure", None)
         object.__setattr__(self, "merge", _choice(MergeMethod, self.merge, "merge"))
+        object.__setattr__(self, "surface", _choice(Surface, self.surface, "surface"))
         layers = (self.layers,) if isinstance(self.layers, str) else tuple(self.layers)
         unknown = [name for name in layers if name not in LAYERS]
         if unknown:

@@ -39,6 +39,7 @@ from .config import RunConfig
 from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
+from .surface import run_variogram
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
@@ -600,6 +601,13 @@ def _execute(
         np.save(work.path / "hull.npy", hull)
         report.stages["route"] = time.perf_counter() - t0
 
+        variogram = None
+        if config.surface == "smooth":
+            t0 = time.perf_counter()
+            variogram, fitted = run_variogram(work, grid, config.duplicates, report.points_kept)
+            provenance["smooth_surface"] = fitted
+            report.stages["variogram"] = time.perf_counter() - t0
+
         t0 = time.perf_counter()
         # where the points are: the headers' extent, grown where a stale header
         # understates it (the tiles' search for missing points must reach them)
@@ -609,7 +617,7 @@ def _execute(
             TileJob(
                 r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
                 config.quad_measure, config.merge, config.max_edge, config.layers, hull=hull,
-                height_scale=plan.height_scale, run_id=run_id,
+                height_scale=plan.height_scale, run_id=run_id, surface=config.surface, variogram=variogram,
             )
             for r, c in grid.tiles()
         ]
@@ -685,7 +693,7 @@ def _execute(
     report.stages["total"] = time.perf_counter() - t_start
     store.finalize_store(
         config.output,
-        {"report": report.to_dict(), "complete": True, "incremental": keep_work},
+        {"provenance": provenance, "report": report.to_dict(), "complete": True, "incremental": keep_work},
         history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
     )
     if not keep_work:

@@ -62,6 +62,9 @@ class TileJob:
     run_id: str = ""
     """Names the run: tiles' points read for this one are kept in memory for
     the other tiles of the same run (empty: never kept)."""
+    surface: str = "linear"
+    """"smooth": the piece also holds its faces' patch nodes, kriged with ``variogram``."""
+    variogram: meshcore.Variogram | None = None
 
 
 @dataclass(frozen=True)
@@ -438,6 +441,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
     expansions = 0
     hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
 
+    smooth = job.surface == "smooth"
+
     def build(points):
         return meshcore.build_mesh(
             points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
@@ -455,6 +460,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         escapes = mesh.window_escapes
+        if smooth:  # the smoother's neighbourhoods must be held too
+            escapes = np.concatenate([escapes, _neighbourhood_disks(mesh, held[0])])
         for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
@@ -473,7 +480,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
                 # every point that could lie in the circles is held: only a bug gets here
                 raise SeamError(
                     f"tile ({job.row}, {job.col}): its piece cannot be certified although it holds every point "
-                    f"its {len(circles)} open circle(s) reach (gap in its window: {gap})"
+                    f"its {len(circles)} open circle(s) or neighbourhood(s) reach (gap in its window: {gap})"
                 )
             continue  # what is missing lies farther than this round reaches
         requests = _merge_boxes(requests)
@@ -521,6 +528,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
     vertex_xyz = np.column_stack([np.take(xy, used, axis=0), z[used]])
+    # the patches' nodes: from the neighbourhoods held, the same in every tile
+    nodes = {"nodes": meshcore.smooth_nodes(mesh, z, job.variogram)} if smooth else {}
     save_piece(
         Path(job.scratch), job.row, job.col, "piece",
         owned_xy=owned_xy,
@@ -529,9 +538,12 @@ def mesh_tile(job: TileJob) -> TileSummary:
         vertex_rank=rank[used],
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
+        **nodes,
     )
-    border_v, border_f = _border(vertex_xyz, faces, bx)
-    save_piece(Path(job.scratch), job.row, job.col, "border", vertex_xyz=border_v, faces=border_f)
+    reaching = _reaching_out(vertex_xyz, faces, bx)
+    border_v, border_f = _compact(vertex_xyz, np.compress(reaching, faces, axis=0))
+    border_nodes = {k: np.compress(reaching, v, axis=0) for k, v in nodes.items()}
+    save_piece(Path(job.scratch), job.row, job.col, "border", vertex_xyz=border_v, faces=border_f, **border_nodes)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -563,13 +575,25 @@ def _point_counts(job: TileJob, own: NDArray[np.float64]) -> NDArray[np.int32]:
     return counts
 
 
-def _border(vertex_xyz, faces, box):
-    """The faces that reach outside the tile's box (its neighbours' DEM needs them)."""
+def _neighbourhood_disks(mesh: meshcore.Mesh, box) -> NDArray[np.float64]:
+    """The kriging neighbourhoods ``(x, y, r)`` of the piece's patch nodes that
+    are not inside ``box``, each radius rounded up (the disk is closed: a point
+    on it may be the last neighbour)."""
+    disks = meshcore.neighbourhood_radii(mesh)
+    if disks.shape[0] == 0:
+        return disks
+    x, y, radius = disks[:, 0], disks[:, 1], disks[:, 2]
+    r = radius * (1.0 + 1e-9) + 8 * _U * (np.abs(x) + np.abs(y) + radius)
+    inside = (x - r >= box[0]) & (y - r >= box[1]) & (x + r <= box[2]) & (y + r <= box[3])
+    return np.column_stack([x[~inside], y[~inside], r[~inside]])
+
+
+def _reaching_out(vertex_xyz, faces, box) -> NDArray[np.bool_]:
+    """Which faces reach outside the tile's box (its neighbours' DEM needs them)."""
     if faces.shape[0] == 0:
-        return vertex_xyz[:0], faces
+        return np.zeros(0, dtype=bool)
     outside = ~points_in_box(vertex_xyz, box)
-    out = outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
-    return _compact(vertex_xyz, np.compress(out, faces, axis=0))
+    return outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
 
 
 def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
@@ -609,20 +633,24 @@ def load_piece(scratch: Path, row: int, col: int, keys, name: str = "piece") -> 
     return {k: load_array(folder / f"{k}.npy", mmap=True) for k in keys}
 
 
-def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8]]:
-    """The faces of this tile and its neighbours that overlap the tile's cells, as one mesh."""
+def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], NDArray[np.float64] | None]:
+    """The faces of this tile and its neighbours that overlap the tile's cells,
+    as one mesh, with z, the faces' kinds and (smooth surface) their nodes."""
     g = job.grid
     box = g.box(job.row, job.col)
-    verts, faces, kinds = [], [], []
+    smooth = job.surface == "smooth"
+    verts, faces, kinds, nodes = [], [], [], []
     offset = 0
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
     for r, c in [(job.row, job.col), *neighbours]:
         own = (r, c) == (job.row, job.col)
-        piece = load_piece(Path(job.scratch), r, c, ("vertex_xyz", "faces"), "piece" if own else "border")
+        keys = ("vertex_xyz", "faces", "nodes") if smooth else ("vertex_xyz", "faces")
+        piece = load_piece(Path(job.scratch), r, c, keys, "piece" if own else "border")
         v = piece["vertex_xyz"]
         f = piece["faces"]
+        n = piece.get("nodes")
         if f.shape[0] == 0:
             continue
         if not own:
@@ -632,18 +660,21 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
             hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
             hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
             v, f = _compact(v, np.compress(hit, f, axis=0))
+            n = None if n is None else np.compress(hit, n, axis=0)
         verts.append(v)
+        if n is not None:
+            nodes.append(np.asarray(n))
         faces.append(np.where(f >= 0, f + offset, -1) if offset else f)
         kinds.append((f[:, 3] >= 0).astype(np.int8) + 1)
         offset += v.shape[0]
     if not faces:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
-        return empty, np.empty(0), np.empty(0, dtype=np.int8)
+        return empty, np.empty(0), np.empty(0, dtype=np.int8), np.empty((0, meshcore.NODES_PER_FACE)) if smooth else None
     # a corner shared with a neighbour's face appears once per piece, with the
     # same coordinates and z: interpolation needs no merged vertex table
     v = np.concatenate(verts)
     mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), np.concatenate(faces), np.arange(v.shape[0]))
-    return mesh, np.ascontiguousarray(v[:, 2]), np.concatenate(kinds)
+    return mesh, np.ascontiguousarray(v[:, 2]), np.concatenate(kinds), np.concatenate(nodes) if smooth else None
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
@@ -652,20 +683,25 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
     x0 = g.x0 + c0 * g.resolution
     y0 = g.y0 + r0 * g.resolution
-    mesh, z, kinds = _local_mesh(job)
+    mesh, z, kinds, nodes = _local_mesh(job)
+    surface = {"surface": job.surface, "nodes": nodes}
     shape = (r1 - r0, c1 - c0)
     layers: dict[str, NDArray] = {}
     if mesh.faces.shape[0] == 0:
         layers["elevation"] = np.full(shape, np.nan, dtype=np.float32)
     else:
-        elev = meshcore.rasterize(mesh, z, x0, y0, g.resolution, shape[1], shape[0], max_edge=job.max_edge)
+        elev = meshcore.rasterize(
+            mesh, z, x0, y0, g.resolution, shape[1], shape[0], max_edge=job.max_edge, **surface
+        )
         layers["elevation"] = elev.astype(np.float32)
     if "slope" in job.layers:
         slope = np.full(shape, np.nan, dtype=np.float32)
         ok = np.isfinite(layers["elevation"])
         if ok.any():
             jj, ii = np.nonzero(ok)
-            gx, gy = meshcore.gradient(mesh, z, x0 + (ii + 0.5) * g.resolution, y0 + (jj + 0.5) * g.resolution)
+            gx, gy = meshcore.gradient(
+                mesh, z, x0 + (ii + 0.5) * g.resolution, y0 + (jj + 0.5) * g.resolution, **surface
+            )
             slope[jj, ii] = np.degrees(np.arctan(job.height_scale * np.hypot(gx, gy)))
         layers["slope"] = slope
     if "face_kind" in job.layers:

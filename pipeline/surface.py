@@ -1,0 +1,111 @@
+"""The run's smooth surface: one variogram for every tile, fitted once from a sample.
+
+``surface="smooth"`` krigs the patch nodes of every tile with the same
+variogram, so that neighbouring tiles compute bit-identical nodes on their
+shared edges.  It is fitted once per run from the run's points (exact x, y
+duplicates merged as the run merges them): all of them when they are at most
+:data:`SAMPLE_POINTS`, so that any tiling of a survey gives the same
+variogram (and the same surface); else the points of up to
+:data:`SAMPLE_TILES` tiles spread over the grid.  It is kept in the work
+folder: a resumed or incremental run reuses it, so tiles meshed earlier and
+tiles meshed now agree.  The store's provenance records it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+import meshcore
+
+from .checkpoint import WorkDir
+from .tiling import TileGrid, load_tile_points
+
+__all__ = ["run_variogram", "SAMPLE_TILES", "SAMPLE_POINTS"]
+
+SAMPLE_TILES = 8
+"""At most this many tiles give points to the fit."""
+
+SAMPLE_POINTS = 400_000
+"""The fit stops taking tiles once it holds this many points."""
+
+
+def _spread(n: int, count: int) -> list[int]:
+    """Up to ``count`` indices of ``0 .. n-1``, evenly spread, then all the others in order."""
+    if n == 0:
+        return []
+    first = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(count, n))})
+    return first + [i for i in range(n) if i not in set(first)]
+
+
+def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
+    """One point per distinct x, y, with the z the run keeps (``lowest``, ``highest``, ``mean``, ``first``)."""
+    order = np.lexsort((points[:, 1], points[:, 0]))
+    p = points[order]
+    new = np.ones(p.shape[0], dtype=bool)
+    new[1:] = (p[1:, 0] != p[:-1, 0]) | (p[1:, 1] != p[:-1, 1])
+    group = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    z = p[:, 2]
+    if policy == "lowest":
+        zz = np.minimum.reduceat(z, first)
+    elif policy == "highest":
+        zz = np.maximum.reduceat(z, first)
+    elif policy == "mean":
+        zz = np.bincount(group, weights=z) / np.bincount(group)
+    else:  # first read: the smallest index in reading order among equals
+        pick = np.full(first.size, np.iinfo(np.int64).max)
+        np.minimum.at(pick, group, order)
+        zz = points[pick, 2]
+    return np.column_stack([p[first, 0], p[first, 1], zz])
+
+
+def run_variogram(
+    work: WorkDir, grid: TileGrid, policy: str, points: int
+) -> tuple[meshcore.Variogram, dict[str, Any]]:
+    """The run's variogram (fitted now, or the one this work folder recorded)
+    and its provenance entry; ``points``: how many the run kept."""
+    recorded = work.recorded("surface", "variogram")
+    if recorded is not None:
+        return meshcore.Variogram.from_dict(recorded["variogram"]), recorded
+    tiles = grid.tiles()
+    parts: list[NDArray[np.float64]] = []
+    used: list[list[int]] = []
+    held = 0
+    every = points <= SAMPLE_POINTS
+    for k in _spread(len(tiles), SAMPLE_TILES):
+        if not every and (len(parts) == SAMPLE_TILES or held >= SAMPLE_POINTS):
+            break
+        r, c = tiles[k]
+        pts = load_tile_points(Path(work.path), r, c)
+        if pts.shape[0] == 0:
+            continue
+        orow, ocol = grid.owner(pts[:, 0], pts[:, 1])
+        pts = pts[(orow == r) & (ocol == c)]
+        if pts.shape[0] == 0:
+            continue
+        parts.append(pts)
+        used.append([r, c])
+        held += pts.shape[0]
+    sample = _merged(np.concatenate(parts), policy) if parts else np.empty((0, 3))
+    try:
+        variogram = meshcore.fit_variogram(sample[:, :2], sample[:, 2], neighbours=meshcore.DEFAULT_NEIGHBOURS)
+        how = "leave-one-out kriging errors on a sample"
+    except meshcore.InvalidInputError:
+        # too few points to fit: any model gives the few faces there are
+        span = max(grid.tile_size, grid.resolution)
+        variogram = meshcore.Variogram(nugget=0.0, sill=1.0, range=span)
+        how = "too few points to fit: a default"
+    entry = {
+        "variogram": variogram.to_dict(),
+        "model": "exponential",
+        "fitted": how,
+        "neighbours": meshcore.DEFAULT_NEIGHBOURS,
+        "sample_points": int(sample.shape[0]),
+        "sample_tiles": len(used),
+    }
+    work.record("surface", "variogram", entry)
+    return variogram, entry
