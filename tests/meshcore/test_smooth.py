@@ -1,0 +1,336 @@
+"""Tests of the smooth surface: cubic patches (meshcore.patches) and kriged nodes (meshcore.smooth)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+import meshcore
+from meshcore.errors import InvalidInputError
+from meshcore.interpolate import _face_patch, gradient, interpolate
+from meshcore.mesh import Mesh
+from meshcore.smooth import Variogram, _nearest, _node_layout, fit_variogram, neighbourhood_radii, smooth_nodes
+
+OFFSET = np.array([6.0e5, 6.8e6])
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20261201)
+
+
+def _mesh(vertices, faces) -> Mesh:
+    v = np.asarray(vertices, dtype=np.float64)
+    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
+
+
+def _nodes_of(mesh: Mesh, f) -> np.ndarray:
+    """Node rows holding ``f`` at every node position (the layout's own positions)."""
+    positions, _, _, _, take = _node_layout(mesh.vertices, mesh.faces, np.zeros(mesh.vertices.shape[0]))
+    values = f(positions[:, 0], positions[:, 1])
+    rows = np.full(take.shape, np.nan)
+    rows[take >= 0] = values[take[take >= 0]]
+    return rows
+
+
+def _inside_points(mesh: Mesh, rng, per_face: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """Random points inside every face (convex combinations of its corners)."""
+    xs, ys = [], []
+    for face in mesh.faces:
+        corners = mesh.vertices[face[face >= 0]]
+        w = rng.dirichlet(np.ones(len(corners)), per_face)
+        p = w @ corners
+        xs.append(p[:, 0])
+        ys.append(p[:, 1])
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+def _cubic(x, y):
+    return 1.0 + 0.3 * x - 0.7 * y + 0.2 * x * x - 0.1 * x * y + 0.05 * y * y + 0.03 * x**3 - 0.02 * x * x * y + 0.01 * y**3
+
+
+def _cubic_gradient(x, y):
+    gx = 0.3 + 0.4 * x - 0.1 * y + 0.09 * x * x - 0.04 * x * y
+    gy = -0.7 - 0.1 * x + 0.1 * y - 0.02 * x * x + 0.03 * y * y
+    return gx, gy
+
+
+# --------------------------------------------------------------------------
+# The patches
+# --------------------------------------------------------------------------
+
+
+def test_cubic_triangle_and_parallelogram_patches_reproduce_cubics(rng):
+    """P3 on triangles and Q3 on parallelograms hold every cubic: value and gradient."""
+    mesh = _mesh([[0, 0], [3, 0.5], [6, 0], [1, 3], [4, 3.5], [2.5, 6]], [[0, 1, 4, 3], [1, 2, 4, -1], [3, 4, 5, -1]])
+    # the quad 0 1 4 3 is a parallelogram: (3, 0.5) - (0, 0) == (4, 3.5) - (1, 3)
+    z = _cubic(mesh.vertices[:, 0], mesh.vertices[:, 1])
+    nodes = _nodes_of(mesh, _cubic)
+    x, y = _inside_points(mesh, rng)
+    assert_allclose(interpolate(mesh, z, x, y, surface="smooth", nodes=nodes), _cubic(x, y), rtol=0, atol=1e-12)
+    gx, gy = gradient(mesh, z, x, y, surface="smooth", nodes=nodes)
+    wx, wy = _cubic_gradient(x, y)
+    assert_allclose(gx, wx, atol=1e-11)
+    assert_allclose(gy, wy, atol=1e-11)
+
+
+def test_quad_patch_reproduces_bicubics_in_its_parameters_and_linear_functions(rng):
+    """On a general convex quadrangle the patch holds every bicubic in (u, v), so every linear function."""
+    corners = np.array([[0.0, 0.0], [5.0, -0.5], [6.0, 4.0], [-0.5, 3.0]])
+    mesh = _mesh(corners, [[0, 1, 2, 3]])
+    lin = lambda x, y: 2.0 - 0.5 * x + 1.25 * y  # noqa: E731
+    z = lin(corners[:, 0], corners[:, 1])
+    x, y = _inside_points(mesh, rng, 200)
+    nodes = _nodes_of(mesh, lin)
+    assert_allclose(interpolate(mesh, z, x, y, surface="smooth", nodes=nodes), lin(x, y), atol=1e-12)
+    gx, gy = gradient(mesh, z, x, y, surface="smooth", nodes=nodes)
+    assert_allclose(gx, -0.5, atol=1e-11)
+    assert_allclose(gy, 1.25, atol=1e-11)
+    # a bicubic in the patch's own parameters: nodes on the (1/3, 2/3) grid
+    from meshcore.interpolate import _bilinear_inverse
+
+    def uv_cubic(u, v):
+        return u**3 * v**2 - 2.0 * u * v**3 + 0.5 * u * u + v
+
+    t = np.array([0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0])
+    grid = {(i, j): uv_cubic(t[i], t[j]) for i in range(4) for j in range(4)}
+    row = np.array([grid[1, 0], grid[2, 0], grid[3, 1], grid[3, 2], grid[2, 3], grid[1, 3], grid[0, 2], grid[0, 1],
+                    grid[1, 1], grid[2, 1], grid[2, 2], grid[1, 2]])
+    zc = np.array([grid[0, 0], grid[3, 0], grid[3, 3], grid[0, 3]])
+    got = interpolate(mesh, zc, x, y, surface="smooth", nodes=row[None, :])
+    uv = np.array([_bilinear_inverse(*corners.ravel(), px, py) for px, py in zip(x, y)])
+    assert_allclose(got, uv_cubic(uv[:, 0], uv[:, 1]), atol=1e-10)
+
+
+def test_patches_pass_through_the_corners_at_survey_coordinates(rng):
+    xy = rng.random((300, 2)) * 200.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    v = mesh.vertices
+    z = 80.0 + np.sin((v[:, 0] - OFFSET[0]) / 17.0) * 4.0 + rng.normal(0.0, 0.2, v.shape[0])
+    got = interpolate(mesh, z, v[:, 0], v[:, 1], surface="smooth")
+    assert_allclose(got, z, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("measures", [("delaunay", None), ("s1", "s2"), ("s3", "s4")])
+def test_the_surface_is_continuous_across_every_edge_of_random_meshes(rng, measures):
+    """Both faces of every interior edge give the same value along it (checked at random points)."""
+    xy = rng.random((400, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, *measures)
+    v = mesh.vertices
+    z = 10.0 + 0.05 * (v[:, 0] - OFFSET[0]) + 3.0 * np.sin((v[:, 1] - OFFSET[1]) / 9.0) + rng.normal(0, 0.1, len(v))
+    nodes = smooth_nodes(mesh, z, Variogram(0.01, 1.0, 20.0))
+    faces = mesh.faces
+    sides: dict[tuple[int, int], list[int]] = {}
+    for f, face in enumerate(faces):
+        n = 4 if face[3] >= 0 else 3
+        for k in range(n):
+            a, b = int(face[k]), int(face[(k + 1) % n])
+            sides.setdefault((min(a, b), max(a, b)), []).append(f)
+    shared = [(e, fs) for e, fs in sides.items() if len(fs) == 2]
+    assert len(shared) > 500
+    worst = 0.0
+    for (a, b), (f, g) in shared:
+        for t in rng.random(3):
+            p = v[a] + t * (v[b] - v[a])
+            one = _face_patch(v, faces, z, nodes, f, p[0], p[1])[0]
+            two = _face_patch(v, faces, z, nodes, g, p[0], p[1])[0]
+            worst = max(worst, abs(one - two))
+    assert worst < 1e-7  # rounding at survey coordinates; a wrong node is off by ~0.1
+
+
+def test_linear_surface_is_exact_at_survey_coordinates(rng):
+    """Kriged nodes and patches reproduce a plane (the clamp never bites on one)."""
+    xy = np.round(rng.random((2000, 2)) * 300.0 / 0.01) * 0.01 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    plane = lambda x, y: 250.0 + 0.12 * (x - OFFSET[0]) - 0.31 * (y - OFFSET[1])  # noqa: E731
+    z = plane(mesh.vertices[:, 0], mesh.vertices[:, 1])
+    x, y = _inside_points(mesh, rng, 3)
+    for variogram in (Variogram(0.0, 1.0, 50.0), Variogram(0.2, 1.0, 5.0), None):
+        nodes = smooth_nodes(mesh, z, variogram)
+        assert_allclose(interpolate(mesh, z, x, y, surface="smooth", nodes=nodes), plane(x, y), rtol=0, atol=1e-7)
+        gx, gy = gradient(mesh, z, x, y, surface="smooth", nodes=nodes)
+        # a gradient divides by a face's width: the hull's slivers lose digits
+        assert_allclose(gx, 0.12, atol=1e-5)
+        assert_allclose(gy, -0.31, atol=1e-5)
+
+
+def test_rasterize_samples_the_smooth_surface_and_keeps_max_edge(rng):
+    xy = rng.random((500, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    v = mesh.vertices
+    z = np.cos((v[:, 0] - OFFSET[0]) / 8.0) * 2.0 + (v[:, 1] - OFFSET[1]) * 0.01
+    nodes = smooth_nodes(mesh, z)
+    grid = meshcore.rasterize(mesh, z, *OFFSET, 1.0, 100, 100, surface="smooth", nodes=nodes)
+    cx, cy = np.meshgrid(OFFSET[0] + np.arange(100) + 0.5, OFFSET[1] + np.arange(100) + 0.5)
+    assert_allclose(grid, interpolate(mesh, z, cx, cy, surface="smooth", nodes=nodes), atol=1e-12)
+    linear = meshcore.rasterize(mesh, z, *OFFSET, 1.0, 100, 100)
+    assert np.nanmax(np.abs(grid - linear)) > 1e-3  # not the linear surface
+    assert_array_equal(np.isnan(grid), np.isnan(linear))
+    cut = meshcore.rasterize(mesh, z, *OFFSET, 1.0, 100, 100, max_edge=4.0, surface="smooth", nodes=nodes)
+    assert_array_equal(np.isnan(cut), np.isnan(meshcore.rasterize(mesh, z, *OFFSET, 1.0, 100, 100, max_edge=4.0)))
+    assert np.isnan(cut).sum() > np.isnan(grid).sum()
+
+
+def test_bad_surface_arguments_raise():
+    mesh = _mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2, -1]])
+    with pytest.raises(InvalidInputError, match="surface='cubic' is not valid"):
+        interpolate(mesh, [0.0, 1.0, 2.0], 0.2, 0.2, surface="cubic")
+    with pytest.raises(InvalidInputError, match=r"nodes must be a real array of shape \(n_faces, 12\)"):
+        interpolate(mesh, [0.0, 1.0, 2.0], 0.2, 0.2, surface="smooth", nodes=np.zeros((2, 12)))
+    with pytest.raises(InvalidInputError, match="give them with surface='smooth'"):
+        interpolate(mesh, [0.0, 1.0, 2.0], 0.2, 0.2, nodes=np.zeros((1, 12)))
+    with pytest.raises(InvalidInputError, match="variogram needs nugget >= 0"):
+        Variogram(-1.0, 1.0, 1.0)
+    with pytest.raises(InvalidInputError, match="neighbours must be an integer from 4 to 64"):
+        smooth_nodes(mesh, [0.0, 1.0, 2.0], Variogram(0.0, 1.0, 1.0), neighbours=2)
+
+
+# --------------------------------------------------------------------------
+# The kriged nodes
+# --------------------------------------------------------------------------
+
+
+def test_nearest_neighbours_are_exact_and_break_ties_by_coordinates(rng):
+    xy = np.round(rng.random((3000, 2)) * 50.0) + OFFSET  # a lattice: many equal distances
+    xy = np.unique(xy, axis=0)
+    queries = rng.random((200, 2)) * 50.0 + OFFSET
+    index, d2 = _nearest(xy, queries, 12)
+    for q, (row, dist) in enumerate(zip(index, d2)):
+        full = ((xy - queries[q]) ** 2).sum(axis=1)
+        order = np.lexsort((xy[:, 1], xy[:, 0], full))[:12]
+        assert_array_equal(row, order)
+        assert_array_equal(dist, full[order])
+
+
+def test_adjacent_window_pieces_get_bit_identical_nodes_on_their_shared_edges(rng):
+    """Seamless: each piece krigs from the points it holds, the shared edges agree bit for bit."""
+    xy = np.round((rng.random((4000, 2)) * [400.0, 200.0]) / 0.01) * 0.01 + OFFSET
+    z = 50.0 + 10.0 * np.sin((xy[:, 0] - OFFSET[0]) / 40.0) + rng.normal(0.0, 0.3, xy.shape[0])
+    variogram = fit_variogram(xy, z)
+    split = OFFSET[0] + 200.0
+    pieces = []
+    for window in ((OFFSET[0], OFFSET[1], split, OFFSET[1] + 200.0), (split, OFFSET[1], OFFSET[0] + 400.0, OFFSET[1] + 200.0)):
+        # each holds its window plus 40 m: the nodes' neighbourhoods lie inside
+        lo, hi = window[0] - 40.0, window[2] + 40.0
+        keep = (xy[:, 0] >= lo) & (xy[:, 0] <= hi)
+        mesh = meshcore.build_mesh(xy[keep], "delaunay", None, window=window)
+        disks = neighbourhood_radii(mesh)
+        assert np.all((disks[:, 0] - disks[:, 2] >= lo) & (disks[:, 0] + disks[:, 2] <= hi))
+        zz = np.empty(mesh.vertices.shape[0])
+        zz[mesh.input_to_vertex] = z[keep]
+        pieces.append((mesh, smooth_nodes(mesh, zz, variogram)))
+
+    def edge_nodes(mesh, nodes):
+        out = {}
+        for f, face in enumerate(mesh.faces):
+            n = 4 if face[3] >= 0 else 3
+            for k in range(n):
+                a, b = mesh.vertices[face[k]], mesh.vertices[face[(k + 1) % n]]
+                pair = (nodes[f, 2 * k], nodes[f, 2 * k + 1])
+                key = (tuple(a), tuple(b))
+                if key > (tuple(b), tuple(a)):
+                    key, pair = (tuple(b), tuple(a)), pair[::-1]
+                out[key] = pair
+        return out
+
+    left, right = edge_nodes(*pieces[0]), edge_nodes(*pieces[1])
+    shared = set(left) & set(right)
+    assert len(shared) > 10
+    for key in shared:
+        assert left[key] == right[key]  # exactly
+    # and the same as the whole mesh's
+    whole = meshcore.build_mesh(xy, "delaunay", None)
+    zz = np.empty(whole.vertices.shape[0])
+    zz[whole.input_to_vertex] = z
+    every = edge_nodes(whole, smooth_nodes(whole, zz, variogram))
+    for key in shared:
+        assert every[key] == left[key]
+
+
+def test_nodes_are_clamped_to_their_neighbourhood_and_corners(rng):
+    """On a step (a cliff) kriging overshoots; the nodes stay inside the values around them."""
+    xy = rng.random((1500, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    v = mesh.vertices
+    z = np.where(v[:, 0] - OFFSET[0] > 50.0, 20.0, 0.0)
+    nodes = smooth_nodes(mesh, z, Variogram(0.0, 1.0, 100.0))
+    used = np.isfinite(nodes)
+    assert nodes[used].min() >= 0.0 and nodes[used].max() <= 20.0
+    # on flat ground far from the cliff every node is flat
+    far = np.all(np.abs(v[mesh.faces[:, :3], 0] - OFFSET[0] - 50.0) > 25.0, axis=1)
+    assert_array_equal(nodes[far][np.isfinite(nodes[far])] % 20.0, 0.0)
+
+
+def test_collinear_neighbours_fall_back_to_the_linear_surface():
+    """A thin strip of points on two lines: no plane fits most neighbourhoods, the nodes are the linear surface's."""
+    x = np.linspace(0.0, 100.0, 60)
+    xy = np.concatenate([np.column_stack([x, np.zeros(60)]), np.column_stack([x[:3] + 0.5, [1.0, 1.0, 1.0]])]) + OFFSET
+    mesh = meshcore.build_mesh(xy, "delaunay", None)
+    z = np.sin(mesh.vertices[:, 0] - OFFSET[0])
+    nodes = smooth_nodes(mesh, z, Variogram(0.0, 1.0, 10.0), neighbours=4)
+    assert np.isfinite(nodes[:, :6]).all()
+
+
+def test_fit_variogram_is_deterministic_and_finds_the_noise(rng):
+    xy = rng.random((6000, 2)) * 300.0 + OFFSET
+    smooth = 20.0 * np.sin((xy[:, 0] - OFFSET[0]) / 50.0) * np.cos((xy[:, 1] - OFFSET[1]) / 70.0)
+    noisy = smooth + rng.normal(0.0, 0.3, xy.shape[0])
+    a = fit_variogram(xy, noisy)
+    perm = rng.permutation(xy.shape[0])
+    assert fit_variogram(xy[perm], noisy[perm]) == a
+    assert a.nugget > 0.0
+    clean = fit_variogram(xy, smooth)
+    assert clean.nugget / clean.sill < a.nugget / a.sill
+    assert Variogram.from_dict(a.to_dict()) == a
+    with pytest.raises(InvalidInputError, match="at least 18 finite points"):
+        fit_variogram(xy[:10], noisy[:10])
+
+
+def test_smooth_predicts_withheld_points_better_than_the_tin(rng):
+    """On a smooth survey-like surface the cubic patches beat the TIN at withheld points."""
+    xy = rng.random((5000, 2)) * 100.0 + OFFSET
+    f = lambda p: 0.1 * p[:, 0] + 0.1 * p[:, 1] + np.sin(0.01 * p[:, 0]) - np.sin(0.1 * p[:, 1]) + np.sin(0.003 * p[:, 0] * p[:, 1])  # noqa: E731
+    local = xy - OFFSET
+    z = np.round(f(local), 3)
+    test = np.zeros(5000, dtype=bool)
+    test[rng.choice(5000, 500, replace=False)] = True
+    mesh = meshcore.build_mesh(xy[~test], "s3", "s4")
+    zz = np.empty(mesh.vertices.shape[0])
+    zz[mesh.input_to_vertex] = z[~test]
+    linear = interpolate(mesh, zz, xy[test, 0], xy[test, 1])
+    smooth = interpolate(mesh, zz, xy[test, 0], xy[test, 1], surface="smooth")
+    ok = np.isfinite(linear)
+    rmse = lambda p: np.sqrt(np.mean((p[ok] - z[test][ok]) ** 2))  # noqa: E731
+    assert rmse(smooth) < 0.6 * rmse(linear)
+
+
+def test_python_form_of_the_smooth_kernels_agrees():
+    """The kernels run with NUMBA_DISABLE_JIT=1 give the same numbers."""
+    script = (
+        "import json, numpy as np, meshcore\n"
+        "rng = np.random.default_rng(5)\n"
+        "xy = rng.random((120, 2)) * 50.0 + [6.0e5, 6.8e6]\n"
+        "mesh = meshcore.build_mesh(xy, 's3', 's4')\n"
+        "z = np.sin(mesh.vertices[:, 0] / 7.0) + mesh.vertices[:, 1] * 1e-3\n"
+        "v = meshcore.fit_variogram(mesh.vertices, z, sample=60)\n"
+        "nodes = meshcore.smooth_nodes(mesh, z, v)\n"
+        "x, y = (rng.random((2, 300)) * 50.0 + np.array([[6.0e5], [6.8e6]]))\n"
+        "val = meshcore.interpolate(mesh, z, x, y, surface='smooth', nodes=nodes)\n"
+        "gx, gy = meshcore.gradient(mesh, z, x, y, surface='smooth', nodes=nodes)\n"
+        "out = [nodes, val, gx, gy, [v.nugget, v.sill, v.range]]\n"
+        "print(json.dumps([np.where(np.isnan(a), None, a).tolist() for a in map(np.asarray, out)]))\n"
+    )
+    runs = []
+    for disable in ("1", "0"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=disable)
+        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+        runs.append([np.array(a, dtype=np.float64) for a in json.loads(result.stdout)])
+    for a, b in zip(*runs):
+        assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    assert np.isfinite(runs[1][1]).sum() > 200

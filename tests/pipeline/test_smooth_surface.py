@@ -1,0 +1,74 @@
+"""The smooth surface through the pipeline: seamless tiles, one variogram per run, provenance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+import zarr
+
+from pipeline.config import RunConfig
+from pipeline.errors import UsageError
+
+from .test_seams import _run, _survey
+
+
+def _elevation(path) -> xr.DataArray:
+    return xr.open_zarr(path)["elevation"]
+
+
+@pytest.mark.parametrize("seed,share,buffer_share", [(3, 0.1, 0.3), (5, 0.25, 0.0)])
+def test_tiled_smooth_dem_is_the_untiled_one_bit_for_bit(tmp_path, seed, share, buffer_share):
+    """Delaunay pieces are the whole triangulation; the kriged nodes then match too, cell for cell."""
+    survey = tmp_path / "ground.las"
+    _survey(survey, seed, 250.0, 200.0)
+    tile = share * 250.0
+    plain = dict(triangle_measure="delaunay", quad_measure=None, resolution=tile / 10.0, surface="smooth")
+    tiled = _run(survey, tmp_path / "tiled.zarr", tile_size=tile, buffer=buffer_share * tile, **plain)
+    whole = _run(survey, tmp_path / "whole.zarr", tile_size=tile * 20, **plain)
+    assert tiled.tiles > 4 and whole.tiles == 1
+    a, b = xr.align(_elevation(tmp_path / "tiled.zarr"), _elevation(tmp_path / "whole.zarr"), join="inner")
+    assert a.size > 1000
+    np.testing.assert_array_equal(a.values, b.values)
+    prov = [zarr.open_group(str(tmp_path / name), mode="r").attrs["provenance"] for name in ("tiled.zarr", "whole.zarr")]
+    assert prov[0]["smooth_surface"]["variogram"] == prov[1]["smooth_surface"]["variogram"]
+    assert prov[0]["parameters"]["surface"] == "smooth"
+
+
+def test_smooth_run_differs_from_linear_and_its_slope_is_its_own(tmp_path):
+    survey = tmp_path / "ground.las"
+    _survey(survey, 4, 300.0, 120.0)
+    kw = dict(resolution=2.0, tile_size=60.0, buffer=10.0, layers=("slope",))
+    linear = _run(survey, tmp_path / "linear.zarr", **kw)
+    smooth = _run(survey, tmp_path / "smooth.zarr", surface="smooth", **kw)
+    assert smooth.tiles_uncertified == 0 and smooth.vertices == linear.vertices
+    lin, smo = xr.open_zarr(tmp_path / "linear.zarr"), xr.open_zarr(tmp_path / "smooth.zarr")
+    np.testing.assert_array_equal(np.isnan(lin["elevation"].values), np.isnan(smo["elevation"].values))
+    diff = np.abs(lin["elevation"].values - smo["elevation"].values)
+    assert np.nanmax(diff) > 0.01 and np.nanmedian(diff) < 0.5
+    assert np.nanmax(np.abs(lin["slope"].values - smo["slope"].values)) > 0.1
+    attrs = zarr.open_group(str(tmp_path / "smooth.zarr"), mode="r").attrs
+    fitted = attrs["provenance"]["smooth_surface"]
+    assert fitted["variogram"]["sill"] > 0 and fitted["sample_points"] == smooth.vertices
+    assert "smooth_surface" not in zarr.open_group(str(tmp_path / "linear.zarr"), mode="r").attrs["provenance"]
+
+
+def test_surface_is_validated():
+    with pytest.raises(UsageError, match="surface='cubic' is not valid; expected one of 'linear', 'smooth'"):
+        RunConfig(inputs=("a.las",), output="o.zarr", resolution=1.0, surface="cubic")
+    assert RunConfig(inputs=("a.las",), output="o.zarr", resolution=1.0).surface == "linear"
+
+
+def test_cli_takes_surface(tmp_path, capsys):
+    from pipeline.cli import main
+
+    survey = tmp_path / "ground.las"
+    _survey(survey, 6, 180.0, 160.0)
+    out = tmp_path / "s.zarr"
+    args = ["run", str(survey), "-o", str(out), "--resolution", "4", "--in-crs", "EPSG:2154", "--no-progress"]
+    assert main([*args, "--surface", "smooth"]) == 0
+    assert zarr.open_group(str(out), mode="r").attrs["provenance"]["parameters"]["surface"] == "smooth"
+    with pytest.raises(SystemExit) as exit_info:
+        main([*args, "--surface", "cubic"])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'cubic'" in capsys.readouterr().err
