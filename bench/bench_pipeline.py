@@ -4,6 +4,7 @@
     python bench/bench_pipeline.py memory [--small 5000000] [--large 50000000]
     python bench/bench_pipeline.py seams [--points 4000000] [--tile-size 256]
     python bench/bench_pipeline.py certify [--tile-sizes 10,20,50]
+    python bench/bench_pipeline.py surface [--repeat 3] [--points 2000000]
 
 throughput: two all-ground synthetic LAZ archives to DEM + mesh, side by side
     (runs interleaved, medians): "flown" (strips, points in flight order,
@@ -14,6 +15,8 @@ throughput: two all-ground synthetic LAZ archives to DEM + mesh, side by side
     decoded too, to show that the archives decode as real files do.
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
 seams: the same archive tiled and untiled: share of identical faces and DEM cells.
+surface: --surface smooth against linear, whole runs side by side (interleaved,
+    medians) on the real samples with ground and a 2M-point flown archive.
 certify: the real samples with ground (../shared/data) at several tile sizes:
     every tile certifies, and what that costs: the points each tile reads
     beyond its buffer against the points it holds (median and worst tile).
@@ -56,7 +59,10 @@ _RUN = textwrap.dedent(
     import json, resource, sys, time
     from pipeline import RunConfig, run
     tile = float(sys.argv[3]) if len(sys.argv) > 3 and sys.argv[3] != "auto" else None
-    cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=1.0, tile_size=tile, overwrite=True)
+    surface = sys.argv[4] if len(sys.argv) > 4 else "linear"
+    resolution = float(sys.argv[5]) if len(sys.argv) > 5 else 1.0
+    cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=resolution, tile_size=tile, overwrite=True,
+                    surface=surface)
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_SELF)
     report = run(cfg, progress=False)
@@ -98,9 +104,11 @@ def tiled_archive(cache: Path, points: int, files: int) -> Path:
     return folder
 
 
-def run_once(folder: Path, out: Path, tile_size: float | None = None) -> dict:
+def run_once(folder: Path, out: Path, tile_size: float | None = None, surface: str = "linear",
+             resolution: float = 1.0) -> dict:
     tile = "auto" if tile_size is None else str(tile_size)
-    res = subprocess.run([sys.executable, "-c", _RUN, str(folder), str(out), tile], capture_output=True, text=True)
+    res = subprocess.run([sys.executable, "-c", _RUN, str(folder), str(out), tile, surface, str(resolution)],
+                         capture_output=True, text=True)
     if res.returncode:
         raise SystemExit(res.stderr)
     return json.loads(res.stdout.strip().splitlines()[-1])
@@ -222,9 +230,34 @@ def certify(cache: Path, tile_sizes: list[float], samples: tuple[str, ...] = GRO
                 print("   " + out.stderr.strip().splitlines()[-1])
 
 
+def surfaces(cache: Path, repeat: int, points: int) -> None:
+    """``--surface smooth`` against ``linear``: whole runs at the same resolution, interleaved, medians."""
+    import statistics
+
+    cases = [(name, REAL_SAMPLES / name, 0.5) for name in GROUND_SAMPLES if (REAL_SAMPLES / name).is_file()]
+    cases.append((f"flown {points:,}", archive(cache, points, max(1, points // 2_000_000)), 1.0))
+    rows = []
+    for label, path, resolution in cases:
+        walls: dict[str, list[float]] = {"linear": [], "smooth": []}
+        stages: dict[str, dict] = {}
+        for _ in range(repeat):
+            for surface in ("linear", "smooth"):
+                res = run_once(path, cache / f"surface_{surface}.zarr", None, surface, resolution)
+                walls[surface].append(res["wall"])
+                stages[surface] = res["report"]["stages"]
+        lin, smo = statistics.median(walls["linear"]), statistics.median(walls["smooth"])
+        extra = ", ".join(f"{k} {stages['smooth'].get(k, 0.0) - stages['linear'].get(k, 0.0):+.1f}"
+                          for k in ("variogram", "mesh", "dem"))
+        rows.append((label, resolution, lin, smo, extra))
+    print(f"\nwhole runs, DEM + mesh, median of {repeat} interleaved run(s) each")
+    print(f"{'input':34} {'res':>5} {'linear s':>9} {'smooth s':>9} {'ratio':>6}  smooth - linear by stage (s)")
+    for label, resolution, lin, smo, extra in rows:
+        print(f"{label:34} {resolution:5g} {lin:9.2f} {smo:9.2f} {smo / lin:6.2f}  {extra}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["throughput", "memory", "seams", "certify"])
+    parser.add_argument("what", choices=["throughput", "memory", "seams", "certify", "surface"])
     parser.add_argument("--tile-sizes", default="10,20,50", help="certify: tile sizes in CRS units")
     parser.add_argument("--samples", default=",".join(GROUND_SAMPLES), help="certify: the samples (file names)")
     parser.add_argument("--tile-size", type=float, default=256.0)
@@ -236,6 +269,10 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path("/tmp/terrain-bench"))
     args = parser.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
+    if args.what == "surface":
+        surfaces(args.cache, args.repeat if "--repeat" in sys.argv else 3,
+                 args.points if "--points" in sys.argv else 2_000_000)
+        return
     if args.what == "certify":
         certify(args.cache, [float(v) for v in args.tile_sizes.split(",")], tuple(args.samples.split(",")))
         return

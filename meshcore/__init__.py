@@ -26,7 +26,7 @@ from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
-from .smooth import DEFAULT_NEIGHBOURS, Variogram, fit_variogram, neighbourhood_radii, smooth_nodes
+from .smooth import DEFAULT_NEIGHBOURS, Neighbourhoods, Variogram, fit_variogram, smooth_neighbourhoods, smooth_nodes
 from .validate import convex_hull, validate
 
 drop_stale_kernels()
@@ -42,7 +42,8 @@ __all__ = [
     "rasterize",
     "smooth_nodes",
     "fit_variogram",
-    "neighbourhood_radii",
+    "smooth_neighbourhoods",
+    "Neighbourhoods",
     "Variogram",
     "Surface",
     "NODES_PER_FACE",

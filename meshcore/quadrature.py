@@ -56,7 +56,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
+from .interpolate import _face_patch
 from .mesh import Mesh, mesh_arrays, vertex_values
+from .patches import NODES_PER_FACE
 
 __all__ = ["FaceQuadrature", "face_quadrature", "gauss_legendre", "l2_errors"]
 
@@ -266,17 +268,32 @@ def face_quadrature(mesh: Mesh, order: int = 4) -> FaceQuadrature:
     return FaceQuadrature(n, points, weights, values, gradients)
 
 
+@njit
+def _patch_values_kernel(
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
+    points: np.ndarray, values: np.ndarray, gradients: np.ndarray,
+) -> None:
+    """Each face's cubic patch (value and gradient) at its own quadrature points."""
+    for f in range(points.shape[0]):
+        for k in range(points.shape[1]):
+            values[f, k], gradients[f, k, 0], gradients[f, k, 1] = _face_patch(
+                vertices, faces, z, nodes, f, points[f, k, 0], points[f, k, 1]
+            )
+
+
 def l2_errors(
     mesh: Mesh,
     z: ArrayLike,
     f_values: ArrayLike,
     f_gradients: ArrayLike,
     quadrature: FaceQuadrature,
+    nodes: ArrayLike | None = None,
 ) -> tuple[float, float]:
     """``||f - g||_2`` and ``||grad f - grad g||_2`` over the mesh, g the surface through ``z``.
 
-    g is linear on triangles and isoparametric bilinear on quadrangles; the
-    gradient norm is ``sqrt(integral |grad f - grad g|^2)``.
+    g is linear on triangles and isoparametric bilinear on quadrangles, or,
+    with ``nodes`` (:func:`meshcore.smooth_nodes`), the smooth surface's
+    cubic patches; the gradient norm is ``sqrt(integral |grad f - grad g|^2)``.
 
     Parameters
     ----------
@@ -285,6 +302,8 @@ def l2_errors(
     f_values : (n_f, k) f at ``quadrature.points``
     f_gradients : (n_f, k, 2) grad f at ``quadrature.points``
     quadrature : FaceQuadrature of ``mesh``
+    nodes : (n_f, 12) array, optional
+        The smooth surface's node values; omitted: the linear surface.
 
     Examples
     --------
@@ -311,9 +330,18 @@ def l2_errors(
         raise InvalidInputError(f"f_values must have shape {weights.shape}, got {fv.shape}")
     if fg.shape != weights.shape + (2,):
         raise InvalidInputError(f"f_gradients must have shape {weights.shape + (2,)}, got {fg.shape}")
-    zf = np.where(faces >= 0, zv[np.maximum(faces, 0)], 0.0)  # (n_f, 4), 0 for the padding
-    g = np.einsum("fkj,fj->fk", quadrature.shape_values, zf)
-    grad_g = np.einsum("fkjd,fj->fkd", quadrature.shape_gradients, zf)
+    if nodes is None:
+        zf = np.where(faces >= 0, zv[np.maximum(faces, 0)], 0.0)  # (n_f, 4), 0 for the padding
+        g = np.einsum("fkj,fj->fk", quadrature.shape_values, zf)
+        grad_g = np.einsum("fkjd,fj->fkd", quadrature.shape_gradients, zf)
+    else:
+        rows = np.asarray(nodes, dtype=np.float64)
+        if rows.shape != (faces.shape[0], NODES_PER_FACE):
+            raise InvalidInputError(f"nodes must have shape ({faces.shape[0]}, {NODES_PER_FACE}), got {rows.shape}")
+        g = np.empty(weights.shape)
+        grad_g = np.empty(weights.shape + (2,))
+        points = np.ascontiguousarray(quadrature.points, dtype=np.float64)
+        _patch_values_kernel(vertices, faces, zv, np.ascontiguousarray(rows), points, g, grad_g)
     value_sq = np.sum(weights * (fv - g) ** 2)
     grad_sq = np.sum(weights * np.sum((fg - grad_g) ** 2, axis=-1))
     return float(math.sqrt(value_sq)), float(math.sqrt(grad_sq))

@@ -1,25 +1,29 @@
-"""The smooth surface's node values: local kriging at every patch node.
+"""The smooth surface's node values: local kriging around every edge and face.
 
 The smooth surface (``surface="smooth"``) puts a cubic patch on every face
-(:mod:`meshcore.patches`).  Its corners take the points' z; each of its other
-nodes takes the value of universal kriging with a linear drift from the
-node's ``neighbours`` nearest vertices:
+(:mod:`meshcore.patches`).  Its corners take the points' z; its other nodes
+take the value of universal kriging with a linear drift:
 
+- each edge's two nodes are kriged from the ``neighbours`` vertices nearest
+  the edge's midpoint, each face's inner nodes from those nearest its
+  centroid: one system per edge and per face, solved once in its dual form
+  (Cholesky of the covariances, the drift by its Schur complement), then
+  evaluated at each of its nodes;
 - nearest is exact, with ties broken by coordinates, so a node's value
-  depends only on the points inside the disk of radius ``R`` (its distance to
-  its last neighbour), never on the order of the points or on which points a
-  tile happens to hold beyond that disk (:func:`neighbourhood_radii`);
-- an edge's nodes are placed from its end first in coordinate order, and the
-  kriging system is built relative to the node, so the two faces of an edge,
-  in one tile or in two, get bit-identical values: the surface is continuous
-  (C0 across every edge) and seamless across tiles;
+  depends only on the points inside its system's disk (the centre and the
+  distance to its last neighbour, :attr:`Neighbourhoods.disks`), never on the
+  order of the points or on which points a tile happens to hold beyond it;
+- an edge's centre and nodes are placed from its end first in coordinate
+  order, and its system is built relative to its centre, so the two faces of
+  an edge, in one tile or in two, get bit-identical values: the surface is
+  continuous (C0 across every edge) and seamless across tiles;
 - the kriged value is clamped to the range of the neighbours' values and of
   its edge's (an inner node: its face's) corners.  Kriging with a linear
   drift reproduces linear functions, and a linear function stays inside that
   range, so the surface reproduces linear functions exactly; the clamp only
   stops overshoot where the neighbours lie to one side (the hull, voids);
-- a node whose neighbours are collinear (no plane fits) takes the linear
-  surface's value.
+- a system whose neighbours are collinear (no plane fits) gives its nodes
+  the linear surface's values.
 
 The covariance is the exponential model of a :class:`Variogram`;
 :func:`fit_variogram` chooses its nugget and range by leave-one-out
@@ -30,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -40,7 +44,7 @@ from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
 
-__all__ = ["Variogram", "fit_variogram", "smooth_nodes", "neighbourhood_radii", "DEFAULT_NEIGHBOURS"]
+__all__ = ["Variogram", "Neighbourhoods", "fit_variogram", "smooth_nodes", "smooth_neighbourhoods", "DEFAULT_NEIGHBOURS"]
 
 DEFAULT_NEIGHBOURS = 16
 """Points per kriging neighbourhood (the vertex and its 15 nearest)."""
@@ -194,10 +198,8 @@ def _nearest(
     items = np.argsort(key, kind="stable").astype(np.int64)
     start = np.zeros(nbx * nby + 1, dtype=np.int64)
     np.cumsum(np.bincount(key, minlength=nbx * nby), out=start[1:])
-    _knn_kernel(
-        xy, float(lo[0]), float(lo[1]), cell, nbx, nby, start, items,
-        np.ascontiguousarray(queries, dtype=np.float64), k, out_index, out_d2,
-    )
+    q = np.ascontiguousarray(queries, dtype=np.float64)
+    _knn_kernel(xy, float(lo[0]), float(lo[1]), cell, nbx, nby, start, items, q, k, out_index, out_d2)
     return out_index, out_d2
 
 
@@ -207,105 +209,135 @@ def _nearest(
 
 
 @njit
-def _solve_in_place(a: np.ndarray, b: np.ndarray, m: int) -> bool:
-    """Solve ``a[:m, :m] x = b[:m]`` into ``b`` (partial pivoting); False when singular."""
-    scale = 0.0
-    for i in range(m):
-        for j in range(m):
-            scale = max(scale, abs(a[i, j]))
-    if scale == 0.0:
-        return False
-    for col in range(m):
-        piv = col
-        best = abs(a[col, col])
-        for r in range(col + 1, m):
-            if abs(a[r, col]) > best:
-                best = abs(a[r, col])
-                piv = r
-        if best <= _PIVOT_TOL * scale:
-            return False
-        if piv != col:
-            for c in range(m):
-                tmp = a[col, c]
-                a[col, c] = a[piv, c]
-                a[piv, c] = tmp
-            tmp = b[col]
-            b[col] = b[piv]
-            b[piv] = tmp
-        inv = 1.0 / a[col, col]
-        for r in range(col + 1, m):
-            f = a[r, col] * inv
-            if f != 0.0:
-                for c in range(col + 1, m):
-                    a[r, c] -= f * a[col, c]
-                b[r] -= f * b[col]
-    for r in range(m - 1, -1, -1):
-        s = b[r]
-        for c in range(r + 1, m):
-            s -= a[r, c] * b[c]
-        b[r] = s / a[r, r]
-    return True
-
-
-@njit
 def _covariance(h: float, inv_range: float) -> float:
-    """The exponential covariance less its sill, per unit sill: ``exp(-h / range) - 1``."""
-    return math.expm1(-h * inv_range)
+    """The exponential covariance per unit sill at lag ``h > 0``."""
+    return math.exp(-h * inv_range)
 
 
 @njit
-def _krige_at(
-    xy: np.ndarray, z: np.ndarray, px: float, py: float, neighbours: np.ndarray, k: int,
-    nugget_ratio: float, inv_range: float, a: np.ndarray, b: np.ndarray,
+def _dual_system(
+    xy: np.ndarray, z: np.ndarray, cx: float, cy: float, neighbours: np.ndarray, k: int,
+    nugget_ratio: float, inv_range: float, c: np.ndarray, g: np.ndarray, coef: np.ndarray,
 ) -> float:
-    """Universal kriging (linear drift) at ``p`` from its first ``k`` neighbours; NaN when singular.
+    """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual form.
 
-    The system is built in coordinates relative to ``p`` (the drift scaled by
-    the neighbourhood's radius), so it depends on nothing but ``p`` and the
-    neighbours, and survey coordinates lose no precision.
+    Fills ``coef[:k]`` (weights of the covariances) and ``coef[k:k+3]`` (the
+    drift, in coordinates relative to the centre ``c`` over the radius ``R``)
+    so that the estimate at ``p`` is :func:`_dual_value`.  Returns ``R``, or
+    NaN when the system is singular (fewer than three points, collinear
+    neighbours).  The covariance matrix is factored by Cholesky; the drift
+    comes from the Schur complement ``F' C^-1 F``.  Everything is relative to
+    the centre, so it depends on the centre and the neighbours only.
     """
     radius = 0.0
     for i in range(k):
         q = neighbours[i]
-        dx = xy[q, 0] - px
-        dy = xy[q, 1] - py
+        dx = xy[q, 0] - cx
+        dy = xy[q, 1] - cy
         radius = max(radius, math.sqrt(dx * dx + dy * dy))
     if k < 3 or not radius > 0.0:
         return math.nan
     inv_r = 1.0 / radius
-    m = k + 3
+    # C = L L' (lower triangle of c), the covariances with the nugget on the diagonal
     for i in range(k):
         q = neighbours[i]
-        xi = xy[q, 0] - px
-        yi = xy[q, 1] - py
-        a[i, i] = nugget_ratio
-        for j in range(i + 1, k):
+        xi = xy[q, 0] - cx
+        yi = xy[q, 1] - cy
+        for j in range(i):
             o = neighbours[j]
-            dx = xy[o, 0] - px - xi
-            dy = xy[o, 1] - py - yi
-            c = _covariance(math.sqrt(dx * dx + dy * dy), inv_range)
-            a[i, j] = c
-            a[j, i] = c
-        a[i, k] = 1.0
-        a[i, k + 1] = xi * inv_r
-        a[i, k + 2] = yi * inv_r
-        a[k, i] = 1.0
-        a[k + 1, i] = xi * inv_r
-        a[k + 2, i] = yi * inv_r
-        b[i] = _covariance(math.sqrt(xi * xi + yi * yi), inv_range)
-    for i in range(k, m):
-        for j in range(k, m):
-            a[i, j] = 0.0
-    b[k] = 1.0
-    b[k + 1] = 0.0
-    b[k + 2] = 0.0
-    if not _solve_in_place(a, b, m):
-        return math.nan
-    base = z[neighbours[0]]
-    value = base
+            dx = xy[o, 0] - cx - xi
+            dy = xy[o, 1] - cy - yi
+            c[i, j] = _covariance(math.sqrt(dx * dx + dy * dy), inv_range)
+        c[i, i] = 1.0 + nugget_ratio
+    for j in range(k):
+        d = c[j, j]
+        for m in range(j):
+            d -= c[j, m] * c[j, m]
+        if not d > 1e-14:
+            return math.nan
+        d = math.sqrt(d)
+        c[j, j] = d
+        for i in range(j + 1, k):
+            v = c[i, j]
+            for m in range(j):
+                v -= c[i, m] * c[j, m]
+            c[i, j] = v / d
+    # g: columns C^-1 [1, x / R, y / R, z - z0]
+    z0 = z[neighbours[0]]
     for i in range(k):
-        value += b[i] * (z[neighbours[i]] - base)
-    return value
+        q = neighbours[i]
+        g[i, 0] = 1.0
+        g[i, 1] = (xy[q, 0] - cx) * inv_r
+        g[i, 2] = (xy[q, 1] - cy) * inv_r
+        g[i, 3] = z[q] - z0
+    for col in range(4):  # forward then back substitution
+        for i in range(k):
+            v = g[i, col]
+            for m in range(i):
+                v -= c[i, m] * g[m, col]
+            g[i, col] = v / c[i, i]
+        for i in range(k - 1, -1, -1):
+            v = g[i, col]
+            for m in range(i + 1, k):
+                v -= c[m, i] * g[m, col]
+            g[i, col] = v / c[i, i]
+    # the drift: (F' C^-1 F) beta = F' C^-1 (z - z0), a 3 x 3 system
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+    r0 = r1 = r2 = 0.0
+    for i in range(k):
+        q = neighbours[i]
+        f1 = (xy[q, 0] - cx) * inv_r
+        f2 = (xy[q, 1] - cy) * inv_r
+        s00 += g[i, 0]
+        s01 += g[i, 1]
+        s02 += g[i, 2]
+        s11 += f1 * g[i, 1]
+        s12 += f1 * g[i, 2]
+        s22 += f2 * g[i, 2]
+        r0 += g[i, 3]
+        r1 += f1 * g[i, 3]
+        r2 += f2 * g[i, 3]
+    m00 = s11 * s22 - s12 * s12
+    m01 = s02 * s12 - s01 * s22
+    m02 = s01 * s12 - s02 * s11
+    det = s00 * m00 + s01 * m01 + s02 * m02
+    # F' C^-1 F is positive definite unless the neighbours are collinear: its
+    # determinant is then small against the product of its diagonal (Hadamard)
+    if not det > _PIVOT_TOL * s00 * s11 * s22:
+        return math.nan
+    m11 = s00 * s22 - s02 * s02
+    m12 = s01 * s02 - s00 * s12
+    m22 = s00 * s11 - s01 * s01
+    b0 = (m00 * r0 + m01 * r1 + m02 * r2) / det
+    b1 = (m01 * r0 + m11 * r1 + m12 * r2) / det
+    b2 = (m02 * r0 + m12 * r1 + m22 * r2) / det
+    # alpha = C^-1 (z - z0) - C^-1 F beta
+    for i in range(k):
+        coef[i] = g[i, 3] - b0 * g[i, 0] - b1 * g[i, 1] - b2 * g[i, 2]
+    coef[k] = b0 + z0
+    coef[k + 1] = b1
+    coef[k + 2] = b2
+    for i in range(k + 3):
+        if not math.isfinite(coef[i]):
+            return math.nan
+    return radius
+
+
+@njit
+def _dual_value(
+    xy: np.ndarray, cx: float, cy: float, neighbours: np.ndarray, k: int,
+    coef: np.ndarray, radius: float, inv_range: float, px: float, py: float,
+) -> float:
+    """The kriging estimate at ``p`` of a system from :func:`_dual_system`."""
+    qx = px - cx
+    qy = py - cy
+    s = coef[k] + (coef[k + 1] * qx + coef[k + 2] * qy) / radius
+    for i in range(k):
+        o = neighbours[i]
+        dx = xy[o, 0] - cx - qx
+        dy = xy[o, 1] - cy - qy
+        s += coef[i] * _covariance(math.sqrt(dx * dx + dy * dy), inv_range)
+    return s
 
 
 @njit
@@ -319,22 +351,25 @@ def _count(neighbours: np.ndarray) -> int:
 
 @njit
 def _nodes_kriged_kernel(
-    xy: np.ndarray, z: np.ndarray, positions: np.ndarray, neighbours: np.ndarray,
-    low: np.ndarray, high: np.ndarray, linear: np.ndarray,
+    xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
+    positions: np.ndarray, low: np.ndarray, high: np.ndarray, linear: np.ndarray,
     nugget_ratio: float, inv_range: float, out: np.ndarray,
 ) -> None:
-    """Krig every node; clamp it to ``[low, high]`` widened by its neighbours' range.
+    """Krig the nodes of every system (an edge, a face) and clamp them.
 
-    A node whose system is singular (collinear neighbours) or meets an unknown
-    z takes ``linear``, the linear surface's value there.
+    System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
+    ``first[s] .. first[s + 1] - 1``.  A node is clamped to ``[low, high]``
+    widened to its neighbours' values; a singular system, or one that meets
+    an unknown z, gives its nodes ``linear`` (the linear surface there).
     """
     k = neighbours.shape[1]
-    a = np.empty((k + 3, k + 3))
-    b = np.empty(k + 3)
-    for s in range(positions.shape[0]):
+    c = np.empty((k, k))
+    g = np.empty((k, 4))
+    coef = np.empty(k + 3)
+    for s in range(centres.shape[0]):
         count = _count(neighbours[s])
-        lo = low[s]
-        hi = high[s]
+        lo = math.inf
+        hi = -math.inf
         finite = True
         for i in range(count):
             zi = z[neighbours[s, i]]
@@ -342,85 +377,136 @@ def _nodes_kriged_kernel(
                 finite = False
             lo = min(lo, zi)
             hi = max(hi, zi)
-        value = math.nan
+        cx = centres[s, 0]
+        cy = centres[s, 1]
+        radius = math.nan
         if finite:
-            value = _krige_at(xy, z, positions[s, 0], positions[s, 1], neighbours[s], count, nugget_ratio, inv_range, a, b)
-        if math.isfinite(value):
-            out[s] = min(max(value, lo), hi)
-        else:
-            out[s] = linear[s]
+            radius = _dual_system(xy, z, cx, cy, neighbours[s], count, nugget_ratio, inv_range, c, g, coef)
+        for n in range(first[s], first[s + 1]):
+            if math.isfinite(radius):
+                value = _dual_value(xy, cx, cy, neighbours[s], count, coef, radius, inv_range, positions[n, 0], positions[n, 1])
+                out[n] = min(max(value, min(lo, low[n])), max(hi, high[n]))
+            else:
+                out[n] = linear[n]
 
 
-def _node_layout(vertices: NDArray[np.float64], faces: NDArray[np.int64], z: NDArray[np.float64]):
-    """Where the nodes are, and how the face rows take them.
+class Neighbourhoods(NamedTuple):
+    """Where the smooth surface's nodes are and which points each is kriged from.
 
-    Returns ``positions (m, 2)``, the range ``low, high`` of the corner values
-    each node's clamp starts from, the linear surface's value ``linear`` there,
-    and ``take (n_f, 12)``: for each slot of a face's row the node it holds
-    (``-1``: unused).  An edge's two nodes are listed once, from its end first
-    in coordinate order, so that every face (in any tile) computes them from
-    the same numbers.
+    One kriging system per edge (its two nodes) and per face (its inner
+    nodes), over the ``neighbours`` nearest vertices of the system's centre:
+    the edge's midpoint, the face's centroid.  Computed by
+    :func:`smooth_neighbourhoods` and taken by :func:`smooth_nodes`.
+
+    Attributes
+    ----------
+    centres : (m, 2) the systems' centres
+    index : (m, k) their nearest vertices, nearest first (``-1`` pads)
+    radius : (m,) the distance from each centre to its last neighbour
+    first : (m + 1,) system ``s`` gives the nodes ``first[s] .. first[s+1]-1``
+    positions : (n, 2) the nodes
+    take : (n_f, 12) the node in each slot of a face's row (``-1``: unused)
+    corners : (n, 4) the vertices whose values bound each node's clamp (``-1`` pads)
+    weights : (n, 4) the linear surface's weights of those vertices at the node
+    """
+
+    centres: NDArray[np.float64]
+    index: NDArray[np.int64]
+    radius: NDArray[np.float64]
+    first: NDArray[np.int64]
+    positions: NDArray[np.float64]
+    take: NDArray[np.int64]
+    corners: NDArray[np.int64]
+    weights: NDArray[np.float64]
+
+    @property
+    def disks(self) -> NDArray[np.float64]:
+        """``(m, 3)`` rows ``(x, y, r)``: the closed disks the node values read points from."""
+        return np.column_stack([self.centres, self.radius])
+
+
+def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
+    """The systems and nodes of :class:`Neighbourhoods` (without the neighbours).
+
+    An edge is listed once, from its end first in coordinate order, so that
+    every face (in any tile) computes its centre and nodes from the same numbers.
     """
     n_f = faces.shape[0]
+    n_v = vertices.shape[0]
     is_quad = faces[:, 3] >= 0
-    take = np.full((n_f, 12), -1, dtype=np.int64)
-    # every face edge k: from corner k to the next (a triangle's closes at corner 2)
-    starts = faces.copy()
     ends = np.roll(faces, -1, axis=1)
     ends[~is_quad, 2] = faces[~is_quad, 0]
     valid = np.ones((n_f, 4), dtype=bool)
     valid[~is_quad, 3] = False
-    s = starts[valid]
+    s = faces[valid]
     e = ends[valid]
-    sx, sy = vertices[s, 0], vertices[s, 1]
-    ex, ey = vertices[e, 0], vertices[e, 1]
+    sx, sy, ex, ey = vertices[s, 0], vertices[s, 1], vertices[e, 0], vertices[e, 1]
     forward = (sx < ex) | ((sx == ex) & (sy < ey))
-    lo_v = np.where(forward, s, e)
-    hi_v = np.where(forward, e, s)
-    pairs = np.unique(np.column_stack([lo_v, hi_v]), axis=0, return_inverse=True)
-    edges, which = pairs[0], pairs[1].reshape(-1)
-    a, b = edges[:, 0], edges[:, 1]
+    key = np.where(forward, s, e) * np.int64(n_v) + np.where(forward, e, s)
+    edge_key, which = np.unique(key, return_inverse=True)
+    which = which.reshape(-1)
+    a = edge_key // n_v
+    b = edge_key % n_v
     ax, ay, bx, by = vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1]
-    n_e = edges.shape[0]
-    positions = [np.empty((0, 2))] * 3
-    lows, highs, linears = [], [], []
-    for t_index, t in enumerate((1.0 / 3.0, 2.0 / 3.0)):
-        positions[t_index] = np.column_stack([ax + t * (bx - ax), ay + t * (by - ay)])
-        lows.append(np.minimum(z[a], z[b]))
-        highs.append(np.maximum(z[a], z[b]))
-        linears.append((1.0 - t) * z[a] + t * z[b])
-    # face slot 2k + j: the edge's node j from the face's corner k
-    slot_face, slot_edge = np.nonzero(valid)
-    fwd = forward
-    take[slot_face, 2 * slot_edge] = np.where(fwd, which, n_e + which)
-    take[slot_face, 2 * slot_edge + 1] = np.where(fwd, n_e + which, which)
-    # inner nodes: a triangle's centroid, a quadrangle's four at (1/3 | 2/3)^2
-    corner = np.maximum(faces, 0)
-    cx, cy, cz = vertices[corner, 0], vertices[corner, 1], z[corner]
-    tri = np.flatnonzero(~is_quad)
+    n_e = a.size
     third = 1.0 / 3.0
-    inner_pos = [np.column_stack([(cx[tri, 0] + cx[tri, 1] + cx[tri, 2]) * third,
-                                  (cy[tri, 0] + cy[tri, 1] + cy[tri, 2]) * third])]
-    inner_lin = [(cz[tri, 0] + cz[tri, 1] + cz[tri, 2]) * third]
-    inner_lo = [cz[tri, :3].min(axis=1)]
-    inner_hi = [cz[tri, :3].max(axis=1)]
-    base = 2 * n_e
-    take[tri, 8] = base + np.arange(tri.size)
-    base += tri.size
+    tri = np.flatnonzero(~is_quad)
     quad = np.flatnonzero(is_quad)
+    corner = np.maximum(faces, 0)
+    fx, fy = vertices[corner, 0], vertices[corner, 1]
+    centres = np.concatenate([
+        np.column_stack([ax + 0.5 * (bx - ax), ay + 0.5 * (by - ay)]),
+        np.column_stack([(fx[tri, 0] + fx[tri, 1] + fx[tri, 2]) * third, (fy[tri, 0] + fy[tri, 1] + fy[tri, 2]) * third]),
+        np.column_stack([fx[quad].mean(axis=1), fy[quad].mean(axis=1)]),
+    ])
+    counts = np.concatenate([np.full(n_e, 2), np.ones(tri.size, dtype=np.int64), np.full(quad.size, 4)])
+    first = np.zeros(counts.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=first[1:])
+    n_nodes = int(first[-1])
+    positions = np.empty((n_nodes, 2))
+    corners = np.full((n_nodes, 4), -1, dtype=np.int64)
+    weights = np.zeros((n_nodes, 4))
+    # edges: nodes 2i (a third from a) and 2i + 1 (two thirds)
+    for j, t in enumerate((third, 2.0 * third)):
+        rows = 2 * np.arange(n_e) + j
+        positions[rows, 0] = ax + t * (bx - ax)
+        positions[rows, 1] = ay + t * (by - ay)
+        corners[rows, 0] = a
+        corners[rows, 1] = b
+        weights[rows, 0] = 1.0 - t
+        weights[rows, 1] = t
+    take = np.full((n_f, 12), -1, dtype=np.int64)
+    slot_face, slot_edge = np.nonzero(valid)
+    take[slot_face, 2 * slot_edge] = 2 * which + np.where(forward, 0, 1)
+    take[slot_face, 2 * slot_edge + 1] = 2 * which + np.where(forward, 1, 0)
+    rows = 2 * n_e + np.arange(tri.size)
+    positions[rows] = centres[n_e:n_e + tri.size]
+    corners[rows, :3] = faces[tri, :3]
+    weights[rows, :3] = third
+    take[tri, 8] = rows
+    base = 2 * n_e + tri.size
     for m, (u, v) in enumerate(((third, third), (2 * third, third), (2 * third, 2 * third), (third, 2 * third))):
         w = np.array([(1.0 - u) * (1.0 - v), u * (1.0 - v), u * v, (1.0 - u) * v])
-        inner_pos.append(np.column_stack([cx[quad] @ w, cy[quad] @ w]))
-        inner_lin.append(cz[quad] @ w)
-        inner_lo.append(cz[quad].min(axis=1))
-        inner_hi.append(cz[quad].max(axis=1))
-        take[quad, 8 + m] = base + np.arange(quad.size)
-        base += quad.size
-    positions = np.concatenate([positions[0], positions[1], *inner_pos])
-    low = np.concatenate([*lows, *inner_lo])
-    high = np.concatenate([*highs, *inner_hi])
-    linear = np.concatenate([*linears, *inner_lin])
-    return np.ascontiguousarray(positions), low, high, linear, take
+        rows = base + 4 * np.arange(quad.size) + m
+        positions[rows, 0] = fx[quad] @ w
+        positions[rows, 1] = fy[quad] @ w
+        corners[rows] = faces[quad]
+        weights[rows] = w
+        take[quad, 8 + m] = rows
+    return np.ascontiguousarray(centres), first, positions, take, corners, weights
+
+
+def _spatial_order(points: NDArray[np.float64]) -> NDArray[np.int64]:
+    """An order of ``points`` by blocks of 8 x 8 cells of a grid of about one point per cell."""
+    if points.shape[0] < 2:
+        return np.arange(points.shape[0])
+    lo = points.min(axis=0)
+    span = np.maximum(points.max(axis=0) - lo, 1e-300)
+    cell = max(math.sqrt(span[0] * span[1] / points.shape[0]), 1e-6 * float(span.max()))
+    i = ((points[:, 0] - lo[0]) / cell).astype(np.int64)
+    j = ((points[:, 1] - lo[1]) / cell).astype(np.int64)
+    blocks_x = int(i.max()) // 8 + 1
+    return np.argsort(((j // 8) * blocks_x + i // 8) * 64 + (j % 8) * 8 + i % 8, kind="stable")
 
 
 def _check_neighbours(neighbours: object) -> int:
@@ -429,42 +515,58 @@ def _check_neighbours(neighbours: object) -> int:
     return int(neighbours)
 
 
-def neighbourhood_radii(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS) -> NDArray[np.float64]:
-    """The disks the smooth surface's nodes read from: ``(m, 3)`` rows ``(x, y, r)``.
+def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS) -> Neighbourhoods:
+    """The smooth surface's kriging systems and nodes for ``mesh`` (see :class:`Neighbourhoods`).
 
-    One per node of :func:`smooth_nodes`: the node and the distance to its
-    ``neighbours``-th nearest vertex.  The node values depend on the mesh's
-    vertices inside these (closed) disks only, so a piece of a larger point
-    set gets the values of the whole set once every point of the set inside
-    each disk is among its vertices.
+    The node values of :func:`smooth_nodes` depend on the mesh's vertices
+    inside the (closed) disks ``.disks`` only: a piece of a larger point set
+    gets the values of the whole set once every point of the set inside each
+    disk is among its vertices.
 
     Examples
     --------
     >>> import numpy as np, meshcore
     >>> mesh = meshcore.build_mesh(np.random.default_rng(1).random((50, 2)))
-    >>> disks = neighbourhood_radii(mesh)
-    >>> bool(np.all(disks[:, 2] > 0))
+    >>> hoods = smooth_neighbourhoods(mesh)
+    >>> bool(np.all(hoods.disks[:, 2] > 0))
     True
     """
     k = _check_neighbours(neighbours)
     vertices, faces = mesh_arrays(mesh)
-    if faces.shape[0] == 0:
-        return np.empty((0, 3))
-    positions = _node_layout(vertices, faces, np.zeros(vertices.shape[0]))[0]
-    _, d2 = _nearest(vertices, positions, k)
-    return np.column_stack([positions, np.sqrt(d2[:, -1])])
+    centres, first, positions, take, corners, weights = _layout(vertices, faces)
+    # the systems in the order of a coarse grid: neighbouring systems read the
+    # same points, which then stay in the cache (2-3x faster than edge order)
+    perm = _spatial_order(centres)
+    counts = np.diff(first)[perm]
+    new_first = np.zeros(perm.size + 1, dtype=np.int64)
+    np.cumsum(counts, out=new_first[1:])
+    old_nodes = np.repeat(first[:-1][perm], counts) + (np.arange(int(new_first[-1])) - np.repeat(new_first[:-1], counts))
+    renumber = np.empty(old_nodes.size, dtype=np.int64)
+    renumber[old_nodes] = np.arange(old_nodes.size)
+    centres, first = np.ascontiguousarray(centres[perm]), new_first
+    positions, corners, weights = positions[old_nodes], corners[old_nodes], weights[old_nodes]
+    take = np.where(take >= 0, renumber[np.maximum(take, 0)], -1)
+    index, d2 = _nearest(vertices, centres, k)
+    radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
+    return Neighbourhoods(centres, index, radius, first, positions, take, corners, weights)
 
 
 def smooth_nodes(
-    mesh: Mesh, z: ArrayLike, variogram: Variogram | None = None, neighbours: int = DEFAULT_NEIGHBOURS
+    mesh: Mesh,
+    z: ArrayLike,
+    variogram: Variogram | None = None,
+    neighbours: int = DEFAULT_NEIGHBOURS,
+    neighbourhoods: Neighbourhoods | None = None,
 ) -> NDArray[np.float64]:
     """The node values of the smooth surface's patches, one row of twelve per face.
 
-    Every node is kriged (universal kriging, linear drift) from its
-    ``neighbours`` nearest vertices, then clamped to the range of their values
-    and of its edge's (or face's) corners: a linear function is within that
-    range, so the clamp keeps it exact while stopping overshoot where the
-    neighbours lie to one side (the hull, voids).
+    Each edge's two nodes are kriged (universal kriging, linear drift) from
+    the ``neighbours`` vertices nearest its midpoint, each face's inner nodes
+    from those nearest its centroid.  A node is then clamped to the range of
+    its neighbours' values and of its edge's (an inner node: its face's)
+    corners: a linear function is within that range, so the clamp keeps it
+    exact while stopping overshoot where the neighbours lie to one side (the
+    hull, voids).
 
     Parameters
     ----------
@@ -478,6 +580,8 @@ def smooth_nodes(
         :func:`fit_variogram` when omitted.
     neighbours : int
         Points per kriging neighbourhood, 4 to 64.
+    neighbourhoods : Neighbourhoods, optional
+        From :func:`smooth_neighbourhoods` for this mesh (computed when omitted).
 
     Returns
     -------
@@ -504,15 +608,20 @@ def smooth_nodes(
     out = np.full((faces.shape[0], NODES_PER_FACE), np.nan)
     if faces.shape[0] == 0:
         return out
-    positions, low, high, linear, take = _node_layout(vertices, faces, zv)
-    index, _ = _nearest(vertices, positions, k)
-    values = np.empty(positions.shape[0])
+    hoods = smooth_neighbourhoods(mesh, k) if neighbourhoods is None else neighbourhoods
+    if hoods.take.shape != out.shape:
+        raise InvalidInputError("neighbourhoods were computed for another mesh")
+    zc = np.where(hoods.corners >= 0, zv[np.maximum(hoods.corners, 0)], np.nan)
+    low = np.nanmin(zc, axis=1)
+    high = np.nanmax(zc, axis=1)
+    linear = np.nansum(zc * hoods.weights, axis=1)
+    values = np.empty(hoods.positions.shape[0])
     _nodes_kriged_kernel(
-        vertices, zv, positions, index, low, high, linear,
+        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, low, high, linear,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, values,
     )
-    used = take >= 0
-    out[used] = values[take[used]]
+    used = hoods.take >= 0
+    out[used] = values[hoods.take[used]]
     return out
 
 
@@ -528,12 +637,19 @@ def _loo_errors_kernel(
 ) -> None:
     """Leave-one-out errors: each sample point kriged from its neighbours (itself left out)."""
     k = neighbours.shape[1]
-    a = np.empty((k + 3, k + 3))
-    b = np.empty(k + 3)
+    c = np.empty((k, k))
+    g = np.empty((k, 4))
+    coef = np.empty(k + 3)
     for s in range(sample.shape[0]):
         p = sample[s]
         count = _count(neighbours[s])
-        out[s] = _krige_at(xy, z, xy[p, 0], xy[p, 1], neighbours[s], count, nugget_ratio, inv_range, a, b) - z[p]
+        px = xy[p, 0]
+        py = xy[p, 1]
+        radius = _dual_system(xy, z, px, py, neighbours[s], count, nugget_ratio, inv_range, c, g, coef)
+        if math.isfinite(radius):
+            out[s] = _dual_value(xy, px, py, neighbours[s], count, coef, radius, inv_range, px, py) - z[p]
+        else:
+            out[s] = math.nan
 
 
 def fit_variogram(

@@ -546,7 +546,7 @@ def _execute(
             say(f"{config.output}: resuming an unfinished run")
             report.notes.append("resumed an unfinished run: finished work was kept")
         if previous is not None and work.exists():
-            lost = _forget_lost_units(work, len(paths), grid)
+            lost = _forget_lost_units(work, len(paths), grid, ("nodes",) if config.surface == "smooth" else ())
             if lost:
                 report.notes.append(f"{lost} finished unit(s) had lost files in the work folder: done again")
         report.stages["scan"] = time.perf_counter() - t0
@@ -701,9 +701,10 @@ def _execute(
     return report
 
 
-def _forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid) -> int:
+def _forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra: tuple[str, ...] = ()) -> int:
     """Forget the records of finished units whose files are gone from the work
-    folder (a cleaner, a user), so they are done again; returns how many."""
+    folder (a cleaner, a user), so they are done again; returns how many.
+    ``piece_extra``: arrays a meshed piece must also hold (the smooth surface's nodes)."""
     lost = 0
     for i in range(n_inputs):
         rec = work.recorded("route", f"{i:06d}")
@@ -712,7 +713,7 @@ def _forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid) -> int:
             lost += 1
     for r, c in grid.tiles():
         key = tile_key(r, c)
-        if work.recorded("mesh", key) is not None and not piece_intact(work.path, r, c):
+        if work.recorded("mesh", key) is not None and not piece_intact(work.path, r, c, piece_extra):
             work.forget_record("mesh", key)
             work.forget_record("write", f"ids_{key}")
             lost += 1

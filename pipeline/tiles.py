@@ -9,6 +9,11 @@ tile holds; the tile then loads the points inside them (from the neighbours'
 spill files) and rebuilds, until none is left ("certified").  Flips and merges
 happen only between triangles of the same piece, so they never cross a seam.
 
+With ``surface="smooth"`` the kriging neighbourhood of every patch node of the
+piece is one more disk the tile must hold, loaded like an escaping circle, so
+neighbouring tiles krig the nodes of their shared edges from the same points
+and get the same values; the nodes are saved with the piece.
+
 A tile's result is saved to the scratch folder: the points it owns (sorted, for
 the global vertex numbering) and its faces with their corner coordinates and,
 for the corners it owns, their rank in that sorted table; the DEM pass and the
@@ -449,6 +454,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         )
 
     mesh, meshed = build(points), points  # ``meshed``: the points of the last build
+    hoods = None  # the smooth surface's kriging systems over ``mesh``
     ext = job.extent
     while True:
         # circles not yet vouched for; their points are loaded from near to
@@ -461,7 +467,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         escapes = mesh.window_escapes
         if smooth:  # the smoother's neighbourhoods must be held too
-            escapes = np.concatenate([escapes, _neighbourhood_disks(mesh, held[0])])
+            if hoods is None:
+                hoods = meshcore.smooth_neighbourhoods(mesh)
+            escapes = np.concatenate([escapes, _open_disks(hoods.disks, held[0])])
         for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
@@ -496,7 +504,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
         if gap or np.any(d2 <= c[None, :, 2] ** 2):
             # a loaded point lies in a circle, or may close the gap: build again
-            mesh, meshed = build(points), points
+            mesh, meshed, hoods = build(points), points, None
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
@@ -529,7 +537,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         counts = _point_counts(job, own)
     vertex_xyz = np.column_stack([np.take(xy, used, axis=0), z[used]])
     # the patches' nodes: from the neighbourhoods held, the same in every tile
-    nodes = {"nodes": meshcore.smooth_nodes(mesh, z, job.variogram)} if smooth else {}
+    nodes = {"nodes": meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods)} if smooth else {}
     save_piece(
         Path(job.scratch), job.row, job.col, "piece",
         owned_xy=owned_xy,
@@ -575,11 +583,9 @@ def _point_counts(job: TileJob, own: NDArray[np.float64]) -> NDArray[np.int32]:
     return counts
 
 
-def _neighbourhood_disks(mesh: meshcore.Mesh, box) -> NDArray[np.float64]:
-    """The kriging neighbourhoods ``(x, y, r)`` of the piece's patch nodes that
-    are not inside ``box``, each radius rounded up (the disk is closed: a point
-    on it may be the last neighbour)."""
-    disks = meshcore.neighbourhood_radii(mesh)
+def _open_disks(disks: NDArray[np.float64], box) -> NDArray[np.float64]:
+    """The kriging disks ``(x, y, r)`` not inside ``box``, each radius rounded
+    up (the disk is closed: a point on it may be the last neighbour)."""
     if disks.shape[0] == 0:
         return disks
     x, y, radius = disks[:, 0], disks[:, 1], disks[:, 2]

@@ -15,7 +15,7 @@ import meshcore
 from meshcore.errors import InvalidInputError
 from meshcore.interpolate import _face_patch, gradient, interpolate
 from meshcore.mesh import Mesh
-from meshcore.smooth import Variogram, _nearest, _node_layout, fit_variogram, neighbourhood_radii, smooth_nodes
+from meshcore.smooth import Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes
 
 OFFSET = np.array([6.0e5, 6.8e6])
 
@@ -32,7 +32,7 @@ def _mesh(vertices, faces) -> Mesh:
 
 def _nodes_of(mesh: Mesh, f) -> np.ndarray:
     """Node rows holding ``f`` at every node position (the layout's own positions)."""
-    positions, _, _, _, take = _node_layout(mesh.vertices, mesh.faces, np.zeros(mesh.vertices.shape[0]))
+    _, _, positions, take, _, _ = _layout(mesh.vertices, mesh.faces)
     values = f(positions[:, 0], positions[:, 1])
     rows = np.full(take.shape, np.nan)
     rows[take >= 0] = values[take[take >= 0]]
@@ -220,7 +220,7 @@ def test_adjacent_window_pieces_get_bit_identical_nodes_on_their_shared_edges(rn
         lo, hi = window[0] - 40.0, window[2] + 40.0
         keep = (xy[:, 0] >= lo) & (xy[:, 0] <= hi)
         mesh = meshcore.build_mesh(xy[keep], "delaunay", None, window=window)
-        disks = neighbourhood_radii(mesh)
+        disks = smooth_neighbourhoods(mesh).disks
         assert np.all((disks[:, 0] - disks[:, 2] >= lo) & (disks[:, 0] + disks[:, 2] <= hi))
         zz = np.empty(mesh.vertices.shape[0])
         zz[mesh.input_to_vertex] = z[keep]
