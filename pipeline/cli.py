@@ -107,7 +107,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--surface", choices=("linear", "smooth"),
         help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
-        "every point, kriged between them (more accurate, about twice the time)",
+        "every point, kriged between them (more accurate; 2-5x the time)",
     )
     run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
     run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")

@@ -61,6 +61,11 @@ percent of its points.  On a 20M-point archive, 0.5M-point tiles mesh about
 9% faster than 1.5M-point ones, with a lower peak memory
 (``bench/bench_pipeline.py throughput``)."""
 
+SMOOTH_POINTS_PER_TILE = 125_000
+"""The same for ``surface="smooth"``: kriging its nodes costs several times
+meshing, so smaller tiles let every core krige (a survey of 500k points is
+four tiles, not one)."""
+
 ROUTE_CHUNK = 1_000_000
 """Points read and routed at a time.
 
@@ -394,7 +399,8 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
     if config.tile_size is not None:
         tile_cells = int(round(config.tile_size / config.resolution))
     else:
-        edge = math.sqrt(POINTS_PER_TILE / density)
+        per_tile = POINTS_PER_TILE if config.surface == "linear" else SMOOTH_POINTS_PER_TILE
+        edge = math.sqrt(per_tile / density)
         tile_cells = max(16, int(round(edge / config.resolution / 16)) * 16)
     buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
     return tile_cells, float(buffer)
