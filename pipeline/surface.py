@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 import meshcore
 
 from .checkpoint import WorkDir
+from .tiles import vertex_z
 from .tiling import TileGrid, load_tile_points
 
 __all__ = ["run_variogram", "SAMPLE_TILES", "SAMPLE_POINTS"]
@@ -42,25 +43,9 @@ def _spread(n: int, count: int) -> list[int]:
 
 
 def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
-    """One point per distinct x, y, with the z the run keeps (``lowest``, ``highest``, ``mean``, ``first``)."""
-    order = np.lexsort((points[:, 1], points[:, 0]))
-    p = points[order]
-    new = np.ones(p.shape[0], dtype=bool)
-    new[1:] = (p[1:, 0] != p[:-1, 0]) | (p[1:, 1] != p[:-1, 1])
-    group = np.cumsum(new) - 1
-    first = np.flatnonzero(new)
-    z = p[:, 2]
-    if policy == "lowest":
-        zz = np.minimum.reduceat(z, first)
-    elif policy == "highest":
-        zz = np.maximum.reduceat(z, first)
-    elif policy == "mean":
-        zz = np.bincount(group, weights=z) / np.bincount(group)
-    else:  # first read: the smallest index in reading order among equals
-        pick = np.full(first.size, np.iinfo(np.int64).max)
-        np.minimum.at(pick, group, order)
-        zz = points[pick, 2]
-    return np.column_stack([p[first, 0], p[first, 1], zz])
+    """One point per distinct x, y, with the z the run keeps (``policy``, as its tiles merge them)."""
+    xy, inverse = np.unique(points[:, :2], axis=0, return_inverse=True)
+    return np.column_stack([xy, vertex_z(inverse.reshape(-1), xy.shape[0], points[:, 2], policy)])
 
 
 def run_variogram(
