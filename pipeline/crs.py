@@ -39,7 +39,7 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError
 
-from .errors import CrsError, UsageError
+from .errors import CrsError, UsageError, one_line
 
 if TYPE_CHECKING:
     from .sources import SourceInfo
@@ -73,10 +73,6 @@ def crs_label(crs: pyproj.CRS) -> str:
     """
     epsg = crs.to_epsg()
     return f"{crs.name} (EPSG:{epsg})" if epsg else crs.name
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _list_paths(paths: Sequence[Path | str]) -> str:
@@ -151,7 +147,7 @@ def _user_crs(text: str, option: str) -> pyproj.CRS:
     try:
         return pyproj.CRS.from_user_input(text.strip())
     except CRSError as exc:
-        raise CrsError(f"{option} {text!r} is not a CRS pyproj understands ({_one_line(exc)})") from exc
+        raise CrsError(f"{option} {text!r} is not a CRS pyproj understands ({one_line(exc)})") from exc
 
 
 class _CrsCache:
@@ -417,7 +413,7 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
             try:
                 file_crs = cache.get(info.crs_wkt)
             except CRSError as exc:
-                problem = f"stored CRS unparsable ({_one_line(exc)})"
+                problem = f"stored CRS unparsable ({one_line(exc)})"
         if file_crs is not None:
             if user_in is not None and not same_crs(file_crs, user_in):
                 notes.append(

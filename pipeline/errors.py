@@ -8,7 +8,8 @@ Messages are one line; errors about a file start with the file's path.
 from __future__ import annotations
 
 __all__ = [
-    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "UsageError", "os_error_reason",
+    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "StoreError", "UsageError",
+    "one_line", "os_error_reason",
 ]
 
 
@@ -52,6 +53,17 @@ class OutputWriteError(PipelineError, OSError):
         super().__init__(message)
 
 
+class StoreError(PipelineError, OSError):
+    """The output store cannot be created, opened or completed.
+
+    The message is one line and starts with the store's path.
+    """
+
+    def __init__(self, message: str) -> None:
+        # One argument: OSError would read 2-5 as (errno, strerror, ...).
+        super().__init__(message)
+
+
 class SeamError(PipelineError, RuntimeError):
     """A tile's piece of the mesh cannot be shown to fit its neighbours'.
 
@@ -59,6 +71,11 @@ class SeamError(PipelineError, RuntimeError):
     seams depend on ends once it holds them all): it is a bug, reported with
     the tile, and the store is left incomplete.
     """
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception's message on one line (its type's name when it has none)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def os_error_reason(exc: OSError) -> str:

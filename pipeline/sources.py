@@ -39,7 +39,7 @@ from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
 from .crs import crs_label, same_crs
-from .errors import InputFileError, UsageError, os_error_reason
+from .errors import InputFileError, UsageError, one_line, os_error_reason
 from .layout import check_header, check_point_data
 
 __all__ = [
@@ -179,14 +179,9 @@ def _sniff(path: Path) -> int:
     return size
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return text or type(exc).__name__
-
-
 def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy raised while reading the header and VLRs into one clear line."""
-    msg = _one_line(exc)
+    msg = one_line(exc)
     if isinstance(exc, OSError):
         reason = os_error_reason(exc)
     elif isinstance(exc, laspy.errors.FileVersionNotSupported):
@@ -208,7 +203,7 @@ def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
 
 def _points_error(path: Path, compressed: bool, done: int, total: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy/lazrs raised while reading points into one clear line."""
-    msg = _one_line(exc)
+    msg = one_line(exc)
     where = f"after {done:,} of {total:,} points"
     if isinstance(exc, OSError):
         reason = os_error_reason(exc)

@@ -79,7 +79,7 @@ import zarr.errors
 from zarr.codecs import BloscCodec
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import CrsError, PipelineError, UsageError
+from .errors import CrsError, StoreError, UsageError
 
 __all__ = [
     "StoreError",
@@ -113,17 +113,6 @@ TILE_DONE = f"{STATUS_GROUP}/tile_done"
 
 MESH_CHUNK = 1 << 18
 """Nodes (and faces) per chunk of the mesh arrays: 2 MiB of float64."""
-
-
-class StoreError(PipelineError, OSError):
-    """The output store cannot be created, opened or completed.
-
-    The message is one line and starts with the store's path.
-    """
-
-    def __init__(self, message: str) -> None:
-        # One argument: OSError would read 2-5 as (errno, strerror, ...).
-        super().__init__(message)
 
 
 class Layer(StrEnum):
