@@ -13,16 +13,38 @@ import math
 import numbers
 import tomllib
 from dataclasses import asdict, dataclass, field, fields
-from enum import Enum
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import Any
 
 from .errors import UsageError
 
-__all__ = ["RunConfig", "DuplicatePolicy", "LAYERS", "DEFAULT_CLASSES"]
+__all__ = ["RunConfig", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES"]
 
-LAYERS = ("elevation", "slope", "face_kind", "point_count")
-"""The DEM layers a run can write; ``elevation`` is always written."""
+class Layer(StrEnum):
+    """The raster layers a store can hold."""
+
+    ELEVATION = "elevation"
+    SLOPE = "slope"
+    FACE_KIND = "face_kind"
+    POINT_COUNT = "point_count"
+
+    @classmethod
+    def parse(cls, value: object) -> Layer:
+        """The layer named ``value``; a :class:`UsageError` lists the valid names.
+
+        >>> Layer.parse("slope")
+        <Layer.SLOPE: 'slope'>
+        """
+        try:
+            return cls(value)
+        except ValueError:
+            valid = ", ".join(member.value for member in cls)
+            raise UsageError(f"unknown layer {value!r}; valid layers: {valid}") from None
+
+
+LAYERS = tuple(member.value for member in Layer)
+"""The DEM layers a run can write, by name; ``elevation`` is always written."""
 
 DEFAULT_CLASSES = (2,)
 """ASPRS class 2: ground."""

@@ -67,7 +67,6 @@ import struct
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from enum import StrEnum
 from typing import Any
 
 import numcodecs
@@ -79,6 +78,7 @@ import zarr.errors
 from zarr.codecs import BloscCodec
 from numpy.typing import ArrayLike, NDArray
 
+from .config import Layer
 from .errors import CrsError, StoreError, UsageError
 
 __all__ = [
@@ -113,28 +113,6 @@ TILE_DONE = f"{STATUS_GROUP}/tile_done"
 
 MESH_CHUNK = 1 << 18
 """Nodes (and faces) per chunk of the mesh arrays: 2 MiB of float64."""
-
-
-class Layer(StrEnum):
-    """The raster layers a store can hold."""
-
-    ELEVATION = "elevation"
-    SLOPE = "slope"
-    FACE_KIND = "face_kind"
-    POINT_COUNT = "point_count"
-
-    @classmethod
-    def parse(cls, value: object) -> Layer:
-        """The layer named ``value``; a :class:`UsageError` lists the valid names.
-
-        >>> Layer.parse("slope")
-        <Layer.SLOPE: 'slope'>
-        """
-        try:
-            return cls(value)
-        except ValueError:
-            valid = ", ".join(member.value for member in cls)
-            raise UsageError(f"unknown layer {value!r}; valid layers: {valid}") from None
 
 
 @dataclass(frozen=True)
