@@ -15,7 +15,7 @@ Methods:
 - ``S1/S2``, ``S3/S4``: the combined mesh's linear/bilinear surface;
 - ``smooth TIN``, ``smooth S1/S2``, ``smooth S3/S4``: ``surface="smooth"``
   (cubic patches, kriged nodes, the variogram fitted on the fitted points);
-- ``NNI``: startinpy's natural-neighbour interpolation (when installed);
+- ``NNI``: startinpy's natural-neighbour interpolation (``pip install -e .[bench]``; skipped when missing);
 - ``kriging``: a reference written here with numpy alone, ordinary kriging
   at each withheld point from its 32 nearest fitted points with the same
   fitted variogram (no patches, not through a mesh).
