@@ -39,20 +39,12 @@ from pathlib import Path
 import numpy as np
 
 import meshcore
+from bench_mesh import table  # the sibling script (bench/ is on sys.path when run as a script)
 
 SAMPLES = ("ign_semis_lambert93.laz", "extra_byte_blocks_lambert93.laz", "autzen_trim.las",
            "startinpy_small_extrabytes.laz", "4_6_crop_us_feet.las")
 
 MESHES = {"TIN": ("delaunay", None), "S1/S2": ("s1", "s2"), "S3/S4": ("s3", "s4")}
-
-
-def table(title: str, header: list[str], rows: list[list[str]]) -> None:
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print(f"\n{title}")
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    print("  ".join("-" * w for w in widths))
-    for r in rows:
-        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
 
 
 def ground_points(path: Path) -> np.ndarray:

@@ -56,7 +56,7 @@ from ._jit import njit
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface, parse_option
-from .patches import NODES_PER_FACE, quad_patch, triangle_patch
+from .patches import NODES_PER_FACE, bilinear_gradient, quad_patch, triangle_patch
 from .smooth import Variogram, smooth_nodes
 
 __all__ = ["interpolate", "gradient"]
@@ -230,68 +230,31 @@ def _quad_value_and_gradient(
     value = (1.0 - u) * (1.0 - v) * z0 + u * (1.0 - v) * z1 + u * v * z2 + (1.0 - u) * v * z3
     zu = (1.0 - v) * (z1 - z0) + v * (z2 - z3)
     zv = (1.0 - u) * (z3 - z0) + u * (z2 - z1)
-    xu = (1.0 - v) * (x1 - x0) + v * (x2 - x3)
-    yu = (1.0 - v) * (y1 - y0) + v * (y2 - y3)
-    xv = (1.0 - u) * (x3 - x0) + u * (x2 - x1)
-    yv = (1.0 - u) * (y3 - y0) + u * (y2 - y1)
-    det = xu * yv - yu * xv
-    return value, (yv * zu - yu * zv) / det, (xu * zv - xv * zu) / det
-
-
-@njit
-def _face_value_and_gradient(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, f: int, px: float, py: float
-) -> tuple[float, float, float]:
-    """Value and ``(dz/dx, dz/dy)`` of face ``f``'s formula at ``p`` (no inside test)."""
-    a = faces[f, 0]
-    b = faces[f, 1]
-    c = faces[f, 2]
-    d = faces[f, 3]
-    if d < 0:
-        return _triangle_value_and_gradient(
-            vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
-            vertices[c, 0], vertices[c, 1], z[a], z[b], z[c], px, py,
-        )
-    return _quad_value_and_gradient(
-        vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
-        vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1],
-        z[a], z[b], z[c], z[d], px, py,
-    )
-
-
-@njit
-def _face_patch(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, f: int, px: float, py: float
-) -> tuple[float, float, float]:
-    """Value and gradient of face ``f``'s cubic patch at ``p`` (no inside test)."""
-    a = faces[f, 0]
-    b = faces[f, 1]
-    c = faces[f, 2]
-    d = faces[f, 3]
-    if d < 0:
-        return triangle_patch(
-            vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
-            vertices[c, 0], vertices[c, 1], z[a], z[b], z[c], nodes[f], px, py,
-        )
-    u, v = _bilinear_inverse(
-        vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
-        vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1], px, py,
-    )
-    return quad_patch(
-        vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
-        vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1],
-        z[a], z[b], z[c], z[d], nodes[f], u, v,
-    )
+    gx, gy = bilinear_gradient(x0, y0, x1, y1, x2, y2, x3, y3, u, v, zu, zv)
+    return value, gx, gy
 
 
 @njit
 def _surface_at(
     vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, f: int, px: float, py: float
 ) -> tuple[float, float, float]:
-    """The linear formula when ``nodes`` has no rows, else the cubic patch."""
-    if nodes.shape[0] == 0:
-        return _face_value_and_gradient(vertices, faces, z, f, px, py)
-    return _face_patch(vertices, faces, z, nodes, f, px, py)
+    """Value and ``(dz/dx, dz/dy)`` of face ``f``'s formula at ``p`` (no inside test):
+    linear/bilinear when ``nodes`` has no rows, else the face's cubic patch."""
+    a = faces[f, 0]
+    b = faces[f, 1]
+    c = faces[f, 2]
+    d = faces[f, 3]
+    smooth = nodes.shape[0] > 0
+    ax, ay, bx, by, cx, cy = vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1], vertices[c, 0], vertices[c, 1]
+    if d < 0:
+        if smooth:
+            return triangle_patch(ax, ay, bx, by, cx, cy, z[a], z[b], z[c], nodes[f], px, py)
+        return _triangle_value_and_gradient(ax, ay, bx, by, cx, cy, z[a], z[b], z[c], px, py)
+    dx, dy = vertices[d, 0], vertices[d, 1]
+    if smooth:
+        u, v = _bilinear_inverse(ax, ay, bx, by, cx, cy, dx, dy, px, py)
+        return quad_patch(ax, ay, bx, by, cx, cy, dx, dy, z[a], z[b], z[c], z[d], nodes[f], u, v)
+    return _quad_value_and_gradient(ax, ay, bx, by, cx, cy, dx, dy, z[a], z[b], z[c], z[d], px, py)
 
 
 @njit

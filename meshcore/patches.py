@@ -154,6 +154,20 @@ def _quad_node(nodes: np.ndarray, z0: float, z1: float, z2: float, z3: float, i:
 
 
 @njit
+def bilinear_gradient(
+    x0: float, y0: float, x1: float, y1: float, x2: float, y2: float, x3: float, y3: float,
+    u: float, v: float, zu: float, zv: float,
+) -> tuple[float, float]:
+    """``(dz/dx, dz/dy) = J^-T (dz/du, dz/dv)`` through the quadrangle's bilinear map at ``(u, v)``."""
+    xu = (1.0 - v) * (x1 - x0) + v * (x2 - x3)
+    yu = (1.0 - v) * (y1 - y0) + v * (y2 - y3)
+    xv = (1.0 - u) * (x3 - x0) + u * (x2 - x1)
+    yv = (1.0 - u) * (y3 - y0) + u * (y2 - y1)
+    det = xu * yv - yu * xv
+    return (yv * zu - yu * zv) / det, (xu * zv - xv * zu) / det
+
+
+@njit
 def quad_patch(
     x0: float, y0: float, x1: float, y1: float, x2: float, y2: float, x3: float, y3: float,
     z0: float, z1: float, z2: float, z3: float, nodes: np.ndarray, u: float, v: float,
@@ -175,9 +189,5 @@ def quad_patch(
             value += bu[i] * bv[j] * n
             zu += du[i] * bv[j] * n
             zv += bu[i] * dv[j] * n
-    xu = (1.0 - v) * (x1 - x0) + v * (x2 - x3)
-    yu = (1.0 - v) * (y1 - y0) + v * (y2 - y3)
-    xv = (1.0 - u) * (x3 - x0) + u * (x2 - x1)
-    yv = (1.0 - u) * (y3 - y0) + u * (y2 - y1)
-    det = xu * yv - yu * xv
-    return value, (yv * zu - yu * zv) / det, (xu * zv - xv * zu) / det
+    gx, gy = bilinear_gradient(x0, y0, x1, y1, x2, y2, x3, y3, u, v, zu, zv)
+    return value, gx, gy

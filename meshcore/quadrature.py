@@ -56,7 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
-from .interpolate import _face_patch
+from .interpolate import _surface_at
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
 
@@ -276,7 +276,7 @@ def _patch_values_kernel(
     """Each face's cubic patch (value and gradient) at its own quadrature points."""
     for f in range(points.shape[0]):
         for k in range(points.shape[1]):
-            values[f, k], gradients[f, k, 0], gradients[f, k, 1] = _face_patch(
+            values[f, k], gradients[f, k, 0], gradients[f, k, 1] = _surface_at(
                 vertices, faces, z, nodes, f, points[f, k, 0], points[f, k, 1]
             )
 

@@ -39,7 +39,8 @@ def _spread(n: int, count: int) -> list[int]:
     if n == 0:
         return []
     first = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(count, n))})
-    return first + [i for i in range(n) if i not in set(first)]
+    taken = set(first)
+    return first + [i for i in range(n) if i not in taken]
 
 
 def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:

@@ -9,8 +9,8 @@ tile holds; the tile then loads the points inside them (from the neighbours'
 spill files) and rebuilds, until none is left ("certified").  Flips and merges
 happen only between triangles of the same piece, so they never cross a seam.
 
-With ``surface="smooth"`` the kriging neighbourhood of every patch node of the
-piece is one more disk the tile must hold, loaded like an escaping circle, so
+With ``surface="smooth"`` the neighbourhood of every kriging system of the
+piece (one per edge, one per face) is one more disk the tile must hold, loaded like an escaping circle, so
 neighbouring tiles krig the nodes of their shared edges from the same points
 and get the same values; the nodes are saved with the piece.
 

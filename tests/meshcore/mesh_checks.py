@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from meshcore.mesh import Mesh
 from meshcore.quality import s1, s2, s3, s4
 
 TRIANGLE = {"s1": s1, "s3": s3}
 QUAD = {"s2": s2, "s4": s4}
 PAIRED = {"s2": "s1", "s4": "s3"}
+
+
+def hand_mesh(vertices, faces) -> Mesh:
+    """A mesh from hand-written vertices and faces (fresh arrays; vertex i is input point i)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
 
 
 def cross(o, a, b):

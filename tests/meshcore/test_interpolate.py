@@ -16,12 +16,14 @@ from scipy.spatial import Delaunay
 from meshcore.errors import InvalidInputError
 from meshcore.interpolate import (
     _bilinear_inverse,
-    _face_value_and_gradient,
+    _surface_at,
     _quadratic_roots,
     gradient,
     interpolate,
 )
 from meshcore.mesh import Mesh
+
+from .mesh_checks import hand_mesh
 
 
 @pytest.fixture
@@ -34,46 +36,41 @@ def rng() -> np.random.Generator:
 # --------------------------------------------------------------------------
 
 
-def _mesh(vertices, faces) -> Mesh:
-    v = np.asarray(vertices, dtype=np.float64)
-    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
-
-
 def unit_square() -> Mesh:
-    return _mesh([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1, 2, 3]])
+    return hand_mesh([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1, 2, 3]])
 
 
 def two_triangles() -> Mesh:
-    return _mesh([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1, 2, -1], [0, 2, 3, -1]])
+    return hand_mesh([[0, 0], [1, 0], [1, 1], [0, 1]], [[0, 1, 2, -1], [0, 2, 3, -1]])
 
 
 def hexagon_fan() -> Mesh:
     angles = np.arange(6) * np.pi / 3
     v = np.vstack([[0.0, 0.0], np.column_stack([np.cos(angles), np.sin(angles)])])
-    return _mesh(v, [[0, 1 + k, 1 + (k + 1) % 6, -1] for k in range(6)])
+    return hand_mesh(v, [[0, 1 + k, 1 + (k + 1) % 6, -1] for k in range(6)])
 
 
 def parallelogram() -> Mesh:
-    return _mesh([[0, 0], [2, 0], [3, 1], [1, 1]], [[0, 1, 2, 3]])
+    return hand_mesh([[0, 0], [2, 0], [3, 1], [1, 1]], [[0, 1, 2, 3]])
 
 
 def trapezoid_u() -> Mesh:
     """P0P1 parallel to P3P2: the quadratic in u degenerates."""
-    return _mesh([[0, 0], [3, 0], [2, 1], [1, 1]], [[0, 1, 2, 3]])
+    return hand_mesh([[0, 0], [3, 0], [2, 1], [1, 1]], [[0, 1, 2, 3]])
 
 
 def trapezoid_v() -> Mesh:
     """P0P3 parallel to P1P2: the quadratic in v degenerates."""
-    return _mesh([[0, 0], [2, 0], [2, 3], [0, 1]], [[0, 1, 2, 3]])
+    return hand_mesh([[0, 0], [2, 0], [2, 3], [0, 1]], [[0, 1, 2, 3]])
 
 
 def general_quad() -> Mesh:
-    return _mesh([[0, 0], [4, 0.5], [3.5, 3], [0.5, 2.2]], [[0, 1, 2, 3]])
+    return hand_mesh([[0, 0], [4, 0.5], [3.5, 3], [0.5, 2.2]], [[0, 1, 2, 3]])
 
 
 def mixed() -> Mesh:
     """Two quads and three triangles; quad-quad edge 1-4, quad-triangle edges 3-4 and 4-5."""
-    return _mesh(
+    return hand_mesh(
         [[0, 0], [2, 0], [4, 0], [0, 2], [2, 2.3], [4, 2], [1, 4], [3, 4.2]],
         [[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 6, -1], [4, 7, 6, -1], [4, 5, 7, -1]],
     )
@@ -97,7 +94,7 @@ def grid_mesh(rng: np.random.Generator, nx: int, ny: int, jitter: float = 0.2) -
                 faces += [[a, b, c, -1], [a, c, d, -1]]
             else:
                 faces += [[a, b, d, -1], [b, c, d, -1]]
-    return _mesh(np.column_stack([gx.ravel(), gy.ravel()]), faces)
+    return hand_mesh(np.column_stack([gx.ravel(), gy.ravel()]), faces)
 
 
 def delaunay_mesh(points: np.ndarray) -> tuple[Mesh, Delaunay]:
@@ -107,7 +104,7 @@ def delaunay_mesh(points: np.ndarray) -> tuple[Mesh, Delaunay]:
     a, b, c = points[s[:, 0]], points[s[:, 1]], points[s[:, 2]]
     cw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
     s[cw, 1], s[cw, 2] = s[cw, 2], s[cw, 1]
-    return _mesh(points, np.column_stack([s, np.full(len(s), -1)])), tri
+    return hand_mesh(points, np.column_stack([s, np.full(len(s), -1)])), tri
 
 
 ALL_MESHES = [unit_square, two_triangles, hexagon_fan, parallelogram, trapezoid_u,
@@ -230,7 +227,7 @@ def test_linear_function_on_jittered_mixed_grid(rng):
 def test_linear_function_at_survey_coordinates(rng):
     mesh0 = grid_mesh(rng, 6, 6)
     offset = np.array([512345.0, 5412345.0])
-    mesh = _mesh(mesh0.vertices + offset, mesh0.faces)
+    mesh = hand_mesh(mesh0.vertices + offset, mesh0.faces)
     local = points_in_faces(mesh0, rng, 4)
     z = 100.0 + 0.3 * mesh0.vertices[:, 0] - 0.7 * mesh0.vertices[:, 1]
     pts = local + offset
@@ -310,7 +307,7 @@ def test_continuous_across_shared_edge(edge, face_a, face_b, rng):
     expected = (1 - t) * z[edge[0]] + t * z[edge[1]]
     for f in (face_a, face_b):
         values = [
-            _face_value_and_gradient(mesh.vertices, mesh.faces, z, f, x, y)[0] for x, y in on_edge
+            _surface_at(mesh.vertices, mesh.faces, z, np.empty((0, 12)), f, x, y)[0] for x, y in on_edge
         ]
         assert_allclose(values, expected, rtol=1e-12, atol=1e-12)
     # approached from both sides the surface tends to the same edge values
@@ -390,7 +387,7 @@ def test_output_has_the_shape_of_x():
 
 
 def test_mesh_without_faces_gives_nan():
-    mesh = _mesh(np.zeros((0, 2)), np.zeros((0, 4)))
+    mesh = hand_mesh(np.zeros((0, 2)), np.zeros((0, 4)))
     assert np.isnan(interpolate(mesh, np.zeros(0), [0.0, 1.0], [0.0, 1.0])).all()
 
 
@@ -430,7 +427,7 @@ def test_bad_arguments_raise(func, z, x, y, match):
 
 def test_bad_mesh_raises():
     with pytest.raises(InvalidInputError, match=r"faces of shape \(n_f, 4\)"):
-        interpolate(_mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]]), np.zeros(3), 0.1, 0.1)
+        interpolate(hand_mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]]), np.zeros(3), 0.1, 0.1)
 
 
 def test_python_form_of_kernels_agrees():

@@ -17,7 +17,8 @@ from meshcore.interpolate import interpolate
 from meshcore.mesh import Mesh
 from meshcore.rasterize import rasterize
 
-from .test_interpolate import _mesh, delaunay_mesh, grid_mesh, mixed
+from .mesh_checks import hand_mesh
+from .test_interpolate import delaunay_mesh, grid_mesh, mixed
 
 
 @pytest.fixture
@@ -142,7 +143,7 @@ def test_nan_z_blanks_its_faces_only():
 
 def test_max_edge_blanks_the_long_triangle():
     # a unit square quad plus a long triangle to its east
-    mesh = _mesh([[0, 0], [1, 0], [1, 1], [0, 1], [3, 0.5]], [[0, 1, 2, 3], [1, 4, 2, -1]])
+    mesh = hand_mesh([[0, 0], [1, 0], [1, 1], [0, 1], [3, 0.5]], [[0, 1, 2, 3], [1, 4, 2, -1]])
     z = np.array([0.0, 1.0, 2.0, 1.0, 5.0])
     full = rasterize(mesh, z, 0.0, 0.0, 0.25, 12, 4)
     cut = rasterize(mesh, z, 0.0, 0.0, 0.25, 12, 4, max_edge=1.5)
@@ -182,7 +183,7 @@ def test_max_edge_on_quads(rng):
     full = rasterize(mesh, z, *args)
     cut = rasterize(mesh, z, *args, max_edge=max_edge)
     # cells covered only by short faces are kept: rasterize the short faces alone
-    short = _mesh(mesh.vertices, mesh.faces[longest <= max_edge])
+    short = hand_mesh(mesh.vertices, mesh.faces[longest <= max_edge])
     kept = rasterize(short, z, *args)
     assert_array_equal(np.isnan(cut), np.isnan(kept))
     assert_allclose(cut, kept, rtol=1e-12)

@@ -13,8 +13,10 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 import meshcore
 from meshcore.errors import InvalidInputError
-from meshcore.interpolate import _face_patch, gradient, interpolate
+from meshcore.interpolate import _surface_at, gradient, interpolate
 from meshcore.mesh import Mesh
+
+from .mesh_checks import hand_mesh
 from meshcore.smooth import Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes
 
 OFFSET = np.array([6.0e5, 6.8e6])
@@ -23,11 +25,6 @@ OFFSET = np.array([6.0e5, 6.8e6])
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261201)
-
-
-def _mesh(vertices, faces) -> Mesh:
-    v = np.asarray(vertices, dtype=np.float64)
-    return Mesh(v, np.asarray(faces, dtype=np.int64), np.arange(v.shape[0]))
 
 
 def _nodes_of(mesh: Mesh, f) -> np.ndarray:
@@ -68,7 +65,7 @@ def _cubic_gradient(x, y):
 
 def test_cubic_triangle_and_parallelogram_patches_reproduce_cubics(rng):
     """P3 on triangles and Q3 on parallelograms hold every cubic: value and gradient."""
-    mesh = _mesh([[0, 0], [3, 0.5], [6, 0], [1, 3], [4, 3.5], [2.5, 6]], [[0, 1, 4, 3], [1, 2, 4, -1], [3, 4, 5, -1]])
+    mesh = hand_mesh([[0, 0], [3, 0.5], [6, 0], [1, 3], [4, 3.5], [2.5, 6]], [[0, 1, 4, 3], [1, 2, 4, -1], [3, 4, 5, -1]])
     # the quad 0 1 4 3 is a parallelogram: (3, 0.5) - (0, 0) == (4, 3.5) - (1, 3)
     z = _cubic(mesh.vertices[:, 0], mesh.vertices[:, 1])
     nodes = _nodes_of(mesh, _cubic)
@@ -83,7 +80,7 @@ def test_cubic_triangle_and_parallelogram_patches_reproduce_cubics(rng):
 def test_quad_patch_reproduces_bicubics_in_its_parameters_and_linear_functions(rng):
     """On a general convex quadrangle the patch holds every bicubic in (u, v), so every linear function."""
     corners = np.array([[0.0, 0.0], [5.0, -0.5], [6.0, 4.0], [-0.5, 3.0]])
-    mesh = _mesh(corners, [[0, 1, 2, 3]])
+    mesh = hand_mesh(corners, [[0, 1, 2, 3]])
     lin = lambda x, y: 2.0 - 0.5 * x + 1.25 * y  # noqa: E731
     z = lin(corners[:, 0], corners[:, 1])
     x, y = _inside_points(mesh, rng, 200)
@@ -138,8 +135,8 @@ def test_the_surface_is_continuous_across_every_edge_of_random_meshes(rng, measu
     for (a, b), (f, g) in shared:
         for t in rng.random(3):
             p = v[a] + t * (v[b] - v[a])
-            one = _face_patch(v, faces, z, nodes, f, p[0], p[1])[0]
-            two = _face_patch(v, faces, z, nodes, g, p[0], p[1])[0]
+            one = _surface_at(v, faces, z, nodes, f, p[0], p[1])[0]
+            two = _surface_at(v, faces, z, nodes, g, p[0], p[1])[0]
             worst = max(worst, abs(one - two))
     assert worst < 1e-7  # rounding at survey coordinates; a wrong node is off by ~0.1
 
@@ -178,7 +175,7 @@ def test_rasterize_samples_the_smooth_surface_and_keeps_max_edge(rng):
 
 
 def test_bad_surface_arguments_raise():
-    mesh = _mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2, -1]])
+    mesh = hand_mesh([[0, 0], [1, 0], [0, 1]], [[0, 1, 2, -1]])
     with pytest.raises(InvalidInputError, match="surface='cubic' is not valid"):
         interpolate(mesh, [0.0, 1.0, 2.0], 0.2, 0.2, surface="cubic")
     with pytest.raises(InvalidInputError, match=r"nodes must be a real array of shape \(n_faces, 12\)"):
