@@ -156,6 +156,20 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("-o", "--output", required=True, help="the PNG to write")
     preview.add_argument("--window", help="xmin,ymin,xmax,ymax (store CRS) to zoom into and draw the mesh")
 
+    export = sub.add_parser(
+        "export",
+        help="write a store's layers as Cloud-Optimized GeoTIFFs (any GIS opens them), and its STAC item",
+        description="Writes each raster layer as a COG with the store's CRS, nodata and overviews: the first "
+        "layer to OUTPUT, each further one beside it as STEM_LAYER.tif. A layer above --max-file-cells is "
+        "written as one COG per block of tile rows plus a VRT (STEM.vrt) that mosaics them. Then rewrites "
+        "the store's STAC item (STORE's name with .stac.json) with the files as assets. Needs rasterio "
+        "(the geotiff extra).",
+    )
+    export.add_argument("store", help="a store written by terrain run")
+    export.add_argument("-o", "--output", required=True, help="the GeoTIFF to write (e.g. dem.tif)")
+    export.add_argument("--layers", help="layers to write, e.g. elevation,slope (default: all the store holds)")
+    export.add_argument("--max-file-cells", type=_positive_int, help="split layers above this many cells (default 2**30)")
+
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
     info.add_argument("--json", action="store_true", help="print JSON")
@@ -323,6 +337,18 @@ def _command(args: argparse.Namespace) -> int:
 
         window = None if args.window is None else tuple(_float_list(args.window, "--window", 4))
         LOGGER.info(f"wrote {render_preview(args.store, args.output, window=window)}")
+        return EXIT_OK
+    if args.command == "export":
+        from .catalog import write_stac_item
+        from .export import MAX_FILE_CELLS, export_geotiff
+
+        layers = None if args.layers is None else [name.strip() for name in args.layers.split(",") if name.strip()]
+        written = export_geotiff(args.store, args.output, layers, max_file_cells=args.max_file_cells or MAX_FILE_CELLS)
+        for item in written:
+            more = f" over {len(item.parts)} COGs" if item.is_mosaic else ""
+            LOGGER.info(f"wrote {item.path} ({item.layer}{more})")
+        item_path = write_stac_item(args.store, {e.layer: [e.path, *(e.parts if e.is_mosaic else ())] for e in written})
+        LOGGER.info(f"wrote {item_path} (STAC item)")
         return EXIT_OK
     if args.command == "info":
         from .inspect import info_json, info_report

@@ -40,6 +40,7 @@ from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .surface import run_variogram
+from .catalog import write_stac_item
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
@@ -702,6 +703,7 @@ def _execute(
         {"provenance": provenance, "report": report.to_dict(), "complete": True, "incremental": keep_work},
         history={"finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "report": report.to_dict()},
     )
+    write_stac_item(config.output, keep_exports=False)
     if not keep_work:
         work.remove()
     return report

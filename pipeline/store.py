@@ -97,6 +97,9 @@ __all__ = [
     "read_dem_window",
     "read_mesh",
     "read_tile_mesh",
+    "read_layer",
+    "layer_names",
+    "nodata_value",
 ]
 
 StorePath = str | os.PathLike[str]
@@ -656,6 +659,33 @@ def read_dem_window(path: StorePath, x0: float, y0: float, x1: float, y1: float)
         raise UsageError(f"read_dem_window: empty box ({x0}, {y0}, {x1}, {y1})")
     with open_dem(path) as ds:
         return ds.sel(x=slice(x0, x1), y=slice(y1, y0)).load()  # y is descending
+
+
+def layer_names(path: StorePath) -> list[Layer]:
+    """The raster layers the store holds, in :class:`Layer` order."""
+    root = _open_group(path)
+    held = set(root.array_keys())
+    return [layer for layer in Layer if layer.value in held]
+
+
+def read_layer(path: StorePath, layer: Layer | str, rows: slice = slice(None), cols: slice = slice(None)) -> NDArray:
+    """A window of one layer's cells, loaded, north-up (row 0 is the northern-most)."""
+    layer = Layer.parse(layer)
+    try:
+        array = zarr.open_array(store=os.fspath(path), path=layer.value, mode="r")
+    except FileNotFoundError:
+        raise StoreError(f"{os.fspath(path)}: holds no layer {layer.value!r}") from None
+    return array[rows, cols]
+
+
+def nodata_value(layer: Layer | str) -> float | int | None:
+    """The value that marks a cell without data in ``layer``: NaN for elevation
+    and slope, 0 (no face) for face_kind, none for point_count (0 is a count)."""
+    layer = Layer.parse(layer)
+    spec = _LAYERS[layer]
+    if spec.masked or layer is Layer.FACE_KIND:
+        return spec.fill
+    return None
 
 
 def read_mesh(path: StorePath) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
