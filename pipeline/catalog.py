@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import posixpath
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -20,8 +21,9 @@ from typing import Any
 import numpy as np
 import pyproj
 
-from .errors import OutputWriteError
+from .errors import OutputWriteError, one_line
 from .store import GridSpec, read_attrs
+from .urls import Location, filesystem, location
 
 __all__ = ["STAC_VERSION", "PROJECTION_EXTENSION", "stac_item", "stac_item_path", "write_stac_item"]
 
@@ -35,11 +37,18 @@ _FOOTPRINT_STEPS = 16
 """Points per side of the footprint: a projected rectangle's edges curve in longitude/latitude."""
 
 
-def stac_item_path(store: str | os.PathLike[str]) -> Path:
-    """``dem.zarr`` -> ``dem.stac.json`` beside it."""
-    path = Path(os.path.abspath(store))
-    stem = path.name[: -len(".zarr")] if path.name.lower().endswith(".zarr") else path.name
-    return path.with_name(f"{stem}.stac.json")
+def stac_item_path(store: str | os.PathLike[str]) -> Location:
+    """``dem.zarr`` -> ``dem.stac.json`` beside it (a URL beside a store on object storage)."""
+    where = location(store)
+    if isinstance(where, str):
+        parent, _, name = where.rstrip("/").rpartition("/")
+        return f"{parent}/{_item_name(name)}"
+    return where.with_name(_item_name(where.name))
+
+
+def _item_name(store_name: str) -> str:
+    stem = store_name[: -len(".zarr")] if store_name.lower().endswith(".zarr") else store_name
+    return f"{stem}.stac.json"
 
 
 def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | os.PathLike[str]]] | None = None) -> dict[str, Any]:
@@ -56,7 +65,7 @@ def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | 
     crs = pyproj.CRS.from_wkt(provenance["crs_wkt"]) if provenance.get("crs_wkt") else None
     x0, y0 = grid.x0, grid.y0
     x1, y1 = x0 + grid.nx * grid.resolution, grid.y_top
-    home = stac_item_path(where).parent
+    home = _parent(stac_item_path(where))
     properties: dict[str, Any] = {
         "datetime": history[-1].get("finished"),
         "proj:code": _epsg_code(crs),
@@ -90,7 +99,7 @@ def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | 
         "type": "Feature",
         "stac_version": STAC_VERSION,
         "stac_extensions": [PROJECTION_EXTENSION],
-        "id": stac_item_path(where).name.removesuffix(".stac.json"),
+        "id": _name(stac_item_path(where)).removesuffix(".stac.json"),
         "geometry": footprint,
     }
     if footprint is not None:
@@ -116,23 +125,57 @@ def write_stac_item(
     item = stac_item(store, files)
     renewed = {_layer_of(key) for key in item["assets"]}
     for key, asset in _previous_assets(target).items() if keep_exports else ():
-        if _layer_of(key) not in renewed and (target.parent / asset.get("href", "")).exists():
+        if _layer_of(key) not in renewed and _exists(_join(_parent(target), asset.get("href", ""))):
             item["assets"][key] = asset
-    partial = target.with_name(f".{target.name}.partial")
+    text = json.dumps(item, indent=2, allow_nan=False) + "\n"
     try:
-        partial.write_text(json.dumps(item, indent=2, allow_nan=False) + "\n")
-        os.replace(partial, target)
+        if isinstance(target, str):
+            fs, path = filesystem(target)
+            fs.pipe_file(path, text.encode())  # an object is written whole
+        else:
+            partial = target.with_name(f".{target.name}.partial")
+            try:
+                partial.write_text(text)
+                os.replace(partial, target)
+            finally:
+                partial.unlink(missing_ok=True)
     except OSError as exc:
-        partial.unlink(missing_ok=True)
-        raise OutputWriteError(f"{target}: cannot write the STAC item ({exc.strerror or exc})") from None
+        raise OutputWriteError(f"{target}: cannot write the STAC item ({exc.strerror or one_line(exc)})") from None
     return target
 
 
-def _previous_assets(target: Path) -> dict[str, Any]:
+def _previous_assets(target: Location) -> dict[str, Any]:
     try:
-        return dict(json.loads(target.read_text()).get("assets", {}))
+        if isinstance(target, str):
+            fs, path = filesystem(target)
+            text = fs.cat_file(path).decode()
+        else:
+            text = target.read_text()
+        return dict(json.loads(text).get("assets", {}))
     except (OSError, ValueError, AttributeError):
         return {}
+
+
+def _parent(where: Location) -> Location:
+    return where.rsplit("/", 1)[0] if isinstance(where, str) else where.parent
+
+
+def _name(where: Location) -> str:
+    return where.rsplit("/", 1)[-1] if isinstance(where, str) else where.name
+
+
+def _join(home: Location, href: str) -> Location:
+    if isinstance(home, str):
+        scheme, rest = home.split("://", 1)
+        return f"{scheme}://{posixpath.normpath(f'{rest}/{href}')}"
+    return home / href
+
+
+def _exists(where: Location) -> bool:
+    if isinstance(where, str):
+        fs, path = filesystem(where)
+        return bool(fs.exists(path))
+    return where.exists()
 
 
 def _layer_of(asset_key: str) -> str:
@@ -165,5 +208,16 @@ def _footprint(crs: pyproj.CRS | None, box: tuple[float, float, float, float]) -
     return {"type": "Polygon", "coordinates": [[*ring, ring[0]]]}
 
 
-def _relative(path: str | os.PathLike[str], home: Path) -> str:
-    return "./" + Path(os.path.relpath(os.path.abspath(path), home)).as_posix()
+def _relative(path: str | os.PathLike[str], home: Location) -> str:
+    """``path`` relative to the item's folder; an absolute URL where the two
+    are not on one filesystem (a local GeoTIFF of a store on object storage)."""
+    where = location(path)
+    if isinstance(home, str) != isinstance(where, str):
+        return str(where) if isinstance(where, str) else where.as_uri()
+    if isinstance(home, str):
+        assert isinstance(where, str)
+        scheme = home.split("://", 1)[0]
+        if not where.startswith(f"{scheme}://"):
+            return where
+        return "./" + posixpath.relpath(where.split("://", 1)[1], home.split("://", 1)[1])
+    return "./" + Path(os.path.relpath(where, home)).as_posix()

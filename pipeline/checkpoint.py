@@ -18,6 +18,7 @@ import json
 import math
 import os
 import shutil
+import tempfile
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -27,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
+from .urls import is_url
 
 __all__ = ["WorkDir", "work_dir_for", "output_lock"]
 
@@ -67,12 +69,23 @@ def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
 def work_dir_for(output: str, scratch_dir: str | None) -> Path:
     """``.NAME.work`` beside the store, or ``.NAME-HASH.work`` inside
     ``scratch_dir`` when given (HASH of the store's path: two stores of one
-    name in different folders may share a scratch folder)."""
+    name in different folders may share a scratch folder).  A store on object
+    storage keeps its work folder on this machine: in ``scratch_dir``, or in
+    the system's temporary folder."""
+    if is_url(output):
+        name = output.rstrip("/").rsplit("/", 1)[-1]
+        digest = hashlib.sha1(output.encode()).hexdigest()[:10]
+        return Path(os.path.abspath(scratch_dir or local_scratch())) / f".{name}-{digest}.work"
     out = Path(os.path.abspath(output))  # normalised: "a/../b.zarr" and "b.zarr" are one store
     if not scratch_dir:
         return out.parent / f".{out.name}.work"
     digest = hashlib.sha1(os.fsencode(out)).hexdigest()[:10]
     return Path(os.path.abspath(scratch_dir)) / f".{out.name}-{digest}.work"
+
+
+def local_scratch() -> str:
+    """Where work folders of stores on object storage go by default."""
+    return os.path.join(tempfile.gettempdir(), "terrain-work")
 
 
 @contextmanager
@@ -81,9 +94,13 @@ def output_lock(output: str) -> Iterator[None]:
     run on the same store fails at once instead of deleting the first one's
     work.  The lock is the operating system's (``flock``), so a run that dies
     releases it; the file is removed when the run ends."""
-    out = Path(os.path.abspath(output))
-    path = out.parent / f".{out.name}.lock"
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if is_url(output):  # a lock on this machine: runs on other machines are not seen
+        work = work_dir_for(output, None)
+        path = work.with_name(work.name.removesuffix(".work") + ".lock")
+    else:
+        out = Path(os.path.abspath(output))
+        path = out.parent / f".{out.name}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
     while True:
         handle = open(path, "a")
         try:

@@ -181,7 +181,8 @@ def _run_config(args: argparse.Namespace):
 
     data: dict = {}
     if args.config is not None:
-        data = RunConfig.from_toml(args.config).to_dict()
+        job = RunConfig.from_toml(args.config)
+        data = job.to_dict() | {"storage_options": job.storage_options}  # to_dict leaves credentials out
     flags = {
         "output": args.output,
         "resolution": args.resolution,

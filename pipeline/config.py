@@ -15,6 +15,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from enum import Enum, StrEnum
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 from .errors import UsageError
@@ -104,7 +105,9 @@ def _whole(name: str, value: object, allow_none: bool = False) -> int | None:
 _NONE_WORDS = {"classes": "all", "quad_measure": "none"}
 
 #: fields that do not change a run's result (a store made with other values is resumed)
-_NEUTRAL = {"workers", "scheduler", "overwrite", "scratch_dir", "max_cells", "inputs", "output", "extra"}
+_NEUTRAL = {
+    "workers", "scheduler", "overwrite", "scratch_dir", "max_cells", "inputs", "output", "extra", "storage_options",
+}
 
 
 def _positive(name: str, value: object, allow_none: bool = False, allow_zero: bool = False) -> float | None:
@@ -173,6 +176,10 @@ class RunConfig:
     overwrite: bool = False
     max_cells: int = 4_000_000_000
     skip_bad_files: bool = False
+    storage_options: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+    """fsspec options for URL inputs and stores (``endpoint_url``, ``key``,
+    ``secret``, ``anon``, ...).  Kept out of :meth:`to_dict`, so out of the
+    provenance: it may hold credentials."""
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -233,6 +240,10 @@ class RunConfig:
         object.__setattr__(self, "max_cells", _whole("max_cells", self.max_cells))
         for name in ("keep_withheld", "overwrite", "skip_bad_files"):
             object.__setattr__(self, name, _flag(name, getattr(self, name)))
+        options = self.storage_options
+        if not isinstance(options, Mapping) or not all(isinstance(k, str) for k in options):
+            raise UsageError(f"storage_options must be a table of option names, got {type(options).__name__}")
+        object.__setattr__(self, "storage_options", dict(options))
         for name in ("in_crs", "out_crs", "scheduler", "scratch_dir"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, (str, Path)):
@@ -245,7 +256,7 @@ class RunConfig:
         written as their word ("all" classes, "none" quad measure)."""
         out: dict[str, Any] = {}
         for key, value in asdict(self).items():
-            if key == "extra":
+            if key in ("extra", "storage_options"):  # storage_options may hold credentials
                 continue
             if value is None:
                 if key in _NONE_WORDS:

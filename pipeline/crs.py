@@ -40,6 +40,7 @@ import pyproj
 from pyproj.exceptions import CRSError
 
 from .errors import CrsError, UsageError, one_line
+from .urls import Location, as_location
 
 if TYPE_CHECKING:
     from .sources import SourceInfo
@@ -306,7 +307,7 @@ class CrsPlan:
         Per file, what multiplies its z after reprojection (empty: all 1).
     """
 
-    paths: tuple[Path, ...]
+    paths: tuple[Location, ...]
     source_wkts: tuple[str, ...]
     target_wkt: str
     target_name: str
@@ -330,13 +331,13 @@ class CrsPlan:
     def source_wkt(self, path: str | Path) -> str:
         """The source CRS (WKT) of one input file."""
         try:
-            return self.source_wkts[self.paths.index(Path(path))]
+            return self.source_wkts[self.paths.index(as_location(path))]
         except ValueError:
             raise UsageError(f"{path}: not one of the plan's input files") from None
 
     def reprojector(self, path: str | Path) -> Reprojector:
         """The recipe taking one file's points to the target CRS."""
-        return Reprojector(self.source_wkt(path), self.target_wkt, self.z_factor(self.paths.index(Path(path))))
+        return Reprojector(self.source_wkt(path), self.target_wkt, self.z_factor(self.paths.index(as_location(path))))
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
@@ -357,7 +358,7 @@ class CrsPlan:
     def from_dict(cls, data: Mapping[str, Any]) -> CrsPlan:
         """Rebuild from :meth:`to_dict` output."""
         return cls(
-            paths=tuple(Path(p) for p in data["paths"]),
+            paths=tuple(as_location(p) for p in data["paths"]),
             source_wkts=tuple(data["source_wkts"]),
             target_wkt=data["target_wkt"],
             target_name=data["target_name"],

@@ -30,6 +30,7 @@ import numpy as np
 
 from .config import Layer
 from .errors import StoreError, UsageError
+from .urls import is_url
 from .store import GridSpec, layer_names, nodata_value, read_attrs, read_layer
 
 __all__ = ["ExportedLayer", "export_geotiff", "MAX_FILE_CELLS"]
@@ -90,6 +91,8 @@ def export_geotiff(
     """
     rasterio = _rasterio()
     where = os.fspath(store)
+    if is_url(os.fspath(output)):
+        raise UsageError(f"{os.fspath(output)}: GeoTIFFs are written to a local folder; upload them from there")
     attrs = read_attrs(where)
     if attrs is None:
         raise StoreError(f"{where}: is not a Zarr store")

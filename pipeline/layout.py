@@ -27,6 +27,7 @@ from typing import BinaryIO
 import lazrs
 
 from .errors import InputFileError, os_error_reason
+from .urls import Location, describe_os_error, is_url, open_input
 
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
 
@@ -46,7 +47,7 @@ _POINT14, _RGB14, _RGBNIR14, _WAVEPACKET14, _BYTE14 = 10, 11, 12, 13, 14
 _LAYERS = {_POINT14: 9, _RGB14: 1, _RGBNIR14: 2, _WAVEPACKET14: 1}
 
 
-def check_header(path: Path, size: int) -> None:
+def check_header(path: Location, size: int) -> None:
     """Refuse a header whose counts exceed what the file holds, before any reader sees it.
 
     Checks the VLR and EVLR counts, where the point data starts and, for LAZ,
@@ -97,7 +98,7 @@ def check_header(path: Path, size: int) -> None:
                 )
 
 
-def check_point_data(path: Path, size: int) -> None:
+def check_point_data(path: Location, size: int) -> None:
     """Refuse LAZ point data whose description, chunk table or chunks claim more than the file holds.
 
     Run before points are decoded (the header is checked by :func:`check_header`).
@@ -134,14 +135,15 @@ def check_point_data(path: Path, size: int) -> None:
 
 
 @contextmanager
-def _reading(path: Path) -> Iterator[BinaryIO]:
+def _reading(path: Location) -> Iterator[BinaryIO]:
     try:
-        with open(path, "rb") as fh:
+        with open_input(path) as fh:
             yield fh
     except InputFileError:
         raise
     except OSError as exc:
-        raise InputFileError(f"{path}: {os_error_reason(exc)}") from exc
+        reason = describe_os_error(exc, str(path)) if is_url(path) else os_error_reason(exc)
+        raise InputFileError(f"{path}: {reason}") from exc
 
 
 @dataclass(frozen=True)
@@ -190,7 +192,7 @@ def _chunk_table_offset(fh: BinaryIO, head: _Head, size: int) -> int | None:
     return table
 
 
-def _check_chunk_table(fh: BinaryIO, path: Path, laszip: bytes, offset: int, table: int) -> None:
+def _check_chunk_table(fh: BinaryIO, path: Location, laszip: bytes, offset: int, table: int) -> None:
     """Refuse a chunk table whose chunks add up to more bytes than lie before it.
 
     The parallel LAZ reader allocates each chunk's byte count before reading
@@ -229,7 +231,7 @@ def _laszip_record(fh: BinaryIO, head: _Head) -> bytes | None:
     return None
 
 
-def _laszip_items(path: Path, laszip: bytes, record_length: int) -> tuple[int, int, list[tuple[int, int]]]:
+def _laszip_items(path: Location, laszip: bytes, record_length: int) -> tuple[int, int, list[tuple[int, int]]]:
     """The compressor, chunk size and (type, size) items of a LASzip record.
 
     The items must add up to the header's point record length: the reader sizes
@@ -257,7 +259,7 @@ def _laszip_items(path: Path, laszip: bytes, record_length: int) -> tuple[int, i
 
 
 def _check_layers(
-    fh: BinaryIO, path: Path, items: list[tuple[int, int]], chunk_size: int, start: int, end: int, points: int
+    fh: BinaryIO, path: Location, items: list[tuple[int, int]], chunk_size: int, start: int, end: int, points: int
 ) -> int | None:
     """Walk the layered chunks from ``start``; refuse one whose layers run past ``end``.
 

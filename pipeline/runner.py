@@ -41,6 +41,7 @@ from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, S
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .surface import run_variogram
 from .catalog import write_stac_item
+from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
@@ -438,6 +439,7 @@ def execute(
         When the store or the work folder cannot be written (read-only, full,
         ...): one line naming the file; the run resumes once the cause is fixed.
     """
+    urls.use_storage_options(config.storage_options)
     try:
         with output_lock(config.output):
             return _execute(config, progress=progress, log=log, incremental=incremental)
@@ -468,7 +470,7 @@ def _execute(
     from .crs import cf_units, resolve_crs
 
     # absolute: tasks on a cluster's workers run in other folders
-    config = replace(config, output=os.path.abspath(config.output))
+    config = replace(config, output=str(urls.location(config.output)))
     show = sys.stderr.isatty() if progress is None else progress
     say = log or (lambda message: None)
     report = RunReport()
@@ -735,8 +737,8 @@ def _tile_key(job: TileJob) -> str:
     return tile_key(job.row, job.col)
 
 
-def _mtime(path) -> float:
-    return os.stat(path).st_mtime
+def _mtime(path) -> float | None:
+    return urls.modified(path)
 
 
 def _input_keys(inputs: list[dict[str, Any]]) -> set[tuple]:

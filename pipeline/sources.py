@@ -41,6 +41,8 @@ from pyproj.exceptions import CRSError
 from .crs import crs_label, same_crs
 from .errors import InputFileError, UsageError, one_line, os_error_reason
 from .layout import check_header, check_point_data
+from .urls import Location, as_location, is_url, open_input
+from . import urls
 
 __all__ = [
     "LAS_SUFFIXES",
@@ -80,7 +82,7 @@ _GEOKEY_RECORD_ID = 34735
 # --------------------------------------------------------------------------- discovery
 
 
-def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> list[Path]:
+def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]) -> list[Location]:
     """Expand files, directories and glob patterns into a sorted list of LAS/LAZ files.
 
     Parameters
@@ -90,12 +92,14 @@ def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike
         ``*.las``/``*.laz`` below it, any case, recursively) or a glob pattern
         (``**`` allowed; matched directories are expanded, matched files are
         kept when they end in .las/.laz). A single string is one input.
+        URLs are taken the same way: an object, a prefix (``s3://bucket/survey/``)
+        or a pattern (``s3://bucket/**/*.laz``).
 
     Returns
     -------
-    list of Path
-        Unique files as absolute paths (duplicates, including the same file
-        reached twice, are dropped), sorted by their path.
+    list of Path or str
+        Unique files as absolute paths, and objects as URLs (duplicates,
+        including the same file reached twice, are dropped), sorted.
 
     Raises
     ------
@@ -116,13 +120,17 @@ def discover_inputs(inputs: Sequence[str | os.PathLike[str]] | str | os.PathLike
         inputs = [inputs]
     if len(inputs) == 0:
         raise UsageError("no input files given")
-    found: dict[str, Path] = {}
+    found: dict[str, Location] = {}
     for item in inputs:
         text = os.fspath(item)
+        if is_url(text):
+            for url in urls.expand(str(urls.location(text)), LAS_SUFFIXES):
+                found.setdefault(url, url)
+            continue
         for path in _expand_one(text):
             # absolute: workers elsewhere (a cluster) and later runs from another folder see the same file
             found.setdefault(os.path.realpath(path), Path(os.path.abspath(path)))
-    return sorted(found.values(), key=lambda p: p.as_posix())
+    return sorted(found.values(), key=lambda p: p if isinstance(p, str) else p.as_posix())
 
 
 def _expand_one(text: str) -> list[Path]:
@@ -163,14 +171,16 @@ def _is_las_name(path: Path) -> bool:
 # --------------------------------------------------------------------------- opening and errors
 
 
-def _sniff(path: Path) -> int:
+def _sniff(path: Location) -> int:
     """Check that ``path`` is a readable file starting with ``LASF``; return its size."""
     try:
-        with open(path, "rb") as fh:
+        with open_input(path) as fh:
             head = fh.read(len(_SIGNATURE))
-            size = os.fstat(fh.fileno()).st_size
+            size = os.fstat(fh.fileno()).st_size if not is_url(path) else urls.size(path)
     except OSError as exc:
-        raise InputFileError(f"{path}: {os_error_reason(exc)}") from exc
+        if isinstance(exc, InputFileError):
+            raise
+        raise InputFileError(f"{path}: {_read_error(path, exc)}") from exc
     if not head:
         raise InputFileError(f"{path}: empty file (0 bytes)")
     if head != _SIGNATURE:
@@ -179,11 +189,15 @@ def _sniff(path: Path) -> int:
     return size
 
 
-def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
+def _read_error(path: Location, exc: OSError) -> str:
+    return urls.describe_os_error(exc, str(path)) if is_url(path) else os_error_reason(exc)
+
+
+def _header_error(path: Location, size: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy raised while reading the header and VLRs into one clear line."""
     msg = one_line(exc)
     if isinstance(exc, OSError):
-        reason = os_error_reason(exc)
+        reason = _read_error(path, exc)
     elif isinstance(exc, laspy.errors.FileVersionNotSupported):
         reason = f"unsupported LAS version ({msg})"
     elif isinstance(exc, laspy.errors.PointFormatNotSupported):
@@ -201,12 +215,14 @@ def _header_error(path: Path, size: int, exc: Exception) -> InputFileError:
     return InputFileError(f"{path}: {reason}")
 
 
-def _points_error(path: Path, compressed: bool, done: int, total: int, exc: Exception) -> InputFileError:
+def _points_error(path: Location, compressed: bool, done: int, total: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy/lazrs raised while reading points into one clear line."""
     msg = one_line(exc)
     where = f"after {done:,} of {total:,} points"
+    if isinstance(exc, InputFileError):
+        return exc
     if isinstance(exc, OSError):
-        reason = os_error_reason(exc)
+        reason = _read_error(path, exc)
     elif compressed:
         reason = f"corrupt or truncated LAZ data {where} ({msg})"
     elif isinstance(exc, ValueError) and "buffer size" in msg:
@@ -218,12 +234,16 @@ def _points_error(path: Path, compressed: bool, done: int, total: int, exc: Exce
 
 @contextmanager
 def _open(
-    path: Path, selection: DecompressionSelection | None = None
+    path: Location, selection: DecompressionSelection | None = None
 ) -> Iterator[tuple[laspy.LasReader, int]]:
     """Open ``path`` with laspy, translating every failure into :class:`InputFileError`."""
     size = _sniff(path)
+    selection = selection or DecompressionSelection.all()
     try:
-        reader = laspy.open(os.fspath(path), decompression_selection=selection or DecompressionSelection.all())
+        if is_url(path):  # a remote object, streamed (the reader closes it)
+            reader = laspy.open(open_input(path), decompression_selection=selection, closefd=True)
+        else:
+            reader = laspy.open(os.fspath(path), decompression_selection=selection)
     except Exception as exc:
         raise _header_error(path, size, exc) from exc
     with reader:
@@ -254,7 +274,7 @@ def _point_counts(header: laspy.LasHeader, size: int) -> tuple[int, int | None]:
     return (available if announced == 0 and available else announced), available
 
 
-def _chunks(path: Path, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
+def _chunks(path: Location, reader: laspy.LasReader, size: int, chunk_size: int) -> Iterator[Any]:
     """Yield laspy point records of at most ``chunk_size`` points, checking for short data."""
     check_point_data(path, size)
     header = reader.header
@@ -303,9 +323,9 @@ class SourceInfo:
     Parameters
     ----------
     path
-        The file.
+        The file (a URL for a remote object).
     size_bytes
-        File size on disk.
+        File size in bytes.
     version
         LAS version, e.g. ``"1.4"``.
     point_format
@@ -337,7 +357,7 @@ class SourceInfo:
         records, short point data, ...).
     """
 
-    path: Path
+    path: Location
     size_bytes: int
     version: str
     point_format: int
@@ -395,7 +415,7 @@ class SourceInfo:
     def from_dict(cls, data: Mapping[str, Any]) -> SourceInfo:
         """Rebuild from :meth:`to_dict` output."""
         return cls(
-            path=Path(data["path"]),
+            path=as_location(data["path"]),
             size_bytes=int(data["size_bytes"]),
             version=str(data["version"]),
             point_format=int(data["point_format"]),
@@ -422,7 +442,7 @@ def read_info(path: str | os.PathLike[str]) -> SourceInfo:
     InputFileError
         If the file is missing, unreadable, not LAS/LAZ, or its header is truncated.
     """
-    path = Path(path)
+    path = as_location(path)
     with _open(path) as (reader, size):
         header = reader.header
         try:
@@ -433,7 +453,7 @@ def read_info(path: str | os.PathLike[str]) -> SourceInfo:
             raise _header_error(path, size, exc) from exc
 
 
-def _info_from_header(path: Path, size: int, header: laspy.LasHeader) -> SourceInfo:
+def _info_from_header(path: Location, size: int, header: laspy.LasHeader) -> SourceInfo:
     notes: list[str] = []
     crs_wkt, crs_problem, z_unit, crs_notes = _parse_crs(header)
     notes.extend(crs_notes)
@@ -665,7 +685,7 @@ def class_counts(path: str | os.PathLike[str], chunk_size: int = 2_000_000) -> d
     InputFileError
         If the file cannot be read to its end.
     """
-    path = Path(path)
+    path = as_location(path)
     chunk_size = _check_chunk_size(chunk_size)
     counts = np.zeros(256, dtype=np.int64)
     with _open(path, _CLASS_SELECTION) as (reader, size):
@@ -798,7 +818,7 @@ def iter_points(
     point_filter = PointFilter() if point_filter is None else point_filter
     if not isinstance(point_filter, PointFilter):
         raise UsageError(f"point_filter must be a PointFilter, got {type(point_filter).__name__}")
-    return _iter_points(Path(path), point_filter, _check_chunk_size(chunk_size))
+    return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size))
 
 
 #: the largest magnitude a stored coordinate (a 32-bit integer) can have
@@ -822,7 +842,7 @@ def _scaling_problem(scales: tuple[float, ...], offsets: tuple[float, ...]) -> s
     return None
 
 
-def _usable_scaling(path: Path, scales: tuple[float, ...], offsets: tuple[float, ...], points: int) -> bool:
+def _usable_scaling(path: Location, scales: tuple[float, ...], offsets: tuple[float, ...], points: int) -> bool:
     """Whether the header's scale factors and offsets decode coordinates
     (:func:`_scaling_problem`); unusable ones are an error for a file with
     points."""
@@ -867,7 +887,7 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
     return decode
 
 
-def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iterator[PointChunk]:
+def _iter_points(path: Location, point_filter: PointFilter, chunk_size: int) -> Iterator[PointChunk]:
     keep_class: np.ndarray | None = None
     if point_filter.classes is not None:
         keep_class = np.zeros(256, dtype=bool)
@@ -913,9 +933,13 @@ def _iter_points(path: Path, point_filter: PointFilter, chunk_size: int) -> Iter
 
 
 def file_digest(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (hex): its identity whatever its time stamps."""
+    """SHA-256 of a file's bytes (hex): its identity whatever its time stamps.
+    A remote object's is its ETag and size (:func:`pipeline.urls.identity`),
+    not a second download."""
     import hashlib
 
+    if is_url(path):
+        return urls.identity(str(path))
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 22), b""):

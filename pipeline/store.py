@@ -80,6 +80,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import Layer
 from .errors import CrsError, StoreError, UsageError
+from .urls import is_url
 
 __all__ = [
     "StoreError",
@@ -320,7 +321,7 @@ def create_store(
     z_units = height_units or z_units
 
     _make_room(path, overwrite)
-    root = zarr.create_group(store=os.fspath(path), zarr_format=zarr_format, attributes=root_attrs)
+    root = zarr.create_group(store=_zarr_store(path), zarr_format=zarr_format, attributes=root_attrs)
     _create_array(root, "x", data=grid.x, dims=("x",), attrs=x_attrs)
     _create_array(root, "y", data=grid.y, dims=("y",), attrs=y_attrs)
     _create_array(root, GRID_MAPPING, data=np.int32(0), dims=(), attrs=grid_mapping)
@@ -650,7 +651,7 @@ def open_dem(path: StorePath, **kwargs: Any) -> xr.Dataset:
     ``spatial_ref`` is a coordinate (the data variables list it in
     ``coordinates``), so rioxarray finds the CRS and GeoTransform.
     """
-    return xr.open_zarr(os.fspath(path), **kwargs)
+    return xr.open_zarr(_zarr_store(path, read_only=True), **kwargs)
 
 
 def read_dem_window(path: StorePath, x0: float, y0: float, x1: float, y1: float) -> xr.Dataset:
@@ -672,7 +673,7 @@ def read_layer(path: StorePath, layer: Layer | str, rows: slice = slice(None), c
     """A window of one layer's cells, loaded, north-up (row 0 is the northern-most)."""
     layer = Layer.parse(layer)
     try:
-        array = zarr.open_array(store=os.fspath(path), path=layer.value, mode="r")
+        array = zarr.open_array(store=_zarr_store(path, read_only=True), path=layer.value, mode="r")
     except FileNotFoundError:
         raise StoreError(f"{os.fspath(path)}: holds no layer {layer.value!r}") from None
     return array[rows, cols]
@@ -744,6 +745,8 @@ def _remove_partial_writes(path: StorePath) -> None:
     but a process killed mid-write leaves its temporary file behind; a resumed
     run would otherwise end with a store that holds stray files.
     """
+    if is_url(os.fspath(path)):
+        return  # an object store writes each object whole: no temporary files
     for root, _, files in os.walk(os.fspath(path)):
         for name in files:
             if _PARTIAL_WRITE.search(name):
@@ -758,6 +761,9 @@ _ZARR_METADATA = frozenset({"zarr.json", ".zgroup", ".zattrs", ".zarray", ".zmet
 
 
 def _is_zarr_store(path: StorePath) -> bool:
+    if is_url(os.fspath(path)):
+        fs, where = _filesystem(os.fspath(path))
+        return any(fs.exists(f"{where}/{name}") for name in ("zarr.json", ".zgroup", ".zarray"))
     return os.path.isdir(path) and any(
         os.path.exists(os.path.join(path, name)) for name in ("zarr.json", ".zgroup", ".zarray")
     )
@@ -766,6 +772,9 @@ def _is_zarr_store(path: StorePath) -> bool:
 def _make_room(path: StorePath, overwrite: bool) -> None:
     """Clear the way for a new store at ``path``, never deleting anything but a Zarr store."""
     where = os.fspath(path)
+    if is_url(where):
+        _make_room_remote(where, overwrite)
+        return
     if not os.path.lexists(where):
         return
     if _is_zarr_store(where):
@@ -786,10 +795,53 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
         raise StoreError(f"{where}: exists and is not a Zarr store; refusing to replace it")
 
 
+def _make_room_remote(url: str, overwrite: bool) -> None:
+    from .urls import describe_os_error
+
+    fs, where = _filesystem(url)
+    try:
+        bucket = where.split("/", 1)[0]
+        if url.lower().startswith("s3://") and not fs.exists(bucket):
+            raise FileNotFoundError("The specified bucket does not exist")
+        held = fs.find(where, maxdepth=1, withdirs=True)
+    except OSError as exc:
+        raise StoreError(f"{url}: {describe_os_error(exc, url)}") from None
+    if not held:
+        return
+    if not _is_zarr_store(url):
+        raise StoreError(f"{url}: objects exist under this prefix and it is not a Zarr store; refusing to replace it")
+    if not overwrite:
+        raise StoreError(f"{url}: a Zarr store already exists; pass --overwrite to replace it")
+    fs.rm(where, recursive=True)
+
+
+def _filesystem(url: str) -> tuple[Any, str]:
+    from .urls import filesystem
+
+    fs, where = filesystem(url)
+    return fs, where.rstrip("/")
+
+
+def _zarr_store(path: StorePath, read_only: bool = False) -> Any:
+    """What zarr opens: the local path, or an fsspec store over the URL."""
+    where = os.fspath(path)
+    if not is_url(where):
+        return where
+    from zarr.storage import FsspecStore
+
+    from .urls import storage_options
+
+    options = storage_options() if not where.lower().startswith(("http://", "https://")) else {}
+    try:
+        return FsspecStore.from_url(where, storage_options=options or None, read_only=read_only)
+    except (TypeError, ValueError, ImportError) as exc:
+        raise StoreError(f"{where}: cannot open the store ({type(exc).__name__}: {exc})") from None
+
+
 def _open_group(path: StorePath, name: str = "", mode: str = "r") -> zarr.Group:
     where = os.fspath(path)
     try:
-        return zarr.open_group(where, path=name or None, mode=mode)
+        return zarr.open_group(_zarr_store(where, read_only=mode == "r"), path=name or None, mode=mode)
     except (FileNotFoundError, zarr.errors.NodeTypeValidationError):
         what = f"has no group {name!r}" if name and _is_zarr_store(where) else "is not a Zarr store"
         raise StoreError(f"{where}: {what}") from None
@@ -800,7 +852,7 @@ def _open_array(path: StorePath, name: str) -> zarr.Array:
     that equals the fill value: a v2 array without one (a null ``fill_value``)
     leaves missing chunks undefined to its readers."""
     try:
-        array = zarr.open_array(store=os.fspath(path), path=name, mode="r+")
+        array = zarr.open_array(store=_zarr_store(path), path=name, mode="r+")
         return array.with_config({"write_empty_chunks": True})
     except FileNotFoundError:
         where = os.fspath(path)
@@ -885,7 +937,7 @@ def _consolidate(path: StorePath) -> None:
         # zarr-python warns that v3 consolidated metadata is not in the v3 spec
         # yet; xarray and zarr-python read it, and other readers ignore it.
         warnings.filterwarnings("ignore", message="Consolidated metadata", category=UserWarning)
-        zarr.consolidate_metadata(os.fspath(path))
+        zarr.consolidate_metadata(_zarr_store(path))
 
 
 def _json_attrs(attrs: Mapping[str, Any], what: str) -> dict[str, Any]:

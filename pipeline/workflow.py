@@ -33,7 +33,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .config import RunConfig
+from . import urls
 from .errors import InputFileError, PipelineError, UsageError
+from .urls import is_url
 
 __all__ = ["Workflow", "run_workflow", "workflow_status"]
 
@@ -87,11 +89,14 @@ class Workflow:
         return cls(path=path, name=str(head.get("name", path.stem)), config=config)
 
 
-def _resolve(base: Path, value: str) -> Path:
-    """A path of the file: ``~`` and ``$VARIABLES`` expanded, relative to ``base``."""
+def _resolve(base: Path, value: str) -> Path | str:
+    """A path of the file: ``~`` and ``$VARIABLES`` expanded, relative to
+    ``base``; a URL with its variables expanded."""
     expanded = os.path.expandvars(value)
     if "$" in expanded:
         raise UsageError(f"{value!r}: an environment variable in it is not set")
+    if is_url(expanded):
+        return expanded
     p = Path(expanded).expanduser()
     return p if p.is_absolute() else base / p
 
@@ -138,8 +143,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     changed = []
     for p in current:
         if p in before:
-            st = Path(p).stat()
-            item = {"path": p, "size": st.st_size, "mtime": st.st_mtime}
+            item = {"path": p, "size": urls.size(p), "mtime": urls.modified(p)}
             routed = work.recorded("route", f"{index[p]:06d}") if work.exists() else None
             if not same_input(before[p], item, routed):  # as the run decides: a touched file is the same
                 changed.append(p)

@@ -190,12 +190,12 @@ def test_a_tls_cluster_runs_a_job_with_the_certificate_and_refuses_clients_witho
         assert xr.open_zarr(store).attrs["complete"] is True
         # refused: plain TCP, TLS without a certificate, and a certificate of another CA
         with pytest.raises((OSError, TimeoutError)):
-            Client(f"tcp://127.0.0.1:{port}", timeout="3s")
+            Client(f"tcp://127.0.0.1:{port}", timeout="2s")
         from distributed.security import Security
 
         with pytest.raises((OSError, TimeoutError, TypeError, ValueError)):
-            Client(address, security=Security(), timeout="3s")
+            Client(address, security=Security(), timeout="2s")
         with pytest.raises((OSError, TimeoutError)):
-            Client(address, security=_security(rogue), timeout="3s")
+            Client(address, security=_security(rogue), timeout="2s")
     finally:
         stop_all(procs)

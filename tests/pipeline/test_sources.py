@@ -544,7 +544,7 @@ def test_permission_error_is_explained_even_as_root(tmp_path: Path, monkeypatch:
     def denied(*args: object, **kwargs: object) -> None:
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr("pipeline.sources.open", denied, raising=False)
+    monkeypatch.setattr("pipeline.urls.open", denied, raising=False)  # where inputs are opened
     with pytest.raises(InputFileError) as exc:
         read_info(w.path)
     assert_names(exc, w.path)

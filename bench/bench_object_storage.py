@@ -1,0 +1,109 @@
+"""Object storage against local disk: the same run, side by side; prints tables (run by hand).
+
+    python bench/bench_object_storage.py [--points 2000000] [--files 4] [--repeat 3]
+
+A real S3 protocol server (moto's ``moto_server``) on 127.0.0.1 holds a copy of
+a synthetic survey.  ``terrain run`` reads it and writes its store
+
+* local: from the local files into a local store;
+* s3: from ``s3://`` into an ``s3://`` store (the work folder stays local);
+
+interleaved, ``--repeat`` times each, in fresh processes; the table gives
+median wall times and the bytes that crossed the loopback interface during
+the s3 runs (requests and answers, both ways) against the survey's size.
+Last, one s3 run whose server is stopped part way: its exit code, message, and
+whether anything was marked complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parents[1]))
+
+from bench_mesh import table  # noqa: E402
+from tests.pipeline.s3server import start_s3_server  # noqa: E402
+
+from pipeline.synthetic import SurveySpec, write_survey  # noqa: E402
+
+TERRAIN = str(Path(sys.executable).parent / "terrain")
+
+
+def loopback_bytes() -> int:
+    """Bytes received on the loopback interface so far (each byte sent there is received once)."""
+    for line in Path("/proc/net/dev").read_text().splitlines():
+        name, _, rest = line.partition(":")
+        if name.strip() == "lo":
+            return int(rest.split()[0])
+    return 0
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--points", type=int, default=2_000_000)
+    parser.add_argument("--files", type=int, default=4)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/terrain-bench"))
+    args = parser.parse_args()
+
+    folder = args.cache / f"s3_{args.points}_{args.files}"
+    if not (folder / ".complete").exists():
+        side = (args.points / 8.0) ** 0.5
+        write_survey(folder, SurveySpec(points=args.points, files=args.files, width=side, height=side, seed=3))
+        (folder / ".complete").write_text("ok")
+    files = sorted(folder.glob("*.laz"))
+    size = sum(p.stat().st_size for p in files)
+    server = start_s3_server()
+    try:
+        fs = server.filesystem()
+        fs.mkdir("bench")
+        for p in files:
+            fs.put_file(str(p), f"bench/survey/{p.name}")
+        env = server.env()
+        common = ["--resolution", "1", "--no-progress", "-q", "--overwrite"]
+        runs = {
+            "local": [TERRAIN, "run", str(folder), "-o", str(args.cache / "s3bench-local.zarr"), *common],
+            "s3": [TERRAIN, "run", "s3://bench/survey/", "-o", "s3://bench/out.zarr", *common],
+        }
+        times: dict[str, list[float]] = {k: [] for k in runs}
+        traffic: list[int] = []
+        for _ in range(args.repeat):
+            for name, command in runs.items():
+                before = loopback_bytes()
+                t0 = time.perf_counter()
+                done = subprocess.run(command, env=env, capture_output=True, text=True)
+                times[name].append(time.perf_counter() - t0)
+                if done.returncode:
+                    raise SystemExit(f"{name}: exit {done.returncode}: {done.stderr}")
+                if name == "s3":
+                    traffic.append(loopback_bytes() - before)
+        local, remote = statistics.median(times["local"]), statistics.median(times["s3"])
+        table(
+            f"{args.points:,} points in {args.files} LAZ files ({size / 2**20:.1f} MiB), median of {args.repeat}",
+            ["run", "wall s", "vs local", "loopback MiB", "vs survey"],
+            [
+                ["local -> local", f"{local:.2f}", "1.00x", "-", "-"],
+                ["s3 -> s3", f"{remote:.2f}", f"{remote / local:.2f}x",
+                 f"{statistics.median(traffic) / 2**20:.1f}", f"{statistics.median(traffic) / size:.2f}x"],
+            ],
+        )
+
+        # the server stopped part way through a run
+        job = subprocess.Popen([*runs["s3"]], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(max(1.0, remote * 0.4))
+        server.stop()
+        t0 = time.perf_counter()
+        out, err = job.communicate(timeout=600)
+        print(f"\nserver stopped {max(1.0, remote * 0.4):.1f} s into an s3 run: exit {job.returncode} "
+              f"{time.perf_counter() - t0:.1f} s later; stderr:\n{err.strip()}")
+    finally:
+        server.stop()
+
+
+if __name__ == "__main__":
+    main()
