@@ -27,7 +27,7 @@ def same_input(old: dict[str, Any], item: dict[str, Any], routed: dict[str, Any]
     size and SHA-256 as its routing record ``routed``, when there is one)."""
     from .sources import file_digest
 
-    if (old["size"], old["mtime"]) == (item["size"], item["mtime"]):
+    if (old["size"], old["mtime"], old.get("etag")) == (item["size"], item["mtime"], item.get("etag")):
         return True
     return routed is not None and old["size"] == item["size"] and routed.get("sha256") == file_digest(item["path"])
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from meshcore import MeshError
 
 from .config import positive_integer
-from .errors import OutputWriteError, PipelineError, SeamError, UsageError
+from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
 __all__ = ["main"]
@@ -298,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     configure(-1 if args.quiet else args.verbose, args.log_json)
     try:
         return _command(args)
-    except (OutputWriteError, SeamError) as exc:  # the job itself failed part way: resumable
+    except (OutputWriteError, SeamError, StorageUnreachableError) as exc:  # the job failed part way: resumable
         LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
         return EXIT_FAILED
     except (PipelineError, MeshError) as exc:

@@ -8,7 +8,8 @@ Messages are one line; errors about a file start with the file's path.
 from __future__ import annotations
 
 __all__ = [
-    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "StoreError", "UsageError",
+    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "StorageUnreachableError",
+    "StoreError", "UsageError",
     "one_line", "os_error_reason",
 ]
 
@@ -61,6 +62,16 @@ class StoreError(PipelineError, OSError):
 
     def __init__(self, message: str) -> None:
         # One argument: OSError would read 2-5 as (errno, strerror, ...).
+        super().__init__(message)
+
+
+class StorageUnreachableError(PipelineError, OSError):
+    """An object store or web server stopped answering part way through a run
+    (refused connections, time-outs, a dropped connection).  Nothing is
+    marked complete, and no input is skipped for it: the same command
+    resumes once the server is back."""
+
+    def __init__(self, message: str) -> None:
         super().__init__(message)
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -27,7 +27,7 @@ from typing import BinaryIO
 import lazrs
 
 from .errors import InputFileError, os_error_reason
-from .urls import Location, describe_os_error, is_url, open_input
+from .urls import Location, describe_os_error, is_url, open_input, translated
 
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
 
@@ -137,7 +137,7 @@ def check_point_data(path: Location, size: int) -> None:
 @contextmanager
 def _reading(path: Location) -> Iterator[BinaryIO]:
     try:
-        with open_input(path) as fh:
+        with translated(str(path)) if is_url(path) else nullcontext(), open_input(path) as fh:
             yield fh
     except InputFileError:
         raise

@@ -445,7 +445,12 @@ def execute(
             return _execute(config, progress=progress, log=log, incremental=incremental)
     except PipelineError:  # input errors are OSErrors too; their messages are already clear
         raise
-    except OSError as exc:
+    except Exception as exc:
+        cause = urls.unreachable(exc) if urls.is_url(config.output) else None
+        if cause is not None:  # the store's server: writing it failed part way
+            raise urls.unreachable_error(str(config.output), cause) from None
+        if not isinstance(exc, OSError):
+            raise
         if exc.filename is None:
             if exc.errno in (errno.ENOSPC, errno.EDQUOT) or "requested and" in str(exc):  # a short write: full
                 raise OutputWriteError(
@@ -492,7 +497,7 @@ def _execute(
         "parameters": config.to_dict(),
         "inputs": [
             {
-                "path": str(i.path), "size": i.size_bytes, "points": i.point_count, "mtime": _mtime(i.path),
+                "path": str(i.path), "size": i.size_bytes, "points": i.point_count, **urls.version(i.path),
                 "bounds": b,
             }
             for i, b in zip(infos, file_bounds)
@@ -737,12 +742,8 @@ def _tile_key(job: TileJob) -> str:
     return tile_key(job.row, job.col)
 
 
-def _mtime(path) -> float | None:
-    return urls.modified(path)
-
-
 def _input_keys(inputs: list[dict[str, Any]]) -> set[tuple]:
-    return {(i.get("path"), i.get("size"), i.get("mtime")) for i in inputs}
+    return {(i.get("path"), i.get("size"), i.get("mtime"), i.get("etag")) for i in inputs}
 
 
 def _existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs: bool = False) -> dict[str, Any] | None:

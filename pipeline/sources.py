@@ -20,6 +20,7 @@ True
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import math
 import os
@@ -39,7 +40,7 @@ from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
 from .crs import crs_label, same_crs
-from .errors import InputFileError, UsageError, one_line, os_error_reason
+from .errors import InputFileError, StorageUnreachableError, UsageError, one_line, os_error_reason
 from .layout import check_header, check_point_data
 from .urls import Location, as_location, is_url, open_input
 from . import urls
@@ -174,12 +175,13 @@ def _is_las_name(path: Path) -> bool:
 def _sniff(path: Location) -> int:
     """Check that ``path`` is a readable file starting with ``LASF``; return its size."""
     try:
-        with open_input(path) as fh:
+        with _remote_errors(path), open_input(path) as fh:
             head = fh.read(len(_SIGNATURE))
             size = os.fstat(fh.fileno()).st_size if not is_url(path) else urls.size(path)
     except OSError as exc:
         if isinstance(exc, InputFileError):
             raise
+        _unreachable(path, exc)
         raise InputFileError(f"{path}: {_read_error(path, exc)}") from exc
     if not head:
         raise InputFileError(f"{path}: empty file (0 bytes)")
@@ -193,8 +195,24 @@ def _read_error(path: Location, exc: OSError) -> str:
     return urls.describe_os_error(exc, str(path)) if is_url(path) else os_error_reason(exc)
 
 
+def _remote_errors(path: Location):
+    """Errors of a remote ``path``'s transport as one line naming it (nothing for a local file)."""
+    return urls.translated(str(path)) if is_url(path) else contextlib.nullcontext()
+
+
+def _unreachable(path: Location, exc: BaseException) -> None:
+    """Raise :class:`~pipeline.errors.StorageUnreachableError` if ``exc`` means
+    the server of a remote ``path`` stopped answering (not a bad file)."""
+    if isinstance(exc, StorageUnreachableError):
+        raise exc
+    cause = urls.unreachable(exc) if is_url(path) else None
+    if cause is not None:
+        raise urls.unreachable_error(str(path), cause) from None
+
+
 def _header_error(path: Location, size: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy raised while reading the header and VLRs into one clear line."""
+    _unreachable(path, exc)
     msg = one_line(exc)
     if isinstance(exc, OSError):
         reason = _read_error(path, exc)
@@ -217,6 +235,7 @@ def _header_error(path: Location, size: int, exc: Exception) -> InputFileError:
 
 def _points_error(path: Location, compressed: bool, done: int, total: int, exc: Exception) -> InputFileError:
     """Turn whatever laspy/lazrs raised while reading points into one clear line."""
+    _unreachable(path, exc)
     msg = one_line(exc)
     where = f"after {done:,} of {total:,} points"
     if isinstance(exc, InputFileError):
@@ -234,14 +253,16 @@ def _points_error(path: Location, compressed: bool, done: int, total: int, exc: 
 
 @contextmanager
 def _open(
-    path: Location, selection: DecompressionSelection | None = None
+    path: Location, selection: DecompressionSelection | None = None, streaming: bool = False
 ) -> Iterator[tuple[laspy.LasReader, int]]:
-    """Open ``path`` with laspy, translating every failure into :class:`InputFileError`."""
+    """Open ``path`` with laspy, translating every failure into :class:`InputFileError`
+    (``streaming``: to read its points, in large requests if it is remote)."""
     size = _sniff(path)
     selection = selection or DecompressionSelection.all()
     try:
-        if is_url(path):  # a remote object, streamed (the reader closes it)
-            reader = laspy.open(open_input(path), decompression_selection=selection, closefd=True)
+        if is_url(path):  # a remote object (the reader closes it)
+            stream = open_input(path, urls.READ_BLOCK if streaming else urls.HEADER_BLOCK)
+            reader = laspy.open(stream, decompression_selection=selection, closefd=True)
         else:
             reader = laspy.open(os.fspath(path), decompression_selection=selection)
     except Exception as exc:
@@ -688,7 +709,7 @@ def class_counts(path: str | os.PathLike[str], chunk_size: int = 2_000_000) -> d
     path = as_location(path)
     chunk_size = _check_chunk_size(chunk_size)
     counts = np.zeros(256, dtype=np.int64)
-    with _open(path, _CLASS_SELECTION) as (reader, size):
+    with _open(path, _CLASS_SELECTION, streaming=True) as (reader, size):
         for chunk in _chunks(path, reader, size, chunk_size):
             counts += np.bincount(np.asarray(chunk.classification, dtype=np.uint8), minlength=256)
     return {int(c): int(counts[c]) for c in np.flatnonzero(counts)}
@@ -892,7 +913,7 @@ def _iter_points(path: Location, point_filter: PointFilter, chunk_size: int) -> 
     if point_filter.classes is not None:
         keep_class = np.zeros(256, dtype=bool)
         keep_class[sorted(point_filter.classes)] = True
-    with _open(path, _POINT_SELECTION) as (reader, size):
+    with _open(path, _POINT_SELECTION, streaming=True) as (reader, size):
         header = reader.header
         scales = tuple(float(s) for s in header.scales)
         offsets = tuple(float(o) for o in header.offsets)

@@ -27,7 +27,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from .errors import InputFileError, UsageError, one_line
+from .errors import InputFileError, StorageUnreachableError, UsageError, one_line
+
 
 __all__ = [
     "Location",
@@ -42,7 +43,11 @@ __all__ = [
     "open_input",
     "size",
     "storage_options",
+    "translated",
+    "unreachable",
+    "unreachable_error",
     "use_storage_options",
+    "version",
 ]
 
 Location = Path | str
@@ -56,7 +61,10 @@ _GLOB_CHARS = frozenset("*?[")
 _OPTIONS: dict[str, Any] = {}
 
 READ_BLOCK = 8 * 2**20
-"""Bytes fetched per request when streaming a remote file (read ahead)."""
+"""Bytes fetched per request when streaming a remote file's points (read ahead)."""
+
+HEADER_BLOCK = 256 * 2**10
+"""Bytes fetched per request when reading headers, VLRs and chunk tables."""
 
 
 def is_url(text: object) -> bool:
@@ -135,34 +143,67 @@ def describe_os_error(exc: BaseException, url: str) -> str:
     return f"cannot read it ({type(exc).__name__}: {text})"
 
 
+#: transport errors that mean "the server did not answer", not "the object is bad"
+_UNREACHABLE = frozenset({"ConnectionError", "HTTPClientError", "ClientConnectionError", "ServerTimeoutError"})
+
+
+def unreachable(exc: BaseException | None) -> BaseException | None:
+    """The error in ``exc``'s chain that says a server could not be reached, or None."""
+    seen = 0
+    while exc is not None and seen < 16:
+        if isinstance(exc, (ConnectionError, TimeoutError)):
+            return exc
+        for cls in type(exc).__mro__:
+            if cls.__name__ in _UNREACHABLE and cls.__module__.split(".")[0] in ("botocore", "aiohttp"):
+                return exc
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return None
+
+
+def unreachable_error(where: str, exc: BaseException) -> StorageUnreachableError:
+    return StorageUnreachableError(
+        f"{where}: the server stopped answering ({type(exc).__name__}: {one_line(exc)}); "
+        "run the same command again once it is back: finished work is kept"
+    )
+
+
+_TRANSPORTS = frozenset({"aiohttp", "botocore", "aiobotocore", "fsspec", "s3fs"})
+
+
 @contextmanager
-def _translated(url: str) -> Iterator[None]:
+def translated(url: str) -> Iterator[None]:
+    """Errors met while reading ``url`` as one line naming it: a server that
+    does not answer is :class:`StorageUnreachableError`, anything else about
+    the object :class:`InputFileError`."""
     try:
         yield
-    except InputFileError:
+    except (InputFileError, StorageUnreachableError):
         raise
-    except (OSError, TimeoutError) as exc:
-        raise InputFileError(f"{url}: {describe_os_error(exc, url)}") from None
-    except Exception as exc:  # aiohttp, botocore: errors of the transport
-        if type(exc).__module__.split(".")[0] in ("aiohttp", "botocore", "aiobotocore", "fsspec", "s3fs"):
+    except Exception as exc:
+        cause = unreachable(exc)
+        if cause is not None:
+            raise unreachable_error(url, cause) from None
+        if isinstance(exc, OSError) or type(exc).__module__.split(".")[0] in _TRANSPORTS:
             raise InputFileError(f"{url}: {describe_os_error(exc, url)}") from None
         raise
 
 
-def open_input(where: Location) -> BinaryIO:
-    """``where`` opened for reading (a local file, or a remote object read ahead in blocks)."""
+def open_input(where: Location, block_size: int = HEADER_BLOCK) -> BinaryIO:
+    """``where`` opened for reading: a local file, or a remote object read
+    ahead ``block_size`` bytes per request (:data:`READ_BLOCK` to stream points)."""
     if not is_url(where):
         return open(where, "rb")
-    with _translated(str(where)):
+    with translated(str(where)):
         fs, path = filesystem(str(where))
-        return fs.open(path, "rb", block_size=READ_BLOCK, cache_type="readahead")
+        return fs.open(path, "rb", block_size=block_size, cache_type="readahead")
 
 
 def size(where: Location) -> int:
     """Bytes in the file or object."""
     if not is_url(where):
         return os.stat(where).st_size
-    with _translated(str(where)):
+    with translated(str(where)):
         fs, path = filesystem(str(where))
         return int(fs.size(path))
 
@@ -171,7 +212,7 @@ def modified(where: Location) -> float | None:
     """The file's modification time (seconds since the epoch); None where an object store keeps none."""
     if not is_url(where):
         return os.stat(where).st_mtime
-    with _translated(str(where)):
+    with translated(str(where)):
         fs, path = filesystem(str(where))
         try:
             return fs.modified(path).timestamp()
@@ -179,10 +220,18 @@ def modified(where: Location) -> float | None:
             return None
 
 
+def version(where: Location) -> dict[str, Any]:
+    """What tells a later run whether an input changed: a file's time stamp, an
+    object's ETag (the same bytes uploaded again are the same object)."""
+    if is_url(where):
+        return {"mtime": None, "etag": identity(str(where))}
+    return {"mtime": modified(where)}
+
+
 def identity(where: str) -> str:
     """What names a remote object's content without reading it: its ETag (which
     changes with every new upload) and size."""
-    with _translated(where):
+    with translated(where):
         fs, path = filesystem(where)
         info = fs.info(path)
     tag = str(info.get("ETag") or info.get("etag") or info.get("checksum") or "").strip('"')
@@ -192,7 +241,7 @@ def identity(where: str) -> str:
 def expand(text: str, wanted: frozenset[str]) -> list[str]:
     """A URL of an object, a prefix (every object below it whose name ends in
     one of ``wanted``) or a glob pattern, as the objects' URLs, sorted."""
-    with _translated(text):
+    with translated(text):
         fs, path = filesystem(text)
         head = text[: len(text) - len(text.split("://", 1)[1])]
         if _GLOB_CHARS.intersection(path):

@@ -143,7 +143,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     changed = []
     for p in current:
         if p in before:
-            item = {"path": p, "size": urls.size(p), "mtime": urls.modified(p)}
+            item = {"path": p, "size": urls.size(p), **urls.version(p)}
             routed = work.recorded("route", f"{index[p]:06d}") if work.exists() else None
             if not same_input(before[p], item, routed):  # as the run decides: a touched file is the same
                 changed.append(p)

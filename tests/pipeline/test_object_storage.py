@@ -162,3 +162,40 @@ def test_bad_credentials_are_refused_with_one_line_naming_the_url(archive, tmp_p
         assert guarded.secret not in fs.cat_file("guarded/dem.stac.json").decode()
     finally:
         guarded.stop()
+
+
+def test_a_server_that_stops_mid_run_is_exit_1_and_the_run_goes_on_once_it_is_back(archive, reference, tmp_path):
+    folder, names = archive
+    s3 = start_s3_server()
+    try:
+        fs = s3.filesystem()
+        fs.mkdir("flaky")
+        for name in names:
+            fs.put_file(str(folder / name), f"flaky/survey/{name}")
+        command = [TERRAIN, "run", "s3://flaky/survey/", "-o", str(tmp_path / "dem.zarr"), "--resolution", "1",
+                   "--tile-size", "64", "--layers", "slope", "--no-progress"]
+        env = s3.env(AWS_MAX_ATTEMPTS="2")
+        job = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for line in job.stderr:  # the headers are read: stop the server before the points are
+            if "file(s), grid" in line:
+                break
+        s3.stop()
+        rest = job.stderr.read()
+        job.wait(timeout=120)
+        errors = [line for line in rest.splitlines() if line.startswith("terrain: error:")]
+        assert job.returncode == 1, rest
+        assert len(errors) == 1 and "s3://flaky/survey/" in errors[0] and "stopped answering" in errors[0], rest
+        assert not (tmp_path / "dem.zarr").exists() or not xr.open_zarr(tmp_path / "dem.zarr").attrs.get("complete")
+    finally:
+        s3.stop()
+    back = start_s3_server()  # the same objects on a server that answers again
+    try:
+        fs = back.filesystem()
+        fs.mkdir("flaky")
+        for name in names:
+            fs.put_file(str(folder / name), f"flaky/survey/{name}")
+        again = subprocess.run(command, env=back.env(), capture_output=True, text=True, timeout=300)
+        assert again.returncode == 0, again.stderr
+    finally:
+        back.stop()
+    assert_same_store(tmp_path / "dem.zarr", reference)
