@@ -262,8 +262,11 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     }
     gx0, gy0, gx1, gy1 = job.grid.extent
     hull = np.empty((0, 3))
-    for chunk in iter_points(job.path, point_filter, ROUTE_CHUNK):
+    # a COPC file in the target CRS reads only the octree nodes that meet the bbox
+    window = job.bbox if reproject.is_identity else None
+    for chunk in iter_points(job.path, point_filter, ROUTE_CHUNK, window=window):
         counts["read"] += chunk.read
+        counts["outside_bbox"] += chunk.outside_window
         counts["filtered_class"] += chunk.filtered_class
         counts["filtered_withheld"] += chunk.filtered_withheld
         try:

@@ -778,7 +778,7 @@ class PointFilter:
 class PointChunk:
     """The points kept from one chunk of a file, and how many were dropped.
 
-    ``read == kept + filtered_withheld + filtered_class``: withheld points
+    ``read == kept + filtered_withheld + filtered_class + outside_window``: withheld points
     are counted in ``filtered_withheld`` whatever their class;
     ``filtered_class`` counts the remaining points outside the kept classes.
 
@@ -792,6 +792,9 @@ class PointChunk:
         Points dropped for their classification.
     filtered_withheld
         Points dropped for their withheld flag.
+    outside_window
+        Points of COPC nodes outside the ``window`` of :func:`iter_points`,
+        never read (``read`` counts them too).
     """
 
     x: np.ndarray
@@ -800,6 +803,7 @@ class PointChunk:
     read: int
     filtered_class: int
     filtered_withheld: int
+    outside_window: int = 0
 
     @property
     def kept(self) -> int:
@@ -811,6 +815,7 @@ def iter_points(
     path: str | os.PathLike[str],
     point_filter: PointFilter | None = None,
     chunk_size: int = 2_000_000,
+    window: tuple[float, float, float, float] | None = None,
 ) -> Iterator[PointChunk]:
     """Stream the filtered points of one file in chunks of at most ``chunk_size`` points.
 
@@ -826,6 +831,12 @@ def iter_points(
         Which points to keep; default: every class, withheld points dropped.
     chunk_size
         Points read per chunk.
+    window
+        ``(xmin, ymin, xmax, ymax)`` in file units: only points in it are
+        wanted.  A COPC file then reads just the octree nodes that meet it
+        (over HTTP, ranged requests for just those bytes); the points of the
+        other nodes come as one chunk of ``outside_window`` points, none kept.
+        Other files are read whole: the caller filters.
 
     Raises
     ------
@@ -839,7 +850,11 @@ def iter_points(
     point_filter = PointFilter() if point_filter is None else point_filter
     if not isinstance(point_filter, PointFilter):
         raise UsageError(f"point_filter must be a PointFilter, got {type(point_filter).__name__}")
-    return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size))
+    if window is not None:
+        window = tuple(float(v) for v in window)  # type: ignore[assignment]
+        if len(window) != 4 or not all(math.isfinite(v) for v in window) or window[0] > window[2] or window[1] > window[3]:
+            raise UsageError(f"window must be (xmin, ymin, xmax, ymax) with min <= max, got {window!r}")
+    return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size), window)
 
 
 #: the largest magnitude a stored coordinate (a 32-bit integer) can have
@@ -908,49 +923,116 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
     return decode
 
 
-def _iter_points(path: Location, point_filter: PointFilter, chunk_size: int) -> Iterator[PointChunk]:
+def _iter_points(
+    path: Location, point_filter: PointFilter, chunk_size: int, window: tuple[float, float, float, float] | None
+) -> Iterator[PointChunk]:
     keep_class: np.ndarray | None = None
     if point_filter.classes is not None:
         keep_class = np.zeros(256, dtype=bool)
         keep_class[sorted(point_filter.classes)] = True
+    if window is not None:
+        windowed = _window_chunks(path, chunk_size, window)
+        header = next(windowed)  # None: not a COPC file
+        if header is not None:
+            yield from _kept_chunks(path, header, windowed, keep_class, point_filter.keep_withheld)
+            return
     with _open(path, _POINT_SELECTION, streaming=True) as (reader, size):
-        header = reader.header
-        scales = tuple(float(s) for s in header.scales)
-        offsets = tuple(float(o) for o in header.offsets)
-        if not _usable_scaling(path, scales, offsets, _point_counts(header, size)[0]):
-            return  # no points to decode
-        decoders = [_decoder(s, o) for s, o in zip(scales, offsets)]
-        for chunk in _chunks(path, reader, size, chunk_size):
-            n = len(chunk)
-            keep = np.ones(n, dtype=bool)
-            filtered_withheld = 0
-            if not point_filter.keep_withheld:
-                withheld = np.asarray(chunk.withheld).astype(bool)
-                filtered_withheld = int(np.count_nonzero(withheld))
-                keep &= ~withheld
-            filtered_class = 0
-            if keep_class is not None:
-                in_class = keep_class[np.asarray(chunk.classification, dtype=np.uint8)]
-                filtered_class = int(np.count_nonzero(keep & ~in_class))
-                keep &= in_class
-            xyz = []
-            for axis, decode in zip("xyz", decoders):
-                values = decode(np.asarray(getattr(chunk, axis.upper()))[keep])
-                if not np.isfinite(values).all():
-                    raise InputFileError(
-                        f"{path}: non-finite {axis} coordinate after scaling "
-                        f"(scales {[float(v) for v in reader.header.scales]}, "
-                        f"offsets {[float(v) for v in reader.header.offsets]})"
-                    )
-                xyz.append(values)
-            yield PointChunk(
-                x=xyz[0],
-                y=xyz[1],
-                z=xyz[2],
-                read=n,
-                filtered_class=filtered_class,
-                filtered_withheld=filtered_withheld,
+        chunks = ((chunk, 0) for chunk in _chunks(path, reader, size, chunk_size))
+        yield from _kept_chunks(path, reader.header, chunks, keep_class, point_filter.keep_withheld)
+
+
+def _kept_chunks(path: Location, header: laspy.LasHeader, chunks: Iterator[tuple[Any, int]],
+                 keep_class: np.ndarray | None, keep_withheld: bool) -> Iterator[PointChunk]:
+    scales = tuple(float(s) for s in header.scales)
+    offsets = tuple(float(o) for o in header.offsets)
+    if not _usable_scaling(path, scales, offsets, int(header.point_count)):
+        return  # no points to decode
+    decoders = [_decoder(s, o) for s, o in zip(scales, offsets)]
+    for chunk, unread in chunks:
+        if unread:
+            yield PointChunk(x=np.empty(0), y=np.empty(0), z=np.empty(0), read=unread, filtered_class=0,
+                             filtered_withheld=0, outside_window=unread)
+            continue
+        yield _kept(path, header, chunk, decoders, keep_class, keep_withheld)
+
+
+def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, keep_class: np.ndarray | None,
+          keep_withheld: bool) -> PointChunk:
+    """The points of one chunk of records that the filter keeps, decoded, and the counts of the others."""
+    n = len(chunk)
+    keep = np.ones(n, dtype=bool)
+    filtered_withheld = 0
+    if not keep_withheld:
+        withheld = np.asarray(chunk.withheld).astype(bool)
+        filtered_withheld = int(np.count_nonzero(withheld))
+        keep &= ~withheld
+    filtered_class = 0
+    if keep_class is not None:
+        in_class = keep_class[np.asarray(chunk.classification, dtype=np.uint8)]
+        filtered_class = int(np.count_nonzero(keep & ~in_class))
+        keep &= in_class
+    xyz = []
+    for axis, decode in zip("xyz", decoders):
+        values = decode(np.asarray(getattr(chunk, axis.upper()))[keep])
+        if not np.isfinite(values).all():
+            raise InputFileError(
+                f"{path}: non-finite {axis} coordinate after scaling "
+                f"(scales {[float(v) for v in header.scales]}, offsets {[float(v) for v in header.offsets]})"
             )
+        xyz.append(values)
+    return PointChunk(x=xyz[0], y=xyz[1], z=xyz[2], read=n, filtered_class=filtered_class,
+                      filtered_withheld=filtered_withheld)
+
+
+def _is_copc(header: laspy.LasHeader) -> bool:
+    return any(v.user_id == "copc" and v.record_id == 1 for v in header.vlrs)
+
+
+def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, float, float]) -> Iterator[Any]:
+    """For a COPC file: its header, then ``(None, n)`` with the ``n`` points of
+    the octree nodes that miss ``window`` (closed, x and y; never read), then
+    the records of the nodes that meet it, in file order, in chunks of about
+    ``chunk_size`` points.  For any other file: None, and nothing more."""
+    from laspy.copc import Bounds, CopcReader, load_octree_for_query
+
+    size = _sniff(path)
+    stream = open_input(path, urls.NODE_BLOCK)
+    try:
+        with _remote_errors(path):
+            try:
+                reader = CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION)
+            except Exception as exc:
+                if "copc" in one_line(exc).lower():  # laspy: the first VLR is not COPC's info
+                    yield None
+                    return
+                raise _header_error(path, size, exc) from exc
+            box = Bounds(mins=np.array([window[0], window[1], -np.inf]), maxs=np.array([window[2], window[3], np.inf]))
+            nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page, query_bounds=box)
+        header = reader.header
+        nodes = sorted((n for n in nodes if n.point_count > 0), key=lambda n: n.offset)
+        total = int(header.point_count)
+        unread = total - sum(int(n.point_count) for n in nodes)
+        if unread < 0:
+            raise InputFileError(f"{path}: the COPC hierarchy counts more points than the header announces ({total:,})")
+        yield header
+        yield None, unread
+        group: list[Any] = []
+        held = 0
+        for k, node in enumerate(nodes):
+            group.append(node)
+            held += int(node.point_count)
+            if held >= chunk_size or k == len(nodes) - 1:
+                try:
+                    with _remote_errors(path):
+                        records = reader._fetch_and_decompress_points_of_nodes(group)
+                except Exception as exc:
+                    raise _points_error(path, True, 0, total, exc) from exc
+                if len(records) != held:
+                    raise InputFileError(f"{path}: COPC nodes hold {len(records):,} points where the hierarchy says {held:,}")
+                yield records, 0
+                group, held = [], 0
+    finally:
+        stream.close()
 
 
 def file_digest(path: str | Path) -> str:

@@ -63,8 +63,12 @@ _OPTIONS: dict[str, Any] = {}
 READ_BLOCK = 8 * 2**20
 """Bytes fetched per request when streaming a remote file's points (read ahead)."""
 
-HEADER_BLOCK = 256 * 2**10
+HEADER_BLOCK = 16 * 2**10
 """Bytes fetched per request when reading headers, VLRs and chunk tables."""
+
+NODE_BLOCK = 0
+"""Bytes read ahead per request when reading COPC nodes by window: none, each
+request fetches just the bytes of the nodes (and hierarchy pages) it reads."""
 
 
 def is_url(text: object) -> bool:

@@ -1,0 +1,94 @@
+"""COPC files for the tests, written with copclib, and their plain LAZ twins.
+
+The octree is built as a COPC writer builds one: a cube around the points,
+each point placed at one level (most at the deepest, a thinning sample above)
+in the node of that level that holds it, every ancestor of a node present.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+from pyproj import CRS
+
+
+def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", depth: int = 4,
+               scale: float = 0.01, seed: int = 0) -> Path:
+    import copclib as cl
+
+    x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
+    n = x.size
+    offsets = [float(np.floor(x.min())), float(np.floor(y.min())), 0.0]
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales, header.offsets = [scale] * 3, offsets
+    records = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+    records.x, records.y, records.z = x, y, z
+    records.classification = np.asarray(classification, dtype=np.uint8)
+    records.return_number = np.ones(n, np.uint8)
+    records.number_of_returns = np.ones(n, np.uint8)
+    raw = records.array
+    # the coordinates as stored: what the cube and the nodes must hold
+    xs, ys, zs = (np.asarray(getattr(records, a)) for a in "xyz")
+    mins = np.array([xs.min(), ys.min(), zs.min()])
+    maxs = np.array([xs.max(), ys.max(), zs.max()])
+    center = (mins + maxs) / 2
+    half = float((maxs - mins).max() / 2 + scale)
+    rng = np.random.default_rng(seed)
+    level = depth - np.minimum(depth, rng.geometric(0.7, n) - 1)
+    nodes: dict[tuple[int, int, int, int], np.ndarray] = {}
+    for lv in range(depth + 1):
+        chosen = np.flatnonzero(level == lv)
+        cell = 2 * half / 2**lv
+        keys = np.column_stack([
+            np.clip(((c[chosen] - (center[i] - half)) / cell).astype(np.int64), 0, 2**lv - 1)
+            for i, c in enumerate((xs, ys, zs))
+        ])
+        order = np.lexsort(keys.T[::-1])
+        keys, chosen = keys[order], chosen[order]
+        if chosen.size:
+            starts = np.flatnonzero(np.r_[True, (np.diff(keys, axis=0) != 0).any(axis=1)])
+            for s, e in zip(starts, [*starts[1:], chosen.size]):
+                nodes[(lv, *map(int, keys[s]))] = np.sort(chosen[s:e])
+    for lv, a, b, c in list(nodes):
+        while lv > 0:
+            lv, a, b, c = lv - 1, a // 2, b // 2, c // 2
+            nodes.setdefault((lv, a, b, c), np.empty(0, dtype=np.int64))
+    config = cl.CopcConfigWriter(6, cl.Vector3(scale, scale, scale), cl.Vector3(*offsets), CRS.from_user_input(crs).to_wkt())
+    info = config.copc_info
+    info.center_x, info.center_y, info.center_z = (float(v) for v in center)
+    info.halfsize = half
+    info.spacing = 2 * half / 128
+    config.las_header.min = cl.Vector3(*(float(v) for v in mins))
+    config.las_header.max = cl.Vector3(*(float(v) for v in maxs))
+    writer = cl.FileWriter(str(path), config)
+    for key in sorted(nodes):
+        writer.AddNode(cl.VoxelKey(*key), cl.VectorChar(np.frombuffer(raw[nodes[key]].tobytes(), dtype=np.int8)))
+    writer.Close()
+    return path
+
+
+def plain_twin(copc: Path, path: Path, crs: str = "EPSG:2154") -> Path:
+    """The same points in the same order (the nodes' order in the file), as plain LAZ."""
+    with laspy.CopcReader.open(str(copc)) as reader:
+        points = reader.query()
+        header = reader.header
+    twin = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    twin.header.scales, twin.header.offsets = header.scales, header.offsets
+    twin.header.add_crs(CRS.from_user_input(crs))
+    twin.points = laspy.ScaleAwarePointRecord(points.array.copy(), points.point_format, header.scales, header.offsets)
+    twin.write(str(path))
+    return path
+
+
+def nodes_meeting(copc: Path, window) -> tuple[int, int]:
+    """(bytes, points) of the octree nodes a window query needs."""
+    from laspy.copc import Bounds, CopcReader, load_octree_for_query
+
+    with open(copc, "rb") as fh:
+        reader = CopcReader(fh, close_fd=False)
+        box = Bounds(mins=np.array([window[0], window[1], -np.inf]), maxs=np.array([window[2], window[3], np.inf]))
+        nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page, query_bounds=box)
+    nodes = [n for n in nodes if n.point_count > 0]
+    return sum(int(n.byte_size) for n in nodes), sum(int(n.point_count) for n in nodes)

@@ -1,0 +1,99 @@
+"""COPC inputs read by window: only the octree nodes that meet the window are
+fetched (over s3, ranged requests), and the result is the plain LAZ run's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("copclib")
+
+from pipeline import urls  # noqa: E402
+from pipeline.config import RunConfig  # noqa: E402
+from pipeline.runner import run  # noqa: E402
+from pipeline.sources import PointFilter, iter_points  # noqa: E402
+from pipeline.synthetic import terrain_height  # noqa: E402
+
+from .copc_files import nodes_meeting, plain_twin, write_copc  # noqa: E402
+from .store_checks import assert_same_store  # noqa: E402
+
+ORIGIN = (651000.0, 6861000.0)
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    """A COPC survey (sparse ground under canopy, a void) and its plain LAZ twin."""
+    folder = tmp_path_factory.mktemp("copc")
+    rng = np.random.default_rng(41)
+    n = 300_000
+    x = np.round(ORIGIN[0] + rng.random(n) * 600.0, 2)
+    y = np.round(ORIGIN[1] + rng.random(n) * 400.0, 2)
+    keep = (x - ORIGIN[0] - 300.0) ** 2 + (y - ORIGIN[1] - 200.0) ** 2 > 40.0**2  # a pond: no returns
+    x, y = x[keep], y[keep]
+    ground = rng.random(x.size) < 0.35
+    z = np.round(terrain_height(x, y, ORIGIN) + np.where(ground, 0.0, rng.random(x.size) * 15.0 + 1.0), 2)
+    copc = write_copc(folder / "survey.copc.laz", x, y, z, np.where(ground, 2, 5), depth=5)
+    return copc, plain_twin(copc, folder / "twin.laz")
+
+
+def test_a_window_run_over_copc_is_the_plain_laz_run(survey, tmp_path):
+    copc, twin = survey
+    bbox = (ORIGIN[0] + 130.0, ORIGIN[1] + 90.0, ORIGIN[0] + 420.0, ORIGIN[1] + 310.0)
+    stores, counts = {}, {}
+    for name, path in (("copc", copc), ("twin", twin)):
+        stores[name] = tmp_path / f"{name}.zarr"
+        report = run(RunConfig(inputs=(str(path),), output=str(stores[name]), resolution=1.0, tile_size=64.0,
+                               bbox=bbox, layers=("slope",), workers=2), progress=False)
+        (f,) = report.files
+        assert f["read"] == f["kept"] + f["filtered_class"] + f["filtered_withheld"] + f["outside_bbox"], f
+        counts[name] = f
+    assert_same_store(stores["copc"], stores["twin"])
+    # whole nodes outside the bbox are never read: their points count as outside it, whatever their class
+    copc_counts, twin_counts = counts["copc"], counts["twin"]
+    assert copc_counts["kept"] == twin_counts["kept"] and copc_counts["read"] == twin_counts["read"]
+    assert copc_counts["outside_bbox"] > twin_counts["outside_bbox"]
+
+
+def test_a_copc_on_s3_fetches_only_the_nodes_its_window_needs(survey, tmp_path, monkeypatch):
+    pytest.importorskip("s3fs")
+    from .s3server import start_s3_server
+
+    copc, twin = survey
+    server = start_s3_server()
+    opened = []
+    real_open = urls.open_input
+
+    def counted(where, block_size=urls.HEADER_BLOCK):
+        handle = real_open(where, block_size)
+        opened.append(handle.cache)  # the file drops it when closed
+        return handle
+
+    try:
+        fs = server.filesystem()
+        fs.mkdir("copc")
+        fs.put_file(str(copc), "copc/survey.copc.laz")
+        urls.use_storage_options({"key": server.key, "secret": server.secret, "endpoint_url": server.endpoint})
+        keep_all = PointFilter(classes=None, keep_withheld=True)
+        everything = next(iter_points(twin, keep_all, 10**7))
+        for window in [(651100.0, 6861100.0, 651260.0, 6861260.0), (651300.0, 6861000.0, 651600.0, 6861200.0)]:
+            opened.clear()
+            with monkeypatch.context() as patch:  # every open of the inputs layer, headers included
+                patch.setattr("pipeline.sources.open_input", counted)
+                patch.setattr("pipeline.layout.open_input", counted)
+                chunks = list(iter_points("s3://copc/survey.copc.laz", keep_all, 200_000, window=window))
+            fetched = sum(cache.total_requested_bytes for cache in opened)
+            needed, points = nodes_meeting(copc, window)
+            assert needed < 0.5 * copc.stat().st_size  # a window, not the file
+            assert fetched <= 1.5 * needed, (fetched, needed)
+            assert sum(c.read for c in chunks) == everything.read
+            assert sum(c.read - c.outside_window for c in chunks) == points
+            x = np.concatenate([c.x for c in chunks])
+            y = np.concatenate([c.y for c in chunks])
+            inside = lambda a, b: (a >= window[0]) & (a <= window[2]) & (b >= window[1]) & (b <= window[3])  # noqa: E731
+            mine = inside(x, y)
+            theirs = inside(everything.x, everything.y)
+            # the same points of the window, in the same (file) order
+            assert np.array_equal(x[mine], everything.x[theirs]) and np.array_equal(y[mine], everything.y[theirs])
+    finally:
+        urls.use_storage_options(None)
+        server.stop()
