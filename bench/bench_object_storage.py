@@ -11,6 +11,9 @@ a synthetic survey.  ``terrain run`` reads it and writes its store
 interleaved, ``--repeat`` times each, in fresh processes; the table gives
 median wall times and the bytes that crossed the loopback interface during
 the s3 runs (requests and answers, both ways) against the survey's size.
+Then a COPC copy of the survey: for each tile of a 4 x 4 grid over it, the
+bytes a window read fetches from s3 (headers, hierarchy and nodes) against
+the bytes of the octree nodes the tile needs.
 Last, one s3 run whose server is stopped part way: its exit code, message, and
 whether anything was marked complete.
 """
@@ -41,6 +44,61 @@ def loopback_bytes() -> int:
         if name.strip() == "lo":
             return int(rest.split()[0])
     return 0
+
+
+def copc_table(server, folder: Path, cache: Path) -> None:
+    """Bytes fetched per tile window of a COPC on s3 against the bytes of the nodes it needs."""
+    import laspy
+    import numpy as np
+
+    from pipeline import sources, urls
+    from tests.pipeline.copc_files import nodes_meeting, write_copc
+
+    copc = cache / f"{folder.name}.copc.laz"
+    if not copc.exists():
+        parts = [laspy.read(p) for p in sorted(folder.glob("*.laz"))]
+        x, y, z, c = (np.concatenate([np.asarray(getattr(p, a)) for p in parts]) for a in ("x", "y", "z", "classification"))
+        partial = copc.with_name(f".{copc.name}")
+        write_copc(partial, x, y, z, c, depth=6)
+        partial.rename(copc)
+    fs = server.filesystem()
+    fs.put_file(str(copc), "bench/survey.copc.laz")
+    urls.use_storage_options({"key": server.key, "secret": server.secret, "endpoint_url": server.endpoint})
+    header = laspy.open(str(copc)).header
+    (x0, y0, _), (x1, y1, _) = header.mins, header.maxs
+    caches = []
+    real_open = urls.open_input
+
+    def counted(where, block_size=urls.HEADER_BLOCK):
+        handle = real_open(where, block_size)
+        caches.append(handle.cache)
+        return handle
+
+    sources.open_input = counted
+    layout_open = sources.check_header.__globals__["open_input"]
+    sources.check_header.__globals__["open_input"] = counted
+    rows = []
+    try:
+        ratios = []
+        for r in range(4):
+            for c in range(4):
+                window = (x0 + (x1 - x0) * c / 4, y0 + (y1 - y0) * r / 4, x0 + (x1 - x0) * (c + 1) / 4,
+                          y0 + (y1 - y0) * (r + 1) / 4)
+                caches.clear()
+                for _ in sources.iter_points("s3://bench/survey.copc.laz", sources.PointFilter(classes=None),
+                                             window=window):
+                    pass
+                fetched = sum(cache.total_requested_bytes for cache in caches)
+                needed, _ = nodes_meeting(copc, window)
+                ratios.append(fetched / needed)
+        rows.append([f"{copc.stat().st_size / 2**20:.1f}", "16", f"{statistics.median(ratios):.2f}x",
+                     f"{max(ratios):.2f}x"])
+    finally:
+        sources.open_input = real_open
+        sources.check_header.__globals__["open_input"] = layout_open
+        urls.use_storage_options(None)
+    table("COPC on s3, a window read per tile of a 4 x 4 grid: bytes fetched / bytes of the nodes needed",
+          ["COPC MiB", "tiles", "median", "worst"], rows)
 
 
 def main() -> None:
@@ -95,6 +153,8 @@ def main() -> None:
             ],
         )
         print("rest: what crossed loopback beyond the store's bytes (the inputs read, requests, listings)")
+
+        copc_table(server, folder, args.cache)
 
         # the server stopped part way through a run
         job = subprocess.Popen([*runs["s3"]], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

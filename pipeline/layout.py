@@ -26,7 +26,7 @@ from typing import BinaryIO
 
 import lazrs
 
-from .errors import InputFileError, os_error_reason
+from .errors import InputFileError, StorageUnreachableError, os_error_reason
 from .urls import Location, describe_os_error, is_url, open_input, translated
 
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
@@ -139,7 +139,7 @@ def _reading(path: Location) -> Iterator[BinaryIO]:
     try:
         with translated(str(path)) if is_url(path) else nullcontext(), open_input(path) as fh:
             yield fh
-    except InputFileError:
+    except (InputFileError, StorageUnreachableError):
         raise
     except OSError as exc:
         reason = describe_os_error(exc, str(path)) if is_url(path) else os_error_reason(exc)

@@ -1,8 +1,8 @@
 """COPC files for the tests, written with copclib, and their plain LAZ twins.
 
 The octree is built as a COPC writer builds one: a cube around the points,
-each point placed at one level (most at the deepest, a thinning sample above)
-in the node of that level that holds it, every ancestor of a node present.
+each point placed at one level (a thinning sample at each level, the rest at
+the deepest) in the node of that level that holds it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pyproj import CRS
 
 
 def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", depth: int = 4,
-               scale: float = 0.01, seed: int = 0) -> Path:
+               scale: float = 0.01, page_level: int = 2) -> Path:
     import copclib as cl
 
     x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
@@ -35,8 +35,17 @@ def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", d
     maxs = np.array([xs.max(), ys.max(), zs.max()])
     center = (mins + maxs) / 2
     half = float((maxs - mins).max() / 2 + scale)
-    rng = np.random.default_rng(seed)
-    level = depth - np.minimum(depth, rng.geometric(0.7, n) - 1)
+    # levels by thinning, as COPC writers do: at each level the first point of
+    # every 1/8 of a node's edge goes there, so every node with points below has points
+    level = np.full(n, depth, dtype=np.int64)
+    left = np.arange(n)
+    corner = center - half
+    for lv in range(depth):
+        cell = 2 * half / 2**lv / 8
+        keys = np.column_stack([((c[left] - corner[i]) / cell).astype(np.int64) for i, c in enumerate((xs, ys, zs))])
+        _, first = np.unique(keys, axis=0, return_index=True)
+        level[left[first]] = lv
+        left = np.delete(left, first)
     nodes: dict[tuple[int, int, int, int], np.ndarray] = {}
     for lv in range(depth + 1):
         chosen = np.flatnonzero(level == lv)
@@ -51,10 +60,6 @@ def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", d
             starts = np.flatnonzero(np.r_[True, (np.diff(keys, axis=0) != 0).any(axis=1)])
             for s, e in zip(starts, [*starts[1:], chosen.size]):
                 nodes[(lv, *map(int, keys[s]))] = np.sort(chosen[s:e])
-    for lv, a, b, c in list(nodes):
-        while lv > 0:
-            lv, a, b, c = lv - 1, a // 2, b // 2, c // 2
-            nodes.setdefault((lv, a, b, c), np.empty(0, dtype=np.int64))
     config = cl.CopcConfigWriter(6, cl.Vector3(scale, scale, scale), cl.Vector3(*offsets), CRS.from_user_input(crs).to_wkt())
     info = config.copc_info
     info.center_x, info.center_y, info.center_z = (float(v) for v in center)
@@ -64,7 +69,11 @@ def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", d
     config.las_header.max = cl.Vector3(*(float(v) for v in maxs))
     writer = cl.FileWriter(str(path), config)
     for key in sorted(nodes):
-        writer.AddNode(cl.VoxelKey(*key), cl.VectorChar(np.frombuffer(raw[nodes[key]].tobytes(), dtype=np.int8)))
+        lv, a, b, c = key
+        up = max(0, lv - page_level)  # pages by subtree, as COPC writers page their hierarchy
+        page = (page_level, a >> up, b >> up, c >> up) if lv >= page_level else (0, 0, 0, 0)
+        writer.AddNode(cl.VoxelKey(*key), cl.VectorChar(np.frombuffer(raw[nodes[key]].tobytes(), dtype=np.int8)),
+                       cl.VoxelKey(*page))
     writer.Close()
     return path
 
