@@ -12,7 +12,7 @@ COPY pipeline ./pipeline
 COPY workflows ./workflows
 # the demo job runs every kernel of a run (routing, hull, mesh, DEM): about
 # 25 s of compiling that each container would otherwise pay on its first job
-RUN pip install ".[cluster]" \
+RUN pip install ".[cluster,cloud]" \
  && terrain demo --out /tmp/warm-up > /dev/null \
  && rm -rf /tmp/warm-up \
  && chmod -R a+rwX /opt/terrain/.numba-cache

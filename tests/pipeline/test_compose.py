@@ -52,7 +52,7 @@ def test_compose_defines_a_scalable_cluster_and_a_runner(compose):
     assert runner[:3] == ["terrain", "workflow", "run"]
     assert (REPO / Path(runner[3]).relative_to("/opt/terrain")).exists()
     dockerfile = (REPO / "Dockerfile").read_text()
-    assert "pip install \".[cluster]\"" in dockerfile and "COPY workflows" in dockerfile  # bokeh: the dashboard
+    assert "pip install \".[cluster,cloud]\"" in dockerfile and "COPY workflows" in dockerfile  # bokeh, s3fs
     assert "terrain demo" in dockerfile  # every kernel of a run compiled into the image
 
 
