@@ -51,7 +51,7 @@ def copc_table(server, folder: Path, cache: Path) -> None:
     import laspy
     import numpy as np
 
-    from pipeline import sources, urls
+    from pipeline import layout, sources, urls
     from tests.pipeline.copc_files import nodes_meeting, write_copc
 
     copc = cache / f"{folder.name}.copc.laz"
@@ -74,9 +74,7 @@ def copc_table(server, folder: Path, cache: Path) -> None:
         caches.append(handle.cache)
         return handle
 
-    sources.open_input = counted
-    layout_open = sources.check_header.__globals__["open_input"]
-    sources.check_header.__globals__["open_input"] = counted
+    sources.open_input = layout.open_input = counted  # every open of the inputs layer, headers included
     rows = []
     try:
         ratios = []
@@ -94,8 +92,7 @@ def copc_table(server, folder: Path, cache: Path) -> None:
         rows.append([f"{copc.stat().st_size / 2**20:.1f}", "16", f"{statistics.median(ratios):.2f}x",
                      f"{max(ratios):.2f}x"])
     finally:
-        sources.open_input = real_open
-        sources.check_header.__globals__["open_input"] = layout_open
+        sources.open_input = layout.open_input = real_open
         urls.use_storage_options(None)
     table("COPC on s3, a window read per tile of a 4 x 4 grid: bytes fetched / bytes of the nodes needed",
           ["COPC MiB", "tiles", "median", "worst"], rows)

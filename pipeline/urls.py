@@ -247,7 +247,6 @@ def expand(text: str, wanted: frozenset[str]) -> list[str]:
     one of ``wanted``) or a glob pattern, as the objects' URLs, sorted."""
     with translated(text):
         fs, path = filesystem(text)
-        head = text[: len(text) - len(text.split("://", 1)[1])]
         if _GLOB_CHARS.intersection(path):
             names = sorted(p for p in fs.glob(path) if _wanted(p, wanted))
             if not names:
@@ -263,7 +262,8 @@ def expand(text: str, wanted: frozenset[str]) -> list[str]:
             if protocol(text) == "s3" and not fs.exists(bucket):
                 raise InputFileError(f"{text}: no such bucket")
             raise InputFileError(f"{text}: no such object or prefix")
-    return [f"{head}{name}" if protocol(text) not in _HTTP else name for name in names]
+    # s3fs lists names without their protocol; HTTP listings are whole URLs
+    return [name if protocol(text) in _HTTP else f"{protocol(text)}://{name}" for name in names]
 
 
 def _wanted(name: str, suffixes: frozenset[str]) -> bool:
