@@ -178,10 +178,9 @@ def _sniff(path: Location) -> int:
         with _remote_errors(path), open_input(path) as fh:
             head = fh.read(len(_SIGNATURE))
             size = os.fstat(fh.fileno()).st_size if not is_url(path) else urls.size(path)
+    except (InputFileError, StorageUnreachableError):  # a remote path's, already one line
+        raise
     except OSError as exc:
-        if isinstance(exc, InputFileError):
-            raise
-        _unreachable(path, exc)
         raise InputFileError(f"{path}: {_read_error(path, exc)}") from exc
     if not head:
         raise InputFileError(f"{path}: empty file (0 bytes)")

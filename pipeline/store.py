@@ -80,7 +80,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import Layer
 from .errors import CrsError, StoreError, UsageError
-from .urls import is_url
+from .urls import describe_os_error, filesystem, is_url, options_for
 
 __all__ = [
     "StoreError",
@@ -796,8 +796,6 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
 
 
 def _make_room_remote(url: str, overwrite: bool) -> None:
-    from .urls import describe_os_error
-
     fs, where = _filesystem(url)
     try:
         bucket = where.split("/", 1)[0]
@@ -816,8 +814,6 @@ def _make_room_remote(url: str, overwrite: bool) -> None:
 
 
 def _filesystem(url: str) -> tuple[Any, str]:
-    from .urls import filesystem
-
     fs, where = filesystem(url)
     return fs, where.rstrip("/")
 
@@ -829,11 +825,8 @@ def _zarr_store(path: StorePath, read_only: bool = False) -> Any:
         return where
     from zarr.storage import FsspecStore
 
-    from .urls import storage_options
-
-    options = storage_options() if not where.lower().startswith(("http://", "https://")) else {}
     try:
-        return FsspecStore.from_url(where, storage_options=options or None, read_only=read_only)
+        return FsspecStore.from_url(where, storage_options=options_for(where) or None, read_only=read_only)
     except (TypeError, ValueError, ImportError) as exc:
         raise StoreError(f"{where}: cannot open the store ({type(exc).__name__}: {exc})") from None
 

@@ -41,6 +41,7 @@ __all__ = [
     "location",
     "modified",
     "open_input",
+    "options_for",
     "size",
     "storage_options",
     "translated",
@@ -121,11 +122,17 @@ def storage_options() -> dict[str, Any]:
     return dict(_OPTIONS)
 
 
+def options_for(url: str) -> dict[str, Any]:
+    """The fsspec options of ``url``: :func:`storage_options`, except for
+    HTTP(S), whose filesystem takes none of them (they are for object stores)."""
+    return {} if protocol(url) in _HTTP else dict(_OPTIONS)
+
+
 def filesystem(url: str) -> tuple[Any, str]:
     """The fsspec filesystem of ``url`` and the path inside it."""
     import fsspec
 
-    options = {} if protocol(url) in _HTTP else dict(_OPTIONS)
+    options = options_for(url)
     try:
         return fsspec.core.url_to_fs(url, **options)
     except ImportError as exc:
