@@ -12,7 +12,6 @@ or faces (renumbering the faces' corners on the way).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numba
 import numpy as np
@@ -20,6 +19,7 @@ from numpy.typing import NDArray
 
 from . import store
 from .errors import PipelineError
+from .scratch import Scratch
 from .tiles import TileJob, TileSummary, load_piece, save_piece
 from .tiling import TileGrid
 
@@ -48,7 +48,7 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
     edges) are looked up in their owners' tables.
     """
     grid = job.grid
-    scratch = Path(job.scratch)
+    scratch = job.scratch
     piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank"))
     v = piece["vertex_xyz"]
     rank = piece["vertex_rank"]
@@ -99,7 +99,7 @@ class MeshBlock:
     the tiles' pieces (whole chunks, so blocks write in parallel without locks)."""
 
     output: str
-    scratch: str
+    scratch: Scratch
     tiles: tuple[tuple[int, int], ...]
     offsets: tuple[int, ...]
     what: str
@@ -120,7 +120,7 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
         if lo >= hi:
             continue
         keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces", "node_ids")
-        piece = load_piece(Path(block.scratch), *block.tiles[k], keys)
+        piece = load_piece(block.scratch, *block.tiles[k], keys)
         rows = slice(lo - offsets[k], hi - offsets[k])
         if block.what == "nodes":
             parts.append({key: np.asarray(a[rows]) for key, a in piece.items()})

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .checkpoint import WorkDir, load_array
+from .checkpoint import WorkDir
 from .tiles import held_box, hull_near, reached_tiles
-from .tiling import TileGrid, drop_source_spill, intersect_boxes, tile_key
+from .tiling import TileGrid, drop_source_spill, intersect_boxes, source_spill, tile_key
 
 __all__ = ["forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles"]
 
@@ -38,8 +38,7 @@ def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list
     list, and return the regions (boxes) whose points changed."""
     # a run stopped between the two renaming steps below left "tmp" names:
     # their records are gone with them, so those files are routed again
-    for left in [*(work.path / "tiles").glob("*/tmp*.npy"), *(work.path / "records" / "route").glob("tmp*")]:
-        left.unlink()
+    work.scratch.remove([*work.scratch.glob("tiles/*/tmp*.npy"), *work.scratch.glob("records/route/tmp*")])
     old_index = {i["path"]: k for k, i in enumerate(before)}
     regions: list[tuple] = []
     keep: dict[int, int] = {}  # old index -> new index
@@ -68,14 +67,15 @@ def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list
 
 
 def drop_source(work: WorkDir, index: int) -> None:
-    drop_source_spill(work.path, index)
+    drop_source_spill(work.scratch, index)
     work.forget_record("route", f"{index:06d}")
 
 
 def rename_source(work: WorkDir, old: int | str, new: str) -> None:
     old = f"{old:06d}" if isinstance(old, int) else old
-    for part in (work.path / "tiles").glob(f"*/{old}_*.npy"):
-        part.rename(part.with_name(new + part.name[len(old):]))
+    for key in source_spill(work.scratch, old):
+        folder, name = key.rsplit("/", 1)
+        work.scratch.rename(key, f"{folder}/{new}{name[len(old):]}")
     work.rename_record("route", old, new)
 
 
@@ -95,10 +95,9 @@ def tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> s
 
 def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: np.ndarray) -> set[tuple[int, int]]:
     """Tiles with a recorded piece whose nearby part of the global hull changed."""
-    path = work.path / "hull.npy"
-    if not path.exists():
+    before = work.load("hull.npy")
+    if before is None:
         return set()
-    before = load_array(path)
     if before.shape == hull.shape and np.array_equal(before, hull):
         return set()
     out = set()

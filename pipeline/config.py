@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from enum import Enum, StrEnum
@@ -249,6 +250,12 @@ class RunConfig:
             if value is not None and not isinstance(value, (str, Path)):
                 raise UsageError(f"{name} must be a string, got {value!r}")
             object.__setattr__(self, name, None if value is None else str(value))
+
+    @property
+    def scheduler_address(self) -> str | None:
+        """The Dask scheduler the run's tasks go to (``scheduler``, else
+        ``DASK_SCHEDULER_ADDRESS``), or None for this process's threads."""
+        return self.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values (lists for tuples), JSON- and TOML-friendly: ``None``

@@ -36,11 +36,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .config import RunConfig
+from .cluster import Progress, close, connect, map_tasks
 from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError, UsageError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .surface import run_variogram
 from .catalog import write_stac_item
+from .scratch import Scratch
 from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
@@ -130,94 +132,11 @@ class RunReport:
         return "\n".join(f"{name.ljust(width)}  {value}" for name, value in rows)
 
 
-class _Progress:
-    """A one-line progress bar on stderr (only when it is a terminal or forced)."""
-
-    def __init__(self, label: str, total: int, enabled: bool):
-        self.label = label
-        self.total = total
-        self.enabled = enabled
-        self.done = 0
-        self.points = 0
-        self.start = time.perf_counter()
-
-    def update(self, points: int = 0) -> None:
-        self.done += 1
-        self.points += points
-        if not self.enabled:
-            return
-        elapsed = max(time.perf_counter() - self.start, 1e-9)
-        width = 30
-        filled = int(width * self.done / max(self.total, 1))
-        rate = f", {self.points / elapsed / 1e6:.2f} M points/s" if self.points else ""
-        sys.stderr.write(
-            f"\r{self.label:<6} [{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total}{rate}"
-        )
-        if self.done == self.total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-
-def _client(config: RunConfig):
-    """A Dask client: the given scheduler, or an in-process cluster of threads."""
-    import dask
-    from distributed import Client, LocalCluster
-
-    address = config.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS")
-    if address:
-        try:
-            return Client(address, timeout="10s"), None
-        except OSError as exc:
-            raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
-    threads = config.workers or os.cpu_count() or 1
-    # the worker's statistical profiler walks every thread's stack 100 times a
-    # second for the dashboard's profile page: 1% of a run's wall time, for a
-    # page nobody opens on an in-process cluster
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
-        cluster = LocalCluster(
-            n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=":0", memory_limit=0
-        )
-    return Client(cluster), cluster
-
-
-def _close(client, cluster) -> None:
-    client.close()
-    if cluster is not None:
-        cluster.close()
-
-
-def _map(
-    client,
-    fn: Callable,
-    items: list,
-    progress: _Progress,
-    points: Callable[[Any], int],
-    finished: Callable[[Any, Any], None] | None = None,
-) -> list:
-    """``fn`` over ``items`` on the cluster; ``finished(item, result)`` runs here
-    as each task ends (to record it), before the next result is taken."""
-    from distributed import as_completed
-
-    results: list[Any] = [None] * len(items)
-    if not items:
-        return results
-    futures = client.map(fn, items, pure=False)
-    index = {f.key: i for i, f in enumerate(futures)}
-    for future in as_completed(futures):
-        result = future.result()
-        i = index[future.key]
-        results[i] = result
-        if finished is not None:
-            finished(items[i], result)
-        progress.update(points(result))
-    return results
-
-
 @dataclass(frozen=True)
 class _RouteJob:
     index: int
     path: str
-    scratch: str
+    scratch: Scratch
     grid: TileGrid
     buffer: float
     source_wkt: str
@@ -240,7 +159,7 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
     except InputFileError as exc:
         if not job.skip_bad:
             raise
-        drop_source_spill(Path(job.scratch), job.index)
+        drop_source_spill(job.scratch, job.index)
         return {"path": job.path, "skipped": str(exc), "read": 0, "filtered_class": 0, "filtered_withheld": 0,
                 "outside_bbox": 0, "kept": 0, "hull": np.empty((0, 3))}
 
@@ -250,8 +169,8 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     from .sources import PointFilter, file_digest, iter_points
 
     t0 = time.perf_counter()
-    drop_source_spill(Path(job.scratch), job.index)  # left by a stopped run: routed again from the start
-    spill = TileSpiller(Path(job.scratch), job.grid, job.buffer, job.index)
+    drop_source_spill(job.scratch, job.index)  # left by a stopped run: routed again from the start
+    spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index)
     reproject = Reprojector(job.source_wkt, job.target_wkt, job.z_factor)
     point_filter = PointFilter(
         classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
@@ -509,7 +428,7 @@ def _execute(
         **job_frame_record(grid, bounds, buffer, plan),
     }
     spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
-    work = WorkDir(work_dir_for(config.output, config.scratch_dir))
+    work = WorkDir(work_dir_for(config.output, config.scratch_dir, cluster=config.scheduler_address is not None))
     previous = _existing_job(config, provenance, allow_new_inputs=incremental)
     fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
     if incremental and fresh_frame:
@@ -532,7 +451,7 @@ def _execute(
             done.notes.append(_skipped_note(report.skipped_files))
         return done
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
-    client, cluster = _client(config)
+    client, cluster = connect(config)
     try:
         if previous is None:
             store.create_store(
@@ -569,16 +488,16 @@ def _execute(
         report.stages["scan"] = time.perf_counter() - t0
     except BaseException:
         with contextlib.suppress(Exception):  # the first error is the one to report
-            _close(client, cluster)
+            close(client, cluster)
         raise
 
-    scratch = work.path
+    scratch = work.scratch
     try:
         t0 = time.perf_counter()
         counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
         jobs = [
             _RouteJob(
-                i, str(p), str(scratch), grid, buffer, plan.source_wkts[i], plan.target_wkt, plan.z_factor(i),
+                i, str(p), scratch, grid, buffer, plan.source_wkts[i], plan.target_wkt, plan.z_factor(i),
                 config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
             )
             for i, p in enumerate(paths)
@@ -589,7 +508,7 @@ def _execute(
             work.record("route", f"{job.index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
             counts[job.index] = result
 
-        _map(client, route_source, jobs, _Progress("read", len(jobs), show), lambda c: c["read"], routed)
+        map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"], routed)
         for i, c in enumerate(counts):
             assert c is not None
             if "skipped" in c:
@@ -615,7 +534,7 @@ def _execute(
         if moved:
             forget_tiles(work, config.output, grid, moved)
             report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
-        np.save(work.path / "hull.npy", hull)
+        work.save("hull.npy", hull)
         report.stages["route"] = time.perf_counter() - t0
 
         variogram = None
@@ -632,7 +551,7 @@ def _execute(
         run_id = uuid.uuid4().hex
         tile_jobs = [
             TileJob(
-                r, c, str(scratch), grid, buffer, extent, config.duplicates, config.triangle_measure,
+                r, c, scratch, grid, buffer, extent, config.duplicates, config.triangle_measure,
                 config.quad_measure, config.merge, config.max_edge, config.layers, hull=hull,
                 height_scale=plan.height_scale, run_id=run_id, surface=config.surface, variogram=variogram,
             )
@@ -651,7 +570,7 @@ def _execute(
             work.record("mesh", _tile_key(job), asdict(summary))
             summaries[(job.row, job.col)] = summary
 
-        _map(client, mesh_tile, pending, _Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
+        map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
         for s in summaries.values():
             report.duplicates += s.duplicates
             report.vertices += s.vertices_owned
@@ -698,14 +617,14 @@ def _execute(
                 ) from None
             return 0
 
-        _map(client, dem_and_write, pending, _Progress("dem", len(pending), show), lambda _: 0)
+        map_tasks(client, dem_and_write, pending, Progress("dem", len(pending), show), lambda _: 0)
         report.stages["dem"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
         _write_mesh(client, config, grid, work, tile_jobs, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
-        _close(client, cluster)
+        close(client, cluster)
 
     report.stages["total"] = time.perf_counter() - t_start
     store.finalize_store(
@@ -726,16 +645,16 @@ def _forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra
     lost = 0
     for i in range(n_inputs):
         rec = work.recorded("route", f"{i:06d}")
-        if rec is not None and not spill_intact(work.path, i, rec.get("parts", [])):
+        if rec is not None and not spill_intact(work.scratch, i, rec.get("parts", [])):
             work.forget_record("route", f"{i:06d}")  # routed again: its spill files are rewritten
             lost += 1
     for r, c in grid.tiles():
         key = tile_key(r, c)
-        if work.recorded("mesh", key) is not None and not piece_intact(work.path, r, c, piece_extra):
+        if work.recorded("mesh", key) is not None and not piece_intact(work.scratch, r, c, piece_extra):
             work.forget_record("mesh", key)
             work.forget_record("write", f"ids_{key}")
             lost += 1
-        elif work.recorded("write", f"ids_{key}") is not None and not piece_intact(work.path, r, c, ("node_ids",)):
+        elif work.recorded("write", f"ids_{key}") is not None and not piece_intact(work.scratch, r, c, ("node_ids",)):
             work.forget_record("write", f"ids_{key}")
             lost += 1
     return lost
@@ -782,7 +701,7 @@ def _existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_input
     return attrs
 
 
-def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Path, policy: str) -> np.ndarray:
+def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Scratch, policy: str) -> np.ndarray:
     """The global convex hull's points, with the z their owner tile will give them.
 
     Every tile meshes with these, so its own convex hull is the global one and
@@ -819,8 +738,8 @@ def _write_mesh(
     from . import store
 
     pending = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
-    _map(
-        client, partial(global_node_ids, node_offsets=node_offsets), pending, _Progress("number", len(pending), show),
+    map_tasks(
+        client, partial(global_node_ids, node_offsets=node_offsets), pending, Progress("number", len(pending), show),
         lambda _: 0, lambda job, _: work.record("write", f"ids_{_tile_key(job)}", {}),
     )
     order = tuple(grid.tiles())
@@ -838,13 +757,13 @@ def _write_mesh(
             if work.recorded("write", f"{what}_{start}") is not None:
                 writer.record(what, start, stop)
                 continue
-            blocks.append(MeshBlock(config.output, str(work.path), order, tuple(int(v) for v in offsets), what, start, stop))
+            blocks.append(MeshBlock(config.output, work.scratch, order, tuple(int(v) for v in offsets), what, start, stop))
 
     def written(block: MeshBlock, result: tuple[str, int, int]) -> None:
         writer.record(*result)
         work.record("write", f"{block.what}_{block.start}", {"stop": block.stop})
 
-    _map(client, write_mesh_block, blocks, _Progress("write", len(blocks), show), lambda _: 0, written)
+    map_tasks(client, write_mesh_block, blocks, Progress("write", len(blocks), show), lambda _: 0, written)
     writer.set_tiles(
         np.array([r for r, _ in order]),
         np.array([c for _, c in order]),

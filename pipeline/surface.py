@@ -13,7 +13,6 @@ tiles meshed now agree.  The store's provenance records it.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -66,7 +65,7 @@ def run_variogram(
         if not every and (len(parts) == SAMPLE_TILES or held >= SAMPLE_POINTS):
             break
         r, c = tiles[k]
-        pts = load_tile_points(Path(work.path), r, c)
+        pts = load_tile_points(work.scratch, r, c)
         if pts.shape[0] == 0:
             continue
         orow, ocol = grid.owner(pts[:, 0], pts[:, 1])

@@ -25,15 +25,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 import meshcore
 
-from .checkpoint import load_array
 from .errors import SeamError
+from .scratch import Scratch
 from .tiling import TileGrid, intersect_boxes, load_tile_points, neighbour_tile_points, points_in_box, tile_dir
 
 __all__ = [
@@ -47,7 +46,7 @@ class TileJob:
 
     row: int
     col: int
-    scratch: str
+    scratch: Scratch
     grid: TileGrid
     buffer: float
     extent: tuple[float, float, float, float]
@@ -388,7 +387,7 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
     # over a batch of tiles (a void's search reads hundreds of small ones)
     out, parts, source, batch = [], [], [], 0
     for r, c in g.tiles_meeting(corners):
-        pts = neighbour_tile_points(Path(job.scratch), r, c, job.run_id)
+        pts = neighbour_tile_points(job.scratch, r, c, job.run_id)
         if pts.shape[0] == 0:
             continue
         pts = np.compress(points_in_box(pts, union), pts, axis=0)
@@ -426,7 +425,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     t0 = time.perf_counter()
     g = job.grid
     window = g.window(job.row, job.col)
-    own = load_tile_points(Path(job.scratch), job.row, job.col)
+    own = load_tile_points(job.scratch, job.row, job.col)
     bx = g.box(job.row, job.col)
     held = [held_box(g, job.row, job.col, job.buffer)]
     points = own
@@ -539,7 +538,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # the patches' nodes: from the neighbourhoods held, the same in every tile
     nodes = {"nodes": meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods)} if smooth else {}
     save_piece(
-        Path(job.scratch), job.row, job.col, "piece",
+        job.scratch, job.row, job.col, "piece",
         owned_xy=owned_xy,
         owned_z=z[owned_order],
         vertex_xyz=vertex_xyz,
@@ -551,7 +550,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     reaching = _reaching_out(vertex_xyz, faces, bx)
     border_v, border_f = _compact(vertex_xyz, np.compress(reaching, faces, axis=0))
     border_nodes = {k: np.compress(reaching, v, axis=0) for k, v in nodes.items()}
-    save_piece(Path(job.scratch), job.row, job.col, "border", vertex_xyz=border_v, faces=border_f, **border_nodes)
+    save_piece(job.scratch, job.row, job.col, "border", vertex_xyz=border_v, faces=border_f, **border_nodes)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -617,26 +616,27 @@ PIECE_ARRAYS = {
 }
 
 
-def piece_intact(scratch: Path, row: int, col: int, extra: tuple[str, ...] = ()) -> bool:
+def piece_intact(scratch: Scratch, row: int, col: int, extra: tuple[str, ...] = ()) -> bool:
     """Whether every array :func:`mesh_tile` saved for the tile (and the
     ``extra`` ones of its piece) is still there."""
-    folder = tile_dir(scratch, row, col)
-    wanted = [(name, key) for name, keys in PIECE_ARRAYS.items() for key in keys] + [("piece", k) for k in extra]
-    return all((folder / name / f"{key}.npy").is_file() for name, key in wanted)
+    wanted = {name: set(keys) for name, keys in PIECE_ARRAYS.items()}
+    wanted["piece"].update(extra)
+    for name, keys in wanted.items():
+        if not {f"{k}.npy" for k in keys} <= set(scratch.names(f"{tile_dir(row, col)}/{name}")):
+            return False
+    return True
 
 
-def save_piece(scratch: Path, row: int, col: int, name: str, **arrays: NDArray) -> None:
-    """Save a tile's arrays under ``name`` (one ``.npy`` each, so readers can map slices)."""
-    folder = tile_dir(scratch, row, col) / name
-    folder.mkdir(parents=True, exist_ok=True)
-    for key, value in arrays.items():
-        np.save(folder / f"{key}.npy", value)
+def save_piece(scratch: Scratch, row: int, col: int, name: str, **arrays: NDArray) -> None:
+    """Save a tile's arrays under ``name`` (one ``.npy`` each, so local readers can map slices)."""
+    folder = f"{tile_dir(row, col)}/{name}"
+    scratch.save_many({f"{folder}/{key}.npy": value for key, value in arrays.items()})
 
 
-def load_piece(scratch: Path, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
-    """Arrays saved by :func:`save_piece`, memory-mapped (read only)."""
-    folder = tile_dir(scratch, row, col) / name
-    return {k: load_array(folder / f"{k}.npy", mmap=True) for k in keys}
+def load_piece(scratch: Scratch, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
+    """Arrays saved by :func:`save_piece`, memory-mapped when local (read only)."""
+    folder = f"{tile_dir(row, col)}/{name}"
+    return dict(zip(keys, scratch.load_many([f"{folder}/{k}.npy" for k in keys], mmap=True)))
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], NDArray[np.float64] | None]:
@@ -653,7 +653,7 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     for r, c in [(job.row, job.col), *neighbours]:
         own = (r, c) == (job.row, job.col)
         keys = ("vertex_xyz", "faces", "nodes") if smooth else ("vertex_xyz", "faces")
-        piece = load_piece(Path(job.scratch), r, c, keys, "piece" if own else "border")
+        piece = load_piece(job.scratch, r, c, keys, "piece" if own else "border")
         v = piece["vertex_xyz"]
         f = piece["faces"]
         n = piece.get("nodes")
@@ -713,7 +713,7 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     if "face_kind" in job.layers:
         layers["face_kind"] = _face_kind(mesh, kinds, x0, y0, g.resolution, shape, job.max_edge)
     if "point_count" in job.layers:
-        counts = load_piece(Path(job.scratch), job.row, job.col, ("point_count",))["point_count"]
+        counts = load_piece(job.scratch, job.row, job.col, ("point_count",))["point_count"]
         layers["point_count"] = counts if counts.size else np.zeros(shape, dtype=np.int32)
     return layers
 

@@ -11,18 +11,16 @@ tile's spill files on disk, so memory stays bounded whatever the archive size.
 from __future__ import annotations
 
 import math
-import os
 import threading
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from .checkpoint import load_array
 from .errors import UsageError
+from .scratch import Scratch
 
 __all__ = [
     "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
@@ -169,8 +167,9 @@ def tile_key(row: int, col: int) -> str:
     return f"{row:05d}_{col:05d}"
 
 
-def tile_dir(scratch: Path, row: int, col: int) -> Path:
-    return Path(scratch) / "tiles" / tile_key(row, col)
+def tile_dir(row: int, col: int) -> str:
+    """A tile's folder in the work folder (a :class:`~pipeline.scratch.Scratch` key)."""
+    return f"tiles/{tile_key(row, col)}"
 
 
 def intersect_boxes(a, b):
@@ -183,8 +182,8 @@ class TileSpiller:
     """Routes points of one source to the tiles' spill files, holding at most
     ``budget`` points in memory (bounded memory whatever the archive size)."""
 
-    def __init__(self, scratch: Path, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000):
-        self.scratch = Path(scratch)
+    def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000):
+        self.scratch = scratch
         self.grid = grid
         self.buffer = float(buffer)
         self.source = int(source)
@@ -213,12 +212,12 @@ class TileSpiller:
         return [[r, c, n] for (r, c), n in sorted(self._parts.items())]
 
     def flush(self) -> None:
+        files = {}
         for key, chunks in self._pending.items():
             part = self._parts.get(key, 0)
-            folder = tile_dir(self.scratch, *key)
-            folder.mkdir(parents=True, exist_ok=True)
-            np.save(folder / _spill_name(self.source, part), np.concatenate(chunks))
+            files[f"{tile_dir(*key)}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
             self._parts[key] = part + 1
+        self.scratch.save_many(files)
         self._pending.clear()
         self._held = 0
 
@@ -310,10 +309,14 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     return offsets, pts
 
 
-def drop_source_spill(scratch: Path, source: int) -> None:
+def drop_source_spill(scratch: Scratch, source: int) -> None:
     """Delete every spill file of one source (it is routed again, or left out)."""
-    for part in (Path(scratch) / "tiles").glob(f"*/{source:06d}_*.npy"):
-        part.unlink()
+    scratch.remove(source_spill(scratch, f"{source:06d}"))
+
+
+def source_spill(scratch: Scratch, source: str) -> list[str]:
+    """The keys of every spill file of one source (its number, as in the file names)."""
+    return scratch.glob(f"tiles/*/{source}_*.npy")
 
 
 def _spill_name(source: int, part: int) -> str:
@@ -321,23 +324,22 @@ def _spill_name(source: int, part: int) -> str:
     return f"{source:06d}_{part:06d}.npy"
 
 
-def spill_intact(scratch: Path, source: int, parts: list[list[int]]) -> bool:
+def spill_intact(scratch: Scratch, source: int, parts: list[list[int]]) -> bool:
     """Whether every spill file :attr:`TileSpiller.parts` listed is still there."""
-    return all(
-        (tile_dir(scratch, r, c) / _spill_name(source, k)).is_file() for r, c, n in parts for k in range(n)
-    )
+    for r, c, n in parts:
+        names = set(scratch.names(tile_dir(r, c)))
+        if not all(_spill_name(source, k) in names for k in range(n)):
+            return False
+    return True
 
 
-def load_tile_points(scratch: Path, row: int, col: int) -> NDArray[np.float64]:
+def load_tile_points(scratch: Scratch, row: int, col: int) -> NDArray[np.float64]:
     """All points routed to a tile, ``(n, 3)``, in source then reading order."""
-    folder = tile_dir(scratch, row, col)
-    try:
-        parts = sorted(e.path for e in os.scandir(folder) if e.name.endswith(".npy"))
-    except FileNotFoundError:
-        parts = []
+    folder = tile_dir(row, col)
+    parts = [f"{folder}/{name}" for name in scratch.names(folder) if name.endswith(".npy")]
     if not parts:
         return np.empty((0, 3))
-    return np.concatenate([load_array(p) for p in parts])
+    return np.concatenate(scratch.load_many(parts))
 
 
 class _RecentTilePoints:
@@ -377,13 +379,13 @@ class _RecentTilePoints:
 _RECENT = _RecentTilePoints(64 * 2**20)
 
 
-def neighbour_tile_points(scratch: Path, row: int, col: int, run_id: str) -> NDArray[np.float64]:
+def neighbour_tile_points(scratch: Scratch, row: int, col: int, run_id: str) -> NDArray[np.float64]:
     """:func:`load_tile_points` (read only) for a tile that is not the caller's:
     kept in memory for later calls of the same run (``run_id``; empty: not
     kept).  A tile whose window lies in a data void reads tile after tile
     around it, and so do its neighbours: each file is read once, not once per
     tile and round of the search."""
-    key = (str(scratch), run_id, row, col)
+    key = (scratch.root, run_id, row, col)
     points = _RECENT.get(key) if run_id else None
     if points is None:
         points = load_tile_points(scratch, row, col)

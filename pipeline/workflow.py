@@ -137,7 +137,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     known = (attrs or {}).get("provenance", {}).get("inputs", [])
     before = {i["path"]: i for i in known}
     index = {i["path"]: k for k, i in enumerate(known)}
-    work = WorkDir(work_dir_for(cfg.output, cfg.scratch_dir))
+    work = WorkDir(work_dir_for(cfg.output, cfg.scratch_dir, cluster=cfg.scheduler_address is not None))
     new = [p for p in current if p not in before]
     gone = [p for p in before if p not in set(current)]
     changed = []

@@ -316,15 +316,15 @@ def test_the_in_process_cluster_runs_no_statistical_profiler(tmp_path):
     """The dashboard's profiler samples every thread 100 times a second: the
     local cluster a run starts leaves it off (a run's own cluster has no page
     to show it on)."""
-    from pipeline.runner import _client, _close
+    from pipeline.cluster import close, connect
 
-    client, cluster = _client(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=1))
+    client, cluster = connect(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=1))
     try:
         (worker,) = cluster.workers.values()
         assert "profile" not in worker.periodic_callbacks
         assert "profile-cycle" not in worker.periodic_callbacks
     finally:
-        _close(client, cluster)
+        close(client, cluster)
 
 
 def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_piece(tmp_path, monkeypatch):

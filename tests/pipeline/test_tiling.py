@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import UsageError
+from pipeline.scratch import Scratch
 from pipeline.tiling import TileGrid, TileSpiller, check_cells, load_tile_points
 
 
@@ -48,13 +49,13 @@ def test_bins_count_the_edges_at_or_below_each_value_exactly(bounds, resolution,
 def test_spilled_points_reach_every_tile_within_the_buffer(tmp_path, rng):
     g = TileGrid.covering((0.0, 0.0, 100.0, 100.0), 1.0, 25)
     pts = rng.random((5000, 3)) * 100
-    spill = TileSpiller(tmp_path, g, buffer=3.0, source=0, budget=500)
+    spill = TileSpiller(Scratch(tmp_path), g, buffer=3.0, source=0, budget=500)
     for chunk in np.array_split(pts, 7):
         spill.add(chunk[:, 0], chunk[:, 1], chunk[:, 2])
     spill.flush()
     total_owned = 0
     for r, c in g.tiles():
-        got = load_tile_points(tmp_path, r, c)
+        got = load_tile_points(Scratch(tmp_path), r, c)
         x0, y0, x1, y1 = g.box(r, c)
         expect = (pts[:, 0] >= x0 - 3) & (pts[:, 0] < x1 + 3) & (pts[:, 1] >= y0 - 3) & (pts[:, 1] < y1 + 3)
         # every point of core + buffer is there, once, and no other

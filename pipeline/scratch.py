@@ -1,0 +1,266 @@
+"""The files of a job's work folder: a folder on this machine, or a prefix on
+object storage (``s3://bucket/.dem.zarr.work``) that every worker of a
+cluster without a shared disk reads and writes.
+
+A :class:`Scratch` is named by its root (a path or a URL, a string: it
+crosses to Dask workers as it is) and speaks of keys, ``/``-separated paths
+below the root (``tiles/00001_00002/000000_000000.npy``).  Arrays are stored
+as ``.npy``: on a local disk large ones are memory-mapped; on object storage
+each is one object, written whole (an object appears complete or not at all)
+and read with one request, many at once where a caller asks for many.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import shutil
+import threading
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import urls
+
+__all__ = ["Scratch", "load_array"]
+
+
+_NPY_HEADER_LOCK = threading.Lock()
+
+_MAP_ABOVE = 1 << 20
+"""Local arrays up to this size are read, not memory-mapped: reading a small
+file costs half as much as mapping it."""
+
+
+def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
+    """``np.load`` of a local ``.npy`` file, safe in threads; memory-mapped
+    (read only) with ``mmap`` when the file is larger than 1 MiB."""
+    if mmap and os.path.getsize(path) > _MAP_ABOVE:
+        with _NPY_HEADER_LOCK:
+            return np.load(path, mmap_mode="r")
+    with open(path, "rb") as handle:
+        return _read_npy(handle, str(path), file=True)
+
+
+def _read_npy(handle: BinaryIO, name: str, file: bool = False) -> np.ndarray:
+    """The array of an open ``.npy`` stream.
+
+    numpy parses a ``.npy`` header with ``ast.literal_eval``, and CPython 3.11
+    builds ASTs with interpreter-wide state: two threads parsing at once can
+    fail with a spurious "AST constructor recursion depth mismatch"
+    SystemError (CPython gh-106905).  Headers are parsed one at a time; the
+    data is read outside the lock.
+    """
+    with _NPY_HEADER_LOCK:
+        version = np.lib.format.read_magic(handle)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read_header(handle)
+    count = math.prod(shape)
+    if file:
+        values = np.fromfile(handle, dtype=dtype, count=count)
+    else:
+        values = np.frombuffer(handle.read(count * dtype.itemsize), dtype=dtype, count=-1).copy()
+    if values.size != count:
+        raise OSError(f"{name}: truncated work file ({values.size} of {count} values)")
+    return values.reshape(shape, order="F" if fortran else "C")
+
+
+def _npy_bytes(array: NDArray) -> bytes:
+    out = io.BytesIO()
+    np.save(out, array)
+    return out.getvalue()
+
+
+class Scratch:
+    """A work folder's files, below ``root`` (a local path or a URL)."""
+
+    def __init__(self, root: str | os.PathLike[str]) -> None:
+        text = os.fspath(root)
+        self.remote = urls.is_url(text)
+        self.root = text.rstrip("/") if self.remote else os.path.abspath(text)
+
+    def __repr__(self) -> str:
+        return f"Scratch({self.root!r})"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Scratch) and other.root == self.root
+
+    def __hash__(self) -> int:
+        return hash(self.root)
+
+    def __reduce__(self):  # a root crosses to workers; each opens its own filesystem
+        return (Scratch, (self.root,))
+
+    # -- where keys live ------------------------------------------------------
+    def where(self, key: str) -> str:
+        """The path or URL of ``key``."""
+        return f"{self.root}/{key}" if key else self.root
+
+    def path(self, key: str = "") -> Path:
+        """The local path of ``key`` (local work folders only)."""
+        assert not self.remote, "a work folder on object storage has no local path"
+        return Path(self.root, key) if key else Path(self.root)
+
+    def _fs(self) -> tuple[Any, str]:
+        fs, root = urls.filesystem(self.root)
+        return fs, root.rstrip("/")
+
+    def _keys(self, fs_paths: Iterable[str], root: str) -> list[str]:
+        return sorted(p[len(root) + 1:] for p in fs_paths if p.startswith(root + "/"))
+
+    # -- arrays ---------------------------------------------------------------
+    def save(self, key: str, array: NDArray) -> None:
+        """Write one array; a reader sees the whole of it or nothing."""
+        self.save_many({key: array})
+
+    def save_many(self, arrays: Mapping[str, NDArray]) -> None:
+        """Write several arrays (on object storage, in concurrent requests)."""
+        if not arrays:
+            return
+        if self.remote:
+            fs, root = self._fs()
+            fs.pipe({f"{root}/{key}": _npy_bytes(value) for key, value in arrays.items()})
+            return
+        for key, value in arrays.items():
+            target = self.path(key)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.with_name(f".{target.name}.tmp")  # not listed as an array if left by a crash
+            with open(tmp, "wb") as handle:
+                np.save(handle, value)
+            os.replace(tmp, target)
+
+    def load(self, key: str, mmap: bool = False) -> np.ndarray:
+        """One array (``mmap``: a local file larger than 1 MiB is mapped, read only)."""
+        return self.load_many([key], mmap)[0]
+
+    def load_many(self, keys: list[str], mmap: bool = False) -> list[np.ndarray]:
+        """Several arrays, in the order of ``keys``; a missing one is FileNotFoundError."""
+        if not self.remote:
+            return [load_array(self.path(key), mmap=mmap) for key in keys]
+        if not keys:
+            return []
+        fs, root = self._fs()
+        names = [f"{root}/{key}" for key in keys]
+        found = fs.cat(names, on_error="return") if len(names) > 1 else {names[0]: fs.cat_file(names[0])}
+        out = []
+        for name in names:
+            data = found.get(name)
+            if isinstance(data, BaseException):
+                raise data
+            if data is None:
+                raise FileNotFoundError(self.where(name[len(root) + 1:]))
+            out.append(_read_npy(io.BytesIO(data), self.root + name[len(root):]))
+        return out
+
+    # -- text -----------------------------------------------------------------
+    def write_text(self, key: str, text: str) -> None:
+        """Write a small text file; a reader sees the whole of it or nothing."""
+        if self.remote:
+            fs, root = self._fs()
+            fs.pipe_file(f"{root}/{key}", text.encode())
+            return
+        target = self.path(key)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, target)
+
+    def read_text(self, key: str) -> str:
+        """A text file's content; FileNotFoundError when it is not there."""
+        if self.remote:
+            fs, root = self._fs()
+            return fs.cat_file(f"{root}/{key}").decode()
+        return self.path(key).read_text()
+
+    # -- listing --------------------------------------------------------------
+    def exists(self, key: str) -> bool:
+        if self.remote:
+            fs, root = self._fs()
+            return bool(fs.exists(f"{root}/{key}"))
+        return self.path(key).is_file()
+
+    def names(self, folder: str) -> list[str]:
+        """The names of the files directly inside ``folder``, sorted (none when it is missing)."""
+        if self.remote:
+            fs, root = self._fs()
+            try:
+                found = fs.ls(f"{root}/{folder}", detail=True, refresh=True)
+            except FileNotFoundError:
+                return []
+            return sorted(i["name"].rsplit("/", 1)[-1] for i in found if i.get("type") == "file")
+        try:
+            return sorted(e.name for e in os.scandir(self.path(folder)) if e.is_file())
+        except (FileNotFoundError, NotADirectoryError):
+            return []
+
+    def has_folder(self, folder: str) -> bool:
+        """Whether ``folder`` holds anything (on object storage: any key below it)."""
+        if self.remote:
+            fs, root = self._fs()
+            try:
+                return bool(fs.ls(f"{root}/{folder}", detail=False, refresh=True))
+            except FileNotFoundError:
+                return False
+        return self.path(folder).is_dir()
+
+    def glob(self, pattern: str) -> list[str]:
+        """The keys matching ``pattern`` (``*`` within one level), sorted."""
+        if self.remote:
+            fs, root = self._fs()
+            fs.invalidate_cache()
+            return self._keys(fs.glob(f"{root}/{pattern}"), root)
+        return sorted(str(p.relative_to(self.root)) for p in Path(self.root).glob(pattern))
+
+    # -- removing and renaming --------------------------------------------------
+    def remove(self, keys: Iterable[str]) -> None:
+        """Delete files (the missing ones are already gone)."""
+        keys = list(keys)
+        if not keys:
+            return
+        if self.remote:
+            fs, root = self._fs()
+            try:
+                fs.rm([f"{root}/{key}" for key in keys])
+            except FileNotFoundError:
+                pass
+            return
+        for key in keys:
+            try:
+                self.path(key).unlink()
+            except FileNotFoundError:
+                pass
+
+    def remove_tree(self, folder: str = "") -> None:
+        """Delete everything below ``folder`` (the whole work folder by default)."""
+        if self.remote:
+            fs, root = self._fs()
+            target = f"{root}/{folder}" if folder else root
+            try:
+                fs.rm(target, recursive=True)
+            except FileNotFoundError:
+                pass
+            fs.invalidate_cache()
+            return
+        shutil.rmtree(self.path(folder), ignore_errors=True)
+
+    def rename(self, old: str, new: str) -> None:
+        """Move one file to another key (on object storage: a copy, then a delete)."""
+        if self.remote:
+            fs, root = self._fs()
+            fs.mv(f"{root}/{old}", f"{root}/{new}")
+            return
+        os.replace(self.path(old), self.path(new))
+
+    def make(self) -> None:
+        """Create the folder (on object storage: check that its bucket exists)."""
+        if not self.remote:
+            Path(self.root).mkdir(parents=True, exist_ok=True)
+            return
+        fs, root = self._fs()
+        bucket = root.split("/", 1)[0]
+        if urls.protocol(self.root) == "s3" and not fs.exists(bucket):
+            raise FileNotFoundError(f"{self.root}: no such bucket")
