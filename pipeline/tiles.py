@@ -635,8 +635,15 @@ def save_piece(scratch: Scratch, row: int, col: int, name: str, **arrays: NDArra
 
 def load_piece(scratch: Scratch, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
     """Arrays saved by :func:`save_piece`, memory-mapped when local (read only)."""
-    folder = f"{tile_dir(row, col)}/{name}"
-    return dict(zip(keys, scratch.load_many([f"{folder}/{k}.npy" for k in keys], mmap=True)))
+    return load_pieces(scratch, [(row, col, name)], keys)[0]
+
+
+def load_pieces(scratch: Scratch, pieces: list[tuple[int, int, str]], keys) -> list[dict[str, NDArray]]:
+    """:func:`load_piece` of several ``(row, col, name)`` at once (on object
+    storage, in concurrent requests)."""
+    wanted = [f"{tile_dir(r, c)}/{name}/{k}.npy" for r, c, name in pieces for k in keys]
+    arrays = iter(scratch.load_many(wanted, mmap=True))
+    return [{k: next(arrays) for k in keys} for _ in pieces]
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], NDArray[np.float64] | None]:
@@ -650,10 +657,11 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
-    for r, c in [(job.row, job.col), *neighbours]:
+    keys = ("vertex_xyz", "faces", "nodes") if smooth else ("vertex_xyz", "faces")
+    tiles = [(job.row, job.col), *neighbours]
+    pieces = load_pieces(job.scratch, [(r, c, "piece" if k == 0 else "border") for k, (r, c) in enumerate(tiles)], keys)
+    for (r, c), piece in zip(tiles, pieces):
         own = (r, c) == (job.row, job.col)
-        keys = ("vertex_xyz", "faces", "nodes") if smooth else ("vertex_xyz", "faces")
-        piece = load_piece(job.scratch, r, c, keys, "piece" if own else "border")
         v = piece["vertex_xyz"]
         f = piece["faces"]
         n = piece.get("nodes")

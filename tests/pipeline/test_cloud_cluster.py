@@ -1,0 +1,163 @@
+"""A cluster that shares no disk: a real ``dask scheduler`` and ``dask worker``
+processes on loopback, each worker in its own empty folder with its own
+temporary directory, and inputs, work files and store on a real S3 server
+(moto's ``moto_server``).  The workers have no credentials of their own: the
+job file's ``storage_options`` reach them through the scheduler."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("s3fs")
+pytest.importorskip("moto")
+
+from pipeline.config import RunConfig  # noqa: E402
+from pipeline.runner import run  # noqa: E402
+from pipeline.synthetic import SurveySpec, write_survey  # noqa: E402
+
+from .processes import stop_all  # noqa: E402
+from .s3server import start_s3_server  # noqa: E402
+from .store_checks import assert_same_store  # noqa: E402
+
+BIN = Path(sys.executable).parent
+JOB = dict(resolution=1.0, tile_size=64.0)
+
+
+def _bare_env(**more: str) -> dict[str, str]:
+    """An environment with no AWS credentials, profile or endpoint at all."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("AWS_")}
+    env.update(AWS_SHARED_CREDENTIALS_FILE="/nonexistent", AWS_CONFIG_FILE="/nonexistent", **more)
+    return env
+
+
+class Machines:
+    """A scheduler and workers, each worker alone in its own folder."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self.address = ""
+        self.procs: list[subprocess.Popen] = []
+        self.workers: list[subprocess.Popen] = []
+        self.homes: list[Path] = []
+
+    def start_scheduler(self) -> None:
+        info = self.root / "scheduler.json"
+        self.procs.append(subprocess.Popen(
+            [str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0", "--dashboard-address", ":0",
+             "--scheduler-file", str(info)],
+            cwd=self.root, env=_bare_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        ))
+        deadline = time.time() + 60
+        while not info.exists() and time.time() < deadline:
+            time.sleep(0.2)
+        self.address = json.loads(info.read_text())["address"]
+
+    def add_worker(self) -> subprocess.Popen:
+        home = self.root / f"machine-{len(self.homes)}"
+        (home / "tmp").mkdir(parents=True)
+        worker = subprocess.Popen(
+            [str(BIN / "dask"), "worker", self.address, "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard",
+             "--no-nanny"],
+            cwd=home, env=_bare_env(TMPDIR=str(home / "tmp"), HOME=str(home)),
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        self.homes.append(home)
+        self.workers.append(worker)
+        self.procs.append(worker)
+        return worker
+
+    def wait_for_workers(self, n: int) -> None:
+        from distributed import Client
+
+        with Client(self.address, timeout="30s") as client:
+            client.wait_for_workers(n, timeout=60)
+
+    def stop(self) -> None:
+        stop_all(self.procs, timeout=5)
+
+
+@pytest.fixture(scope="module")
+def s3():
+    server = start_s3_server()
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def machines(tmp_path_factory):
+    m = Machines(tmp_path_factory.mktemp("machines"))
+    m.start_scheduler()
+    m.add_worker()
+    m.add_worker()
+    m.wait_for_workers(2)
+    yield m
+    m.stop()
+
+
+def _wait_for(fs, prefix: str, timeout: float, process: subprocess.Popen) -> bool:
+    """Wait until an object appears below ``prefix``; False if ``process`` ended first."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and process.poll() is None:
+        fs.invalidate_cache()
+        if fs.exists(prefix) and fs.find(prefix):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_cluster_with_no_shared_disk_runs_on_s3_survives_a_killed_worker_and_a_killed_client(
+    s3, machines, tmp_path
+):
+    folder = tmp_path / "survey"
+    paths = write_survey(folder, SurveySpec(points=60_000, files=3, width=240.0, height=160.0, seed=43))
+    fs = s3.filesystem()
+    fs.mkdir("lidar")
+    for p in paths:
+        fs.put_file(str(p), f"lidar/survey/{p.name}")
+    reference = tmp_path / "local.zarr"
+    run(RunConfig(inputs=(str(folder),), output=str(reference), workers=2, **JOB), progress=False)
+
+    job_file = tmp_path / "job.toml"
+    job_file.write_text(
+        '[run]\ninputs = ["s3://lidar/survey/"]\noutput = "s3://lidar/dem/survey.zarr"\n'
+        f"resolution = {JOB['resolution']}\ntile_size = {JOB['tile_size']}\n"
+        f'scheduler = "{machines.address}"\n'
+        f'[run.storage_options]\nkey = "{s3.key}"\nsecret = "{s3.secret}"\nendpoint_url = "{s3.endpoint}"\n'
+    )
+    command = [str(BIN / "terrain"), "run", "--config", str(job_file), "--no-progress"]
+    work = "lidar/dem/.survey.zarr.work"  # beside the store: the workers' disks are their own
+    client = subprocess.Popen(command, cwd=tmp_path, env=_bare_env(), stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(fs, f"{work}/records/route", 120, client), client.communicate()
+        machines.workers[0].send_signal(signal.SIGKILL)  # a machine lost mid-run: its tasks go to the other
+        assert _wait_for(fs, f"{work}/records/mesh", 120, client), client.communicate()
+        client.send_signal(signal.SIGKILL)  # and then the machine that ran the job
+        client.wait(timeout=30)
+    finally:
+        if client.poll() is None:
+            client.kill()
+    assert machines.workers[0].wait(timeout=30) == -signal.SIGKILL
+    assert fs.find(f"{work}/records/mesh"), "the work folder on s3 keeps what was done"
+    # a new machine joins, in its own empty folder, and the same command resumes the job
+    machines.add_worker()
+    machines.wait_for_workers(2)
+    again = subprocess.run(command, cwd=tmp_path, env=_bare_env(), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert "resumed an unfinished run" in again.stdout
+    fs.invalidate_cache()
+    assert not fs.exists(work), "the work folder is removed once the store is complete"
+    fs.get("lidar/dem/survey.zarr", str(tmp_path / "fetched.zarr"), recursive=True)
+    assert_same_store(tmp_path / "fetched.zarr", reference)
+    # no machine kept a work file of its own
+    for home in machines.homes:
+        left = [p for p in home.rglob("*") if p.suffix in (".npy", ".json") or p.name.endswith(".work")]
+        assert not left, left
