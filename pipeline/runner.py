@@ -43,11 +43,12 @@ from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from .surface import run_variogram
 from .catalog import write_stac_item
 from .scratch import Scratch
+from .windows import WindowSource, hull_copies, survey_hull
 from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
 from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
 from .tiling import (
-    TileGrid, TileSpiller, check_cells, drop_source_spill, grow_hull, hull_candidates, load_tile_points, spill_intact,
+    TileGrid, TileSpiller, check_cells, drop_source_spill, grow_hull, hull_candidates, spill_by_source, spill_intact,
     tile_key,
 )
 
@@ -495,22 +496,32 @@ def _execute(
     try:
         t0 = time.perf_counter()
         counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
+        # a file an earlier run of this work folder routed keeps its spill files
+        windows = tuple(w for w in _window_sources(config, paths, infos, plan)
+                        if counts[w.index] is None or counts[w.index].get("window"))
+        windowed = {w.index for w in windows}
         jobs = [
             _RouteJob(
                 i, str(p), scratch, grid, buffer, plan.source_wkts[i], plan.target_wkt, plan.z_factor(i),
                 config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
             )
             for i, p in enumerate(paths)
-            if counts[i] is None
+            if counts[i] is None and i not in windowed
         ]
 
-        def routed(job: _RouteJob, result: dict[str, Any]) -> None:
-            work.record("route", f"{job.index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
-            counts[job.index] = result
+        def routed(index: int, result: dict[str, Any]) -> None:
+            work.record("route", f"{index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
+            counts[index] = result
 
-        map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"], routed)
+        map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"],
+                  lambda job, result: routed(job.index, result))
+        surveys = [w for w in windows if counts[w.index] is None]
+        map_tasks(client, survey_hull, surveys, Progress("hull", len(surveys), show), lambda _: 0,
+                  lambda w, result: routed(w.index, result))
         for i, c in enumerate(counts):
             assert c is not None
+            if c.get("window"):  # counted by the tiles that read it
+                continue
             if "skipped" in c:
                 report.skipped_files.append({"path": c["path"], "reason": c["skipped"], "points": infos[i].point_count})
                 continue
@@ -526,10 +537,10 @@ def _execute(
                     f"{c['path']}: {c['beyond_grid']:,} point(s) lie beyond the bounds its header announces "
                     "(a stale header?): the mesh holds them, the DEM stops at the header's extent"
                 )
-        report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts")} for c in counts if c is not None and "skipped" not in c]
         if report.skipped_files:
             report.notes.append(_skipped_note(report.skipped_files))
-        hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates)
+        hull = _hull_points(np.concatenate([c["hull"] for c in counts if c is not None]), grid, scratch, config.duplicates,
+                            windows)
         moved = tiles_whose_hull_moved(work, grid, buffer, hull)
         if moved:
             forget_tiles(work, config.output, grid, moved)
@@ -554,6 +565,7 @@ def _execute(
                 r, c, scratch, grid, buffer, extent, config.duplicates, config.triangle_measure,
                 config.quad_measure, config.merge, config.max_edge, config.layers, hull=hull,
                 height_scale=plan.height_scale, run_id=run_id, surface=config.surface, variogram=variogram,
+                windows=windows,
             )
             for r, c in grid.tiles()
         ]
@@ -563,6 +575,7 @@ def _execute(
             if rec is not None:
                 rec["held"] = tuple(tuple(box) for box in rec.get("held", ()))
                 rec["reach"] = None if rec.get("reach") is None else tuple(rec["reach"])
+                rec["window_counts"] = tuple(tuple(row) for row in rec.get("window_counts", ()))
                 summaries[(job.row, job.col)] = TileSummary(**rec)
         pending = [job for job in tile_jobs if (job.row, job.col) not in summaries]
 
@@ -571,6 +584,9 @@ def _execute(
             summaries[(job.row, job.col)] = summary
 
         map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
+        _count_windows(report, counts, infos, windows, summaries.values())
+        report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts", "window")}
+                        for c in counts if c is not None and "skipped" not in c]
         for s in summaries.values():
             report.duplicates += s.duplicates
             report.vertices += s.vertices_owned
@@ -701,7 +717,53 @@ def _existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_input
     return attrs
 
 
-def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Scratch, policy: str) -> np.ndarray:
+def _window_sources(config: RunConfig, paths, infos, plan) -> tuple[WindowSource, ...]:
+    """The inputs tiles read by window: COPC files already in the target CRS.
+
+    The others are routed, and so is every file of a run that skips broken
+    files (a routing pass finds a broken one before any tile uses it) or
+    samples a variogram (which needs the number of points kept beforehand).
+    """
+    from .crs import Reprojector
+
+    if config.skip_bad_files or config.surface != "linear":
+        return ()
+    return tuple(
+        WindowSource(i, str(p), config.classes, config.keep_withheld, config.bbox)
+        for i, (p, info) in enumerate(zip(paths, infos))
+        if info.is_copc and Reprojector(plan.source_wkts[i], plan.target_wkt, plan.z_factor(i)).is_identity
+    )
+
+
+def _count_windows(report: RunReport, counts: list, infos, windows, summaries) -> None:
+    """The counts of each window source, from the tiles that counted its nodes:
+    the points of nodes no tile read (outside the bbox) are outside the bbox."""
+    totals = {w.path: [0] * 5 for w in windows}
+    for s in summaries:
+        for path, *values in s.window_counts:
+            if path in totals:
+                totals[path] = [a + int(b) for a, b in zip(totals[path], values)]
+    for w in windows:
+        read, filtered_class, filtered_withheld, outside_bbox, kept = totals[w.path]
+        header = int(infos[w.index].point_count)
+        unread = header - read
+        if unread < 0:
+            raise PipelineError(f"{w.path}: the tiles counted {read:,} points, more than its header's {header:,}")
+        c = counts[w.index]
+        c.update(read=header, filtered_class=filtered_class, filtered_withheld=filtered_withheld,
+                 outside_bbox=outside_bbox + unread, kept=kept)
+        report.points_read += header
+        report.filtered_class += filtered_class
+        report.filtered_withheld += filtered_withheld
+        report.outside_bbox += outside_bbox + unread
+        report.points_kept += kept
+        if kept == 0:
+            report.notes.append(f"{w.path}: no points of the chosen classes")
+
+
+def _hull_points(
+    candidates: np.ndarray, grid: TileGrid, scratch: Scratch, policy: str, windows: tuple[WindowSource, ...] = ()
+) -> np.ndarray:
     """The global convex hull's points, with the z their owner tile will give them.
 
     Every tile meshes with these, so its own convex hull is the global one and
@@ -717,8 +779,11 @@ def _hull_points(candidates: np.ndarray, grid: TileGrid, scratch: Scratch, polic
     hull = hull[np.sort(first)]  # distinct points, still in counter-clockwise order
     key = hull[:, 0] + 1j * hull[:, 1]
     rows, cols = grid.owner(hull[:, 0], hull[:, 1])
+    # every copy of a hull point in a window source, read from the few nodes that hold one
+    copies = {w.index: hull_copies(w, hull[:, :2]) for w in windows}
     for r, c in set(zip(rows.tolist(), cols.tolist())):
-        pts = load_tile_points(scratch, r, c)
+        by_source = {**spill_by_source(scratch, r, c), **copies}  # source after source, as a tile holds them
+        pts = np.concatenate([by_source[k] for k in sorted(by_source)]) if by_source else np.empty((0, 3))
         mine = np.flatnonzero((rows == r) & (cols == c))
         pkey = pts[:, 0] + 1j * pts[:, 1]
         sel = np.isin(pkey, key[mine])

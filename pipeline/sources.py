@@ -21,15 +21,17 @@ True
 from __future__ import annotations
 
 import contextlib
+import copy
 import glob
 import math
 import os
 import struct
+import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import laspy
 import numpy as np
@@ -47,12 +49,14 @@ from . import urls
 
 __all__ = [
     "LAS_SUFFIXES",
+    "CopcNode",
     "PointChunk",
     "PointFilter",
     "SourceInfo",
     "class_counts",
     "discover_inputs",
     "file_digest",
+    "iter_copc_nodes",
     "iter_points",
     "read_info",
     "with_measured_bounds",
@@ -1032,6 +1036,164 @@ def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, 
                 group, held = [], 0
     finally:
         stream.close()
+
+
+@dataclass(frozen=True, eq=False)
+class CopcNode:
+    """One octree node of a COPC file, as :func:`iter_copc_nodes` reads it.
+
+    Parameters
+    ----------
+    level
+        Depth in the octree (0: the root).
+    offset
+        Where its points start in the file (nodes in file order: by offset).
+    bounds
+        ``(xmin, ymin, xmax, ymax)`` of the node's voxel, in file units: every
+        point of the node lies in it.
+    points
+        The node's points that the filter keeps, and the counts of the others.
+    """
+
+    level: int
+    offset: int
+    bounds: tuple[float, float, float, float]
+    points: PointChunk
+
+
+def iter_copc_nodes(
+    path: str | os.PathLike[str],
+    point_filter: PointFilter | None = None,
+    window: tuple[float, float, float, float] | None = None,
+    wanted: Callable[[int, tuple[float, float, float, float]], bool] | None = None,
+) -> Iterator[CopcNode]:
+    """The octree nodes of a COPC file that meet ``window`` (closed, in file
+    units; every node when None), level by level from the root, each with its
+    filtered points.  Only those nodes' bytes are fetched (over HTTP, ranged
+    requests).
+
+    ``wanted(level, bounds)``, asked of each node of a level just before the
+    level is read, may leave a node out: a caller that learns from one level
+    which nodes of the next it needs (a convex hull) reads no others.
+
+    Raises
+    ------
+    InputFileError
+        If the file is not COPC, or a node cannot be read.
+    """
+    point_filter = PointFilter() if point_filter is None else point_filter
+    if window is not None:
+        window = tuple(float(v) for v in window)  # type: ignore[assignment]
+        if len(window) != 4 or any(math.isnan(v) for v in window) or window[0] > window[2] or window[1] > window[3]:
+            raise UsageError(f"window must be (xmin, ymin, xmax, ymax) with min <= max, got {window!r}")
+    return _copc_nodes(as_location(path), point_filter, window, wanted)
+
+
+def _copc_nodes(path: Location, point_filter: PointFilter, window, wanted) -> Iterator[CopcNode]:
+    from laspy.copc import Bounds, CopcReader, load_octree_for_query
+
+    keep_class: np.ndarray | None = None
+    if point_filter.classes is not None:
+        keep_class = np.zeros(256, dtype=bool)
+        keep_class[sorted(point_filter.classes)] = True
+    size = _sniffed(path)
+    stream = open_input(path, urls.NODE_BLOCK)
+    try:
+        with _remote_errors(path):
+            try:
+                reader = _copc_reader(path, stream)
+            except Exception as exc:
+                if "copc" in one_line(exc).lower():
+                    raise InputFileError(f"{path}: not a COPC file (no COPC info record)") from None
+                raise _header_error(path, size, exc) from exc
+            box = None if window is None else Bounds(
+                mins=np.array([window[0], window[1], -np.inf]), maxs=np.array([window[2], window[3], np.inf])
+            )
+            nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page, query_bounds=box)
+        header = reader.header
+        scales = tuple(float(v) for v in header.scales)
+        offsets = tuple(float(v) for v in header.offsets)
+        if not _usable_scaling(path, scales, offsets, int(header.point_count)):
+            return
+        decoders = [_decoder(sc, of) for sc, of in zip(scales, offsets)]
+        total = int(header.point_count)
+        levels: dict[int, list[tuple[Any, tuple[float, float, float, float]]]] = {}
+        for node in nodes:
+            xy = (float(node.bounds.mins[0]), float(node.bounds.mins[1]), float(node.bounds.maxs[0]),
+                  float(node.bounds.maxs[1]))
+            if node.point_count > 0 and (window is None or _meets(xy, window)):
+                levels.setdefault(int(node.key.level), []).append((node, xy))
+        for level in sorted(levels):
+            group = sorted(((n, xy) for n, xy in levels[level] if wanted is None or wanted(level, xy)),
+                           key=lambda item: item[0].offset)
+            if not group:
+                continue
+            try:
+                with _remote_errors(path):
+                    records = reader._fetch_and_decompress_points_of_nodes([n for n, _ in group])
+            except Exception as exc:
+                raise _points_error(path, True, 0, total, exc) from exc
+            held = sum(int(n.point_count) for n, _ in group)
+            if len(records) != held:
+                raise InputFileError(f"{path}: COPC nodes hold {len(records):,} points where the hierarchy says {held:,}")
+            start = 0
+            for node, xy in group:  # the records come in file order, node after node
+                stop = start + int(node.point_count)
+                yield CopcNode(level, int(node.offset), xy, _kept(path, header, records[start:stop], decoders, keep_class,
+                                                point_filter.keep_withheld))
+                start = stop
+    finally:
+        stream.close()
+
+
+_OPENED: dict[tuple, Any] = {}
+
+
+def _copc_reader(path: Location, stream: BinaryIO) -> Any:
+    """A laspy ``CopcReader`` over ``stream``.  The header, VLRs and hierarchy
+    pages it reads are kept for this process (for this version of the file):
+    the next tile's reader starts from them, and fetches only the hierarchy
+    pages and nodes it has not seen."""
+    from laspy.copc import CopcReader
+
+    key = (str(path), tuple(sorted(urls.version(path).items())))
+    with _SNIFFED_LOCK:
+        known = _OPENED.get(key)
+    if known is None:
+        reader = CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION)
+        with _SNIFFED_LOCK:
+            if len(_OPENED) > 64:
+                _OPENED.clear()
+            _OPENED[key] = reader
+        return reader
+    reader = copy.copy(known)  # the same header and (shared, growing) hierarchy; its own stream
+    reader.source = stream
+    return reader
+
+
+_SNIFFED: dict[tuple, int] = {}
+_SNIFFED_LOCK = threading.Lock()
+
+
+def _sniffed(path: Location) -> int:
+    """:func:`_sniff` once per version of a file in this process: a tile's
+    window read of a COPC file checked by an earlier tile costs no more
+    header requests."""
+    key = (str(path), tuple(sorted(urls.version(path).items())))
+    with _SNIFFED_LOCK:
+        size = _SNIFFED.get(key)
+    if size is None:
+        size = _sniff(path)
+        with _SNIFFED_LOCK:
+            if len(_SNIFFED) > 4096:
+                _SNIFFED.clear()
+            _SNIFFED[key] = size
+    return size
+
+
+def _meets(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> bool:
+    """Whether two closed boxes ``(xmin, ymin, xmax, ymax)`` meet."""
+    return a[0] <= b[2] and b[0] <= a[2] and a[1] <= b[3] and b[1] <= a[3]
 
 
 def file_digest(path: str | Path) -> str:

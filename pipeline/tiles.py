@@ -33,7 +33,8 @@ import meshcore
 
 from .errors import SeamError
 from .scratch import Scratch
-from .tiling import TileGrid, intersect_boxes, load_tile_points, neighbour_tile_points, points_in_box, tile_dir
+from .windows import WindowSource, points_in_boxes, tile_points
+from .tiling import TileGrid, intersect_boxes, neighbour_tile_points, points_in_box, tile_dir
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
@@ -69,6 +70,8 @@ class TileJob:
     surface: str = "linear"
     """"smooth": the piece also holds its faces' patch nodes, kriged with ``variogram``."""
     variogram: meshcore.Variogram | None = None
+    windows: tuple[WindowSource, ...] = ()
+    """COPC inputs this tile reads by window (:mod:`pipeline.windows`), not from spill files."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,9 @@ class TileSummary:
     """Points of the tile's own file (its window plus buffer)."""
     points_loaded: int = 0
     """Points read from other tiles beyond the buffer, to certify the piece."""
+    window_counts: tuple[tuple[str, int, int, int, int, int], ...] = ()
+    """What the tile counted of each window source: (path, read,
+    filtered_class, filtered_withheld, outside_bbox, kept) of the nodes it owns."""
 
 
 def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
@@ -386,6 +392,10 @@ def _load_boxes(job: TileJob, boxes: list, exclude: list) -> NDArray[np.float64]
     # each tile's file cut to the boxes' union, then the other tests at once
     # over a batch of tiles (a void's search reads hundreds of small ones)
     out, parts, source, batch = [], [], [], 0
+    for window_source in job.windows:  # read straight from the nodes that meet the boxes: each point once
+        pts = points_in_boxes(window_source, boxes, exclude)
+        if pts.shape[0]:
+            out.append(pts)
     for r, c in g.tiles_meeting(corners):
         pts = neighbour_tile_points(job.scratch, r, c, job.run_id)
         if pts.shape[0] == 0:
@@ -425,9 +435,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
     t0 = time.perf_counter()
     g = job.grid
     window = g.window(job.row, job.col)
-    own = load_tile_points(job.scratch, job.row, job.col)
-    bx = g.box(job.row, job.col)
     held = [held_box(g, job.row, job.col, job.buffer)]
+    own, counted = tile_points(job.scratch, job.windows, g, job.buffer, job.row, job.col, held[0])
+    bx = g.box(job.row, job.col)
     points = own
     if job.hull is not None and job.hull.shape[0]:
         # the ends of the global hull's edges that pass the tile make the tile's
@@ -563,6 +573,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         certified=True,
         points_held=int(own.shape[0]),
         points_loaded=loaded,
+        window_counts=tuple((c.path, c.read, c.filtered_class, c.filtered_withheld, c.outside_bbox, c.kept) for c in counted),
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in held),
         reach=None if border_v.shape[0] == 0 else (

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numba
@@ -309,6 +310,29 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     return offsets, pts
 
 
+def route_points(grid: TileGrid, buffer: float, points: NDArray[np.float64], row: int, col: int) -> NDArray[np.float64]:
+    """The points of ``points`` (n, 3) that routing sends to tile (row, col),
+    in the order routing gives them (:class:`TileSpiller`)."""
+    g = grid
+    x, y, z = (np.ascontiguousarray(points[:, k]) for k in range(3))
+    offsets, pts = _route_kernel(
+        x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer), g.n_cols, g.n_tiles
+    )
+    t = row * g.n_cols + col
+    return pts[offsets[t]:offsets[t + 1]]
+
+
+def spill_by_source(scratch: Scratch, row: int, col: int) -> dict[int, NDArray[np.float64]]:
+    """The points routed to a tile, by source number (each in reading order)."""
+    folder = tile_dir(row, col)
+    names = [name for name in scratch.names(folder) if name.endswith(".npy")]
+    arrays = scratch.load_many([f"{folder}/{name}" for name in names])
+    out: dict[int, list[NDArray[np.float64]]] = {}
+    for name, array in zip(names, arrays):
+        out.setdefault(int(name.split("_", 1)[0]), []).append(array)
+    return {k: np.concatenate(v) if len(v) > 1 else v[0] for k, v in out.items()}
+
+
 def drop_source_spill(scratch: Scratch, source: int) -> None:
     """Delete every spill file of one source (it is routed again, or left out)."""
     scratch.remove(source_spill(scratch, f"{source:06d}"))
@@ -379,16 +403,19 @@ class _RecentTilePoints:
 _RECENT = _RecentTilePoints(64 * 2**20)
 
 
-def neighbour_tile_points(scratch: Scratch, row: int, col: int, run_id: str) -> NDArray[np.float64]:
+def neighbour_tile_points(
+    scratch: Scratch, row: int, col: int, run_id: str, load: Callable[[int, int], NDArray[np.float64]] | None = None
+) -> NDArray[np.float64]:
     """:func:`load_tile_points` (read only) for a tile that is not the caller's:
     kept in memory for later calls of the same run (``run_id``; empty: not
     kept).  A tile whose window lies in a data void reads tile after tile
     around it, and so do its neighbours: each file is read once, not once per
-    tile and round of the search."""
+    tile and round of the search.  ``load(row, col)`` reads a tile's points
+    (default: its spill files)."""
     key = (scratch.root, run_id, row, col)
     points = _RECENT.get(key) if run_id else None
     if points is None:
-        points = load_tile_points(scratch, row, col)
+        points = load(row, col) if load is not None else load_tile_points(scratch, row, col)
         points.flags.writeable = False
         if run_id:
             _RECENT.put(key, points)

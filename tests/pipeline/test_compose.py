@@ -7,6 +7,7 @@ the runner's workflow) are started as local processes on 127.0.0.1.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import re
@@ -34,7 +35,7 @@ def compose() -> dict:
 
 
 def test_compose_defines_a_scalable_cluster_and_a_runner(compose):
-    services = compose["services"]
+    services = {k: v for k, v in compose["services"].items() if "profiles" not in v}
     assert set(services) == {"scheduler", "worker", "runner"}
     for name, service in services.items():
         assert service["image"] == "terrain:latest" and service["build"] == ".", name
@@ -56,14 +57,29 @@ def test_compose_defines_a_scalable_cluster_and_a_runner(compose):
     assert "terrain demo" in dockerfile  # every kernel of a run compiled into the image
 
 
+def test_the_s3_profile_is_a_cluster_that_shares_no_disk(compose):
+    services = compose["services"]
+    s3 = {k: v for k, v in services.items() if "s3" in v.get("profiles", ())}
+    assert set(s3) == {"s3", "s3-worker", "s3-runner"}
+    assert "ports" not in services["s3"]  # the bucket is reached on the compose network only
+    assert "volumes" not in services["s3-worker"]  # its own disk: everything it reads and writes is in the bucket
+    assert services["s3-runner"]["volumes"] == ["./data/archive:/archive:ro"]  # only to upload the archive
+    for name in ("s3-worker", "s3-runner"):
+        env = services[name]["environment"]
+        assert env["AWS_ENDPOINT_URL"] == "http://s3:5000" and env["DASK_SCHEDULER_ADDRESS"] == "tcp://scheduler:8786"
+    worker = services["s3-worker"]["command"]
+    assert "tcp://scheduler:8786" in worker and "--memory-limit" in worker
+
+
 def _interpolated(arg: str) -> str:
-    """Compose's ``${NAME:-default}``, with NAME unset."""
-    return re.sub(r"\$\{[A-Z_]+:-([^}]*)\}", r"\1", arg)
+    """Compose's ``${NAME:-default}`` with NAME unset, and ``$$`` for a ``$`` of the command's own."""
+    return re.sub(r"\$\{[A-Z_]+:-([^}]*)\}", r"\1", arg).replace("$$", "$")
 
 
-def _native(command: list[str], port: int, certs: Path | None = None) -> list[str]:
+def _native(command: list[str], port: int, certs: Path | None = None, words: dict[str, str] | None = None) -> list[str]:
     """A service's command as a local process: loopback instead of the service
-    names, a free port, the venv's executables, the repository for /opt/terrain."""
+    names, a free port, the venv's executables, the repository for /opt/terrain
+    (and any other ``words`` replaced)."""
     out = []
     for arg in command:
         arg = _interpolated(arg)
@@ -72,8 +88,10 @@ def _native(command: list[str], port: int, certs: Path | None = None) -> list[st
         arg = arg.replace("/opt/terrain", str(REPO))
         if certs is not None:
             arg = arg.replace("/certs", str(certs))
+        for word, value in (words or {}).items():
+            arg = arg.replace(word, value)
         out.append({"0.0.0.0": "127.0.0.1", "8786": str(port), ":8787": ":0"}.get(arg, arg))
-    out[0] = str(BIN / out[0])
+    out[0] = str(BIN / out[0]) if (BIN / out[0]).exists() else shutil.which(out[0]) or out[0]
     return out
 
 
@@ -93,17 +111,7 @@ def test_compose_commands_run_natively_on_loopback(compose, tmp_path):
     procs = [subprocess.Popen(_native(services["scheduler"]["command"], port), env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
-        from distributed import Client
-
-        deadline = time.time() + 60
-        while True:
-            try:
-                client = Client(f"tcp://127.0.0.1:{port}", timeout="2s")
-                break
-            except OSError:
-                if time.time() > deadline:
-                    raise
-                time.sleep(0.5)
+        client = _scheduler_client(port)
         for _ in range(2):
             procs.append(subprocess.Popen(_native(services["worker"]["command"], port), env=env,
                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
@@ -119,6 +127,85 @@ def test_compose_commands_run_natively_on_loopback(compose, tmp_path):
         assert int(ds["elevation"].notnull().sum()) > 0.95 * 600 * 300  # the survey's cells (1 m)
     finally:
         stop_all(procs)
+
+
+def _scheduler_client(port: int):
+    """A client of the scheduler on ``port``, once it answers."""
+    from distributed import Client
+
+    deadline = time.time() + 60
+    while True:
+        try:
+            return Client(f"tcp://127.0.0.1:{port}", timeout="2s")
+        except OSError:
+            if time.time() > deadline:
+                raise
+            time.sleep(0.5)
+
+
+_LOOK = """
+import json, s3fs, xarray as xr
+fs = s3fs.S3FileSystem()
+with xr.open_zarr(fs.get_mapper("terrain/dem/archive.zarr")) as ds:
+    out = {"complete": ds.attrs["complete"], "cells": int(ds["elevation"].notnull().sum())}
+out["work_records"] = len(fs.find("terrain/dem/.archive.zarr.work/records/mesh"))
+print(json.dumps(out))
+"""
+
+
+def test_the_s3_profile_runs_natively_with_no_shared_disk(compose, tmp_path):
+    pytest.importorskip("s3fs")
+    pytest.importorskip("moto")
+
+    services = compose["services"]
+    archive = tmp_path / "data" / "archive"
+    write_survey(archive, SurveySpec(points=40_000, files=2, width=400.0, height=200.0, seed=9))
+    port, s3_port = _free_port(), _free_port()
+    endpoint = f"http://127.0.0.1:{s3_port}"
+
+    def machine(name: str, service: str) -> tuple[Path, dict[str, str]]:
+        """A folder of its own, and the service's environment on loopback."""
+        home = tmp_path / name
+        (home / "tmp").mkdir(parents=True)
+        env = {k: v for k, v in os.environ.items() if not k.startswith("AWS_")}
+        env.update({k: _interpolated(str(v)) for k, v in services[service].get("environment", {}).items()})
+        env.update(AWS_ENDPOINT_URL=endpoint, DASK_SCHEDULER_ADDRESS=f"tcp://127.0.0.1:{port}", TMPDIR=str(home / "tmp"),
+                   PATH=f"{BIN}{os.pathsep}{os.environ['PATH']}", DASK_DISTRIBUTED__WORKER__DAEMON="False")
+        return home, env
+
+    s3 = services["s3"]
+    home, env = machine("s3", "s3")
+    procs = [subprocess.Popen(_native([*s3["entrypoint"], *s3["command"]], port, words={"5000": str(s3_port)}),
+                              cwd=home, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        home, env = machine("scheduler", "scheduler")
+        procs.append(subprocess.Popen(_native(services["scheduler"]["command"], port), cwd=home, env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        client = _scheduler_client(port)
+        workers = [machine(f"worker-{k}", "s3-worker") for k in range(2)]
+        for home, env in workers:
+            procs.append(subprocess.Popen(_native(services["s3-worker"]["command"], port), cwd=home, env=env,
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        client.wait_for_workers(2, timeout=60)
+        home, env = machine("runner", "s3-runner")
+        command = _native(services["s3-runner"]["command"], port, words={" /archive ": f" {archive} "})
+        result = subprocess.run(command, cwd=home, env=env, capture_output=True, text=True, timeout=600)
+        assert result.returncode == 0, result.stderr
+        assert "uploaded 2 file(s) to s3://terrain/archive/" in result.stdout
+        ran = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
+        assert "mesh_tile" in ran and "route_source" in ran  # the work ran on the workers
+        client.close()
+        # looked at from outside, as a user would (s3fs and xarray in a process of their own)
+        look = subprocess.run([sys.executable, "-c", _LOOK], env=env, capture_output=True, text=True, timeout=120)
+        assert look.returncode == 0, look.stderr
+        seen = json.loads(look.stdout)
+        assert seen["complete"] is True and seen["cells"] > 0.95 * 400 * 200
+        # a workflow keeps its work folder for its next run: in the bucket, beside the store
+        assert seen["work_records"] > 0
+        for home, _ in workers:  # nothing was kept on a worker's own disk
+            assert not [p for p in home.rglob("*.npy")]
+    finally:
+        stop_all(procs, timeout=5)
 
 
 @pytest.fixture(scope="module")

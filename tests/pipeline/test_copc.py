@@ -97,3 +97,123 @@ def test_a_copc_on_s3_fetches_only_the_nodes_its_window_needs(survey, tmp_path, 
     finally:
         urls.use_storage_options(None)
         server.stop()
+
+
+@pytest.fixture(scope="module")
+def neighbour(survey):
+    """A plain LAZ survey overlapping the COPC's east part (duplicates and seams across the two)."""
+    import laspy
+    from pyproj import CRS
+
+    rng = np.random.default_rng(43)
+    n = 60_000
+    x = np.round(ORIGIN[0] + 450.0 + rng.random(n) * 350.0, 2)
+    y = np.round(ORIGIN[1] + rng.random(n) * 400.0, 2)
+    ground = rng.random(n) < 0.5
+    z = np.round(terrain_height(x, y, ORIGIN) + np.where(ground, 0.0, 4.0), 2)
+    las = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
+    las.header.scales, las.header.offsets = [0.01] * 3, [ORIGIN[0], ORIGIN[1], 0.0]
+    las.header.add_crs(CRS.from_user_input("EPSG:2154"))
+    las.x, las.y, las.z = x, y, z
+    las.classification = np.where(ground, 2, 5).astype(np.uint8)
+    path = survey[0].parent / "zz_neighbour.laz"  # after the COPC and its twin, in either run
+    las.write(str(path))
+    return path
+
+
+def _counts(report) -> list[tuple]:
+    keys = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
+    return [tuple(f[k] for k in keys) for f in report.files]
+
+
+def test_tiles_read_a_copc_by_window_with_no_routing_pass_and_make_the_plain_laz_store(
+    survey, neighbour, tmp_path, monkeypatch
+):
+    from pipeline import runner
+
+    copc, twin = survey
+    routed = []
+    real_route = runner._route
+    monkeypatch.setattr(runner, "_route", lambda job: routed.append(job.path) or real_route(job))
+    common = dict(resolution=1.0, tile_size=50.0, layers=("slope", "point_count", "face_kind"), workers=2)
+    windowed = run(RunConfig(inputs=(str(copc), str(neighbour)), output=str(tmp_path / "w.zarr"), **common),
+                   progress=False)
+    assert routed == [str(neighbour)]  # the COPC never went through a routing pass
+    routed.clear()
+    plain = run(RunConfig(inputs=(str(twin), str(neighbour)), output=str(tmp_path / "p.zarr"), **common),
+                progress=False)
+    assert routed == [str(twin), str(neighbour)]
+    assert_same_store(tmp_path / "w.zarr", tmp_path / "p.zarr")
+    assert _counts(windowed) == _counts(plain)  # each node counted once, by one tile
+    for field in ("points_read", "points_kept", "filtered_class", "duplicates", "vertices", "faces", "quads"):
+        assert getattr(windowed, field) == getattr(plain, field), field
+    assert windowed.tiles > 40
+
+
+def test_each_tile_fetches_about_the_nodes_it_needs_from_a_copc_on_s3(survey, neighbour, tmp_path, monkeypatch):
+    pytest.importorskip("s3fs")
+    import threading
+
+    import zarr
+
+    from pipeline import tiles
+    from pipeline.tiles import held_box
+    from pipeline.tiling import TileGrid
+
+    from .s3server import start_s3_server
+
+    copc, twin = survey
+    server = start_s3_server()
+    fetched: dict[int, int] = {}
+    per_tile: dict[tuple[int, int], int] = {}
+    real_open = urls.open_input
+
+    def counted(where, block_size=urls.HEADER_BLOCK):
+        handle = real_open(where, block_size)
+        if urls.is_url(where):
+            me = threading.get_ident()
+            real_close = handle.close
+
+            def close():
+                fetched[me] = fetched.get(me, 0) + handle.cache.total_requested_bytes
+                real_close()
+            handle.close = close
+        return handle
+
+    real_points = tiles.tile_points
+
+    def tile_points(scratch, windows, grid, buffer, row, col, box):
+        me = threading.get_ident()
+        before = fetched.get(me, 0)
+        out = real_points(scratch, windows, grid, buffer, row, col, box)
+        if windows:  # the run over s3, not the reference over the twin
+            per_tile[(row, col)] = fetched.get(me, 0) - before
+        return out
+
+    try:
+        fs = server.filesystem()
+        fs.mkdir("copc")
+        fs.put_file(str(copc), "copc/survey.copc.laz")
+        monkeypatch.setattr("pipeline.sources.open_input", counted)
+        monkeypatch.setattr(tiles, "tile_points", tile_points)
+        config = RunConfig(inputs=("s3://copc/survey.copc.laz",), output=str(tmp_path / "s3.zarr"), resolution=1.0,
+                           tile_size=200.0, workers=2,
+                           storage_options={"key": server.key, "secret": server.secret, "endpoint_url": server.endpoint})
+        report = run(config, progress=False)
+        (f,) = report.files
+        twin_chunks = list(iter_points(twin, PointFilter(classes=frozenset(config.classes))))
+        assert f["read"] == sum(c.read for c in twin_chunks)  # every point counted, by one tile
+        assert f["kept"] == sum(c.kept for c in twin_chunks) == report.points_kept
+        assert f["read"] == f["kept"] + f["filtered_class"] + f["filtered_withheld"] + f["outside_bbox"]
+        provenance = zarr.open_group(str(tmp_path / "s3.zarr"), mode="r").attrs["provenance"]
+        grid, buffer = TileGrid.from_dict(provenance["grid"]), float(provenance["buffer"])
+        ratios = []
+        for (r, c), got in sorted(per_tile.items()):
+            needed, _ = nodes_meeting(copc, held_box(grid, r, c, buffer))
+            ratios.append(got / needed)
+        assert len(ratios) == report.tiles
+        assert max(ratios) <= 1.5, ratios
+    finally:
+        urls.use_storage_options(None)
+        server.stop()
+

@@ -143,6 +143,7 @@ def test_bad_workflow_files_are_one_line_errors(tmp_path, capsys):
 
 def test_shipped_examples_load(monkeypatch):
     monkeypatch.setenv("TERRAIN_DATA", "/data")
+    monkeypatch.setenv("TERRAIN_BUCKET", "terrain")  # docker-compose.yml's s3 profile sets it
     folder = Path(__file__).parents[2] / "workflows"
     jobs = sorted(folder.glob("*.toml"))
     assert len(jobs) >= 2
