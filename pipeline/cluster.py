@@ -61,7 +61,8 @@ def connect(config: RunConfig):
     address = config.scheduler_address
     if address:
         try:
-            client = Client(address, timeout="10s")
+            # not the process's default client: a caller's own, and its dask config, stay as they were
+            client = Client(address, timeout="10s", set_as_default=False)
         except OSError as exc:
             raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
         options = urls.storage_options()
@@ -78,7 +79,7 @@ def connect(config: RunConfig):
         cluster = LocalCluster(
             n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=":0", memory_limit=0
         )
-    return Client(cluster), cluster
+    return Client(cluster, set_as_default=False), cluster
 
 
 def close(client, cluster) -> None:
@@ -104,7 +105,7 @@ def map_tasks(
         return results
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
-    for future in as_completed(futures):
+    for future in as_completed(futures, loop=client.loop):
         result = future.result()
         i = index[future.key]
         results[i] = result

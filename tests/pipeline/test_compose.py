@@ -136,7 +136,7 @@ def _scheduler_client(port: int):
     deadline = time.time() + 60
     while True:
         try:
-            return Client(f"tcp://127.0.0.1:{port}", timeout="2s")
+            return Client(f"tcp://127.0.0.1:{port}", timeout="2s", set_as_default=False)
         except OSError:
             if time.time() > deadline:
                 raise
@@ -258,7 +258,7 @@ def test_a_tls_cluster_runs_a_job_with_the_certificate_and_refuses_clients_witho
         deadline = time.time() + 60
         while True:
             try:
-                client = Client(address, security=_security(certs), timeout="2s")
+                client = Client(address, security=_security(certs), timeout="2s", set_as_default=False)
                 break
             except OSError:
                 if time.time() > deadline:
@@ -277,12 +277,12 @@ def test_a_tls_cluster_runs_a_job_with_the_certificate_and_refuses_clients_witho
         assert xr.open_zarr(store).attrs["complete"] is True
         # refused: plain TCP, TLS without a certificate, and a certificate of another CA
         with pytest.raises((OSError, TimeoutError)):
-            Client(f"tcp://127.0.0.1:{port}", timeout="2s")
+            Client(f"tcp://127.0.0.1:{port}", timeout="2s", set_as_default=False)
         from distributed.security import Security
 
         with pytest.raises((OSError, TimeoutError, TypeError, ValueError)):
-            Client(address, security=Security(), timeout="2s")
+            Client(address, security=Security(), timeout="2s", set_as_default=False)
         with pytest.raises((OSError, TimeoutError)):
-            Client(address, security=_security(rogue), timeout="2s")
+            Client(address, security=_security(rogue), timeout="2s", set_as_default=False)
     finally:
         stop_all(procs)

@@ -63,7 +63,7 @@ def cluster(tmp_path):
     from distributed import Client
 
     address = json.loads(scheduler_file.read_text())["address"]
-    with Client(address, timeout="30s") as client:
+    with Client(address, timeout="30s", set_as_default=False) as client:
         client.wait_for_workers(2, timeout=60)
     try:
         yield Cluster(address, procs[1:])
