@@ -27,6 +27,7 @@ import math
 import os
 import struct
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -1090,8 +1091,6 @@ def iter_copc_nodes(
 
 
 def _copc_nodes(path: Location, point_filter: PointFilter, window, wanted) -> Iterator[CopcNode]:
-    from laspy.copc import Bounds, CopcReader, load_octree_for_query
-
     keep_class: np.ndarray | None = None
     if point_filter.classes is not None:
         keep_class = np.zeros(256, dtype=bool)
@@ -1101,74 +1100,178 @@ def _copc_nodes(path: Location, point_filter: PointFilter, window, wanted) -> It
     try:
         with _remote_errors(path):
             try:
-                reader = _copc_reader(path, stream)
+                copc = _copc_file(path, stream)
             except Exception as exc:
                 if "copc" in one_line(exc).lower():
                     raise InputFileError(f"{path}: not a COPC file (no COPC info record)") from None
                 raise _header_error(path, size, exc) from exc
-            box = None if window is None else Bounds(
-                mins=np.array([window[0], window[1], -np.inf]), maxs=np.array([window[2], window[3], np.inf])
-            )
-            nodes = load_octree_for_query(reader.source, reader.copc_info, reader.root_page, query_bounds=box)
-        header = reader.header
+            nodes = copc.nodes_meeting(stream, window)
+        header = copc.reader.header
         scales = tuple(float(v) for v in header.scales)
         offsets = tuple(float(v) for v in header.offsets)
         if not _usable_scaling(path, scales, offsets, int(header.point_count)):
             return
         decoders = [_decoder(sc, of) for sc, of in zip(scales, offsets)]
         total = int(header.point_count)
-        levels: dict[int, list[tuple[Any, tuple[float, float, float, float]]]] = {}
+        chosen = (point_filter.classes, point_filter.keep_withheld)
+        levels: dict[int, list[_Node]] = {}
         for node in nodes:
-            xy = (float(node.bounds.mins[0]), float(node.bounds.mins[1]), float(node.bounds.maxs[0]),
-                  float(node.bounds.maxs[1]))
-            if node.point_count > 0 and (window is None or _meets(xy, window)):
-                levels.setdefault(int(node.key.level), []).append((node, xy))
+            levels.setdefault(node.level, []).append(node)
         for level in sorted(levels):
-            group = sorted(((n, xy) for n, xy in levels[level] if wanted is None or wanted(level, xy)),
-                           key=lambda item: item[0].offset)
-            if not group:
-                continue
-            try:
-                with _remote_errors(path):
-                    records = reader._fetch_and_decompress_points_of_nodes([n for n, _ in group])
-            except Exception as exc:
-                raise _points_error(path, True, 0, total, exc) from exc
-            held = sum(int(n.point_count) for n, _ in group)
-            if len(records) != held:
-                raise InputFileError(f"{path}: COPC nodes hold {len(records):,} points where the hierarchy says {held:,}")
-            start = 0
-            for node, xy in group:  # the records come in file order, node after node
-                stop = start + int(node.point_count)
-                yield CopcNode(level, int(node.offset), xy, _kept(path, header, records[start:stop], decoders, keep_class,
-                                                point_filter.keep_withheld))
-                start = stop
+            group = sorted((n for n in levels[level] if wanted is None or wanted(level, n.bounds)),
+                           key=lambda n: n.offset)
+            kept = {n.key: copc.decoded(n.key, chosen) for n in group}
+            missing = [n for n in group if kept[n.key] is None]
+            if missing:
+                try:
+                    with _remote_errors(path):
+                        records = copc.fetch(stream, missing)
+                except Exception as exc:
+                    raise _points_error(path, True, 0, total, exc) from exc
+                held = sum(n.point_count for n in missing)
+                if len(records) != held:
+                    raise InputFileError(
+                        f"{path}: COPC nodes hold {len(records):,} points where the hierarchy says {held:,}"
+                    )
+                start = 0
+                for node in missing:  # the records come in file order, node after node
+                    stop = start + node.point_count
+                    kept[node.key] = copc.keep(node.key, chosen, _kept(path, header, records[start:stop], decoders,
+                                                                       keep_class, point_filter.keep_withheld))
+                    start = stop
+            for node in group:
+                yield CopcNode(level, node.offset, node.bounds, kept[node.key])
     finally:
         stream.close()
 
 
-_OPENED: dict[tuple, Any] = {}
+@dataclass(frozen=True)
+class _Node:
+    """One octree node with points: its key (level, x, y, z), where its
+    compressed points are, and its voxel's (xmin, ymin, xmax, ymax)."""
+
+    key: tuple[int, int, int, int]
+    offset: int
+    byte_size: int
+    point_count: int
+    bounds: tuple[float, float, float, float]
+
+    @property
+    def level(self) -> int:
+        return self.key[0]
 
 
-def _copc_reader(path: Location, stream: BinaryIO) -> Any:
-    """A laspy ``CopcReader`` over ``stream``.  The header, VLRs and hierarchy
-    pages it reads are kept for this process (for this version of the file):
-    the next tile's reader starts from them, and fetches only the hierarchy
-    pages and nodes it has not seen."""
+class _CopcFile:
+    """What this process knows of one version of a COPC file: its header and
+    VLRs, the hierarchy pages read so far, and recently decoded nodes (each
+    node's points are decoded once, however many tiles' windows meet it)."""
+
+    def __init__(self, reader: Any) -> None:
+        self.reader = reader
+        info = reader.copc_info
+        self.origin = tuple(float(c) - float(info.halfsize) for c in info.center[:2])
+        self.extent = tuple(float(c) + float(info.halfsize) for c in info.center[:2])
+        self.entries: dict[tuple[int, int, int, int], tuple[int, int, int]] = {}
+        self._add_page(reader.root_page)
+        self._lock = threading.Lock()
+        self._decoded: OrderedDict[tuple, PointChunk] = OrderedDict()
+        self._decoded_bytes = 0
+
+    def _add_page(self, page: Any) -> None:
+        for key, entry in page.entries.items():
+            self.entries[(key.level, key.x, key.y, key.z)] = (int(entry.offset), int(entry.byte_size),
+                                                              int(entry.point_count))
+
+    def _bounds(self, key: tuple[int, int, int, int]) -> tuple[float, float, float, float]:
+        # as laspy's VoxelKey.bounds computes them: mins + index * side
+        side = (self.extent[0] - self.origin[0]) / 2 ** key[0]
+        return (self.origin[0] + key[1] * side, self.origin[1] + key[2] * side,
+                self.origin[0] + (key[1] + 1) * side, self.origin[1] + (key[2] + 1) * side)
+
+    def nodes_meeting(self, stream: BinaryIO, window) -> list[_Node]:
+        """The nodes with points whose voxel meets ``window`` (closed; all when None)."""
+        from laspy.copc import HierarchyPage
+
+        out = []
+        todo = [(0, 0, 0, 0)]
+        while todo:
+            key = todo.pop()
+            bounds = self._bounds(key)
+            if window is not None and not _meets(bounds, window):
+                continue
+            entry = self.entries.get(key)
+            if entry is None:
+                continue
+            offset, byte_size, count = entry
+            if count == -1:  # its entries are in a page not read yet
+                stream.seek(offset)
+                page = HierarchyPage.from_bytes(stream.read(byte_size))
+                with self._lock:
+                    self._add_page(page)
+                    if self.entries.get(key, entry)[2] == -1:
+                        self.entries[key] = (0, 0, 0)  # a page that does not describe its own root
+                todo.append(key)
+                continue
+            if count > 0:
+                out.append(_Node(key, offset, byte_size, count, bounds))
+            level, x, y, z = key
+            if count >= 0:
+                todo.extend((level + 1, 2 * x + (d & 1), 2 * y + ((d >> 1) & 1), 2 * z + ((d >> 2) & 1))
+                            for d in range(8))
+        return out
+
+    def fetch(self, stream: BinaryIO, nodes: list[_Node]) -> Any:
+        """The records of ``nodes`` (in file order), fetched in as few requests as they allow."""
+        from types import SimpleNamespace
+
+        reader = copy.copy(self.reader)  # the same header; its own stream
+        reader.source = stream
+        return reader._fetch_and_decompress_points_of_nodes(
+            [SimpleNamespace(offset=n.offset, byte_size=n.byte_size, point_count=n.point_count) for n in nodes]
+        )
+
+    #: bytes of decoded points a process keeps per file
+    BUDGET = 128 * 2**20
+
+    def decoded(self, key: tuple, chosen: tuple) -> PointChunk | None:
+        with self._lock:
+            found = self._decoded.get((key, chosen))
+            if found is not None:
+                self._decoded.move_to_end((key, chosen))
+            return found
+
+    def keep(self, key: tuple, chosen: tuple, chunk: PointChunk) -> PointChunk:
+        for a in (chunk.x, chunk.y, chunk.z):
+            a.flags.writeable = False  # shared by every tile that reads the node
+        size = 3 * chunk.x.nbytes
+        with self._lock:
+            if (key, chosen) not in self._decoded and size <= self.BUDGET // 8:
+                self._decoded[(key, chosen)] = chunk
+                self._decoded_bytes += size
+                while self._decoded_bytes > self.BUDGET:
+                    _, old = self._decoded.popitem(last=False)
+                    self._decoded_bytes -= 3 * old.x.nbytes
+        return chunk
+
+
+_OPENED: dict[tuple, _CopcFile] = {}
+
+
+def _copc_file(path: Location, stream: BinaryIO) -> _CopcFile:
+    """What this process knows of ``path`` (read from ``stream`` the first
+    time): later tiles fetch only hierarchy pages and nodes not seen yet."""
     from laspy.copc import CopcReader
 
     key = (str(path), tuple(sorted(urls.version(path).items())))
     with _SNIFFED_LOCK:
         known = _OPENED.get(key)
     if known is None:
-        reader = CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION)
+        known = _CopcFile(CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION))
         with _SNIFFED_LOCK:
-            if len(_OPENED) > 64:
+            if len(_OPENED) > 16:
                 _OPENED.clear()
-            _OPENED[key] = reader
-        return reader
-    reader = copy.copy(known)  # the same header and (shared, growing) hierarchy; its own stream
-    reader.source = stream
-    return reader
+            known = _OPENED.setdefault(key, known)
+    return known
 
 
 _SNIFFED: dict[tuple, int] = {}

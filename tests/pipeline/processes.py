@@ -5,12 +5,18 @@ from __future__ import annotations
 import subprocess
 
 
-def stop_all(procs: list[subprocess.Popen], timeout: float = 20.0) -> None:
-    """Terminate the processes, last started first, and kill any that linger."""
+def stop_all(procs: list[subprocess.Popen], timeout: float = 3.0) -> None:
+    """Terminate the processes, last started first, and kill any still there
+    ``timeout`` seconds later (a test's cluster has nothing to save)."""
+    import time
+
     for p in reversed(procs):
-        p.terminate()
+        if p.poll() is None:
+            p.terminate()
+    deadline = time.monotonic() + timeout
     for p in procs:
         try:
-            p.wait(timeout=timeout)
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             p.kill()
+            p.wait()

@@ -159,7 +159,7 @@ def test_the_s3_profile_runs_natively_with_no_shared_disk(compose, tmp_path):
 
     services = compose["services"]
     archive = tmp_path / "data" / "archive"
-    write_survey(archive, SurveySpec(points=40_000, files=2, width=400.0, height=200.0, seed=9))
+    write_survey(archive, SurveySpec(points=16_000, files=2, width=400.0, height=200.0, seed=9))
     port, s3_port = _free_port(), _free_port()
     endpoint = f"http://127.0.0.1:{s3_port}"
 
@@ -205,7 +205,7 @@ def test_the_s3_profile_runs_natively_with_no_shared_disk(compose, tmp_path):
         for home, _ in workers:  # nothing was kept on a worker's own disk
             assert not [p for p in home.rglob("*.npy")]
     finally:
-        stop_all(procs, timeout=5)
+        stop_all(procs)
 
 
 @pytest.fixture(scope="module")

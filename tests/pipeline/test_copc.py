@@ -25,7 +25,7 @@ def survey(tmp_path_factory):
     """A COPC survey (sparse ground under canopy, a void) and its plain LAZ twin."""
     folder = tmp_path_factory.mktemp("copc")
     rng = np.random.default_rng(41)
-    n = 300_000
+    n = 150_000
     x = np.round(ORIGIN[0] + rng.random(n) * 600.0, 2)
     y = np.round(ORIGIN[1] + rng.random(n) * 400.0, 2)
     keep = (x - ORIGIN[0] - 300.0) ** 2 + (y - ORIGIN[1] - 200.0) ** 2 > 40.0**2  # a pond: no returns

@@ -69,7 +69,7 @@ def test_a_run_from_s3_into_s3_equals_the_local_run_and_leaks_no_credential(serv
         "[run]\n"
         'inputs = ["s3://archive/survey/"]\n'
         'output = "s3://archive/out/dem.zarr"\n'
-        'resolution = 1.0\ntile_size = 64.0\nlayers = ["slope"]\n'
+        'resolution = 1.0\ntile_size = 64.0\nlayers = ["slope"]\nscratch_dir = "s3://archive/scratch/"\n'
         "[run.storage_options]\n"
         f'key = "{server.key}"\nsecret = "{SECRET}"\nendpoint_url = "{server.endpoint}"\n'
     )
@@ -82,6 +82,7 @@ def test_a_run_from_s3_into_s3_equals_the_local_run_and_leaks_no_credential(serv
         assert ds.attrs["complete"] is True
         inputs = [i["path"] for i in ds.attrs["provenance"]["inputs"]]
         assert inputs == [f"s3://archive/survey/{n}" for n in names]
+    assert not fs.find("archive/scratch/")  # the work files were on s3, and went with the run
     # the same bytes as a run over the same files on local disk
     fs.get("archive/out/dem.zarr", str(tmp_path / "fetched.zarr"), recursive=True)
     assert_same_store(tmp_path / "fetched.zarr", reference)

@@ -100,6 +100,25 @@ def test_one_store_spelt_two_ways_has_one_work_folder(tmp_path):
         assert spelt == work_dir_for(str(tmp_path / "out" / "a.zarr"), scratch)
 
 
+def test_where_the_work_folder_of_a_store_on_object_storage_goes(tmp_path, monkeypatch):
+    from pipeline.checkpoint import work_dir_for
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)  # TMPDIR read again
+    store = "s3://dems/2026/dem.zarr"
+    # this machine's threads: on this machine; a cluster's workers: beside the store, which they all reach
+    here = work_dir_for(store, None)
+    assert here.startswith(str(tmp_path / "terrain-work" / ".dem.zarr-")) and here.endswith(".work")
+    assert work_dir_for(store, None, cluster=True) == "s3://dems/2026/.dem.zarr.work"
+    # a scratch folder given is used either way, on disk or on object storage
+    for cluster in (False, True):
+        inside = work_dir_for(store, "s3://scratch/jobs/", cluster=cluster)
+        assert inside.startswith("s3://scratch/jobs/.dem.zarr-") and inside.endswith(".work")
+        assert work_dir_for(store, str(tmp_path / "s"), cluster=cluster).startswith(str(tmp_path / "s" / ".dem.zarr-"))
+
+
 def test_stores_of_one_name_share_a_scratch_folder_without_harm(survey, reference, tmp_path, monkeypatch):
     scratch = tmp_path / "scratch"
     a, b = tmp_path / "a" / "dem.zarr", tmp_path / "b" / "dem.zarr"
