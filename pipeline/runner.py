@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import errno
 import math
-import os
 import sys
 import time
 import uuid
