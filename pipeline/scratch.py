@@ -177,12 +177,6 @@ class Scratch:
         return self.path(key).read_text()
 
     # -- listing --------------------------------------------------------------
-    def exists(self, key: str) -> bool:
-        if self.remote:
-            fs, root = self._fs()
-            return bool(fs.exists(f"{root}/{key}"))
-        return self.path(key).is_file()
-
     def names(self, folder: str) -> list[str]:
         """The names of the files directly inside ``folder``, sorted (none when it is missing)."""
         if self.remote:

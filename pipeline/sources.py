@@ -1263,11 +1263,11 @@ def _copc_file(path: Location, stream: BinaryIO) -> _CopcFile:
     from laspy.copc import CopcReader
 
     key = (str(path), tuple(sorted(urls.version(path).items())))
-    with _SNIFFED_LOCK:
+    with _KNOWN_LOCK:
         known = _OPENED.get(key)
     if known is None:
         known = _CopcFile(CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION))
-        with _SNIFFED_LOCK:
+        with _KNOWN_LOCK:
             if len(_OPENED) > 16:
                 _OPENED.clear()
             known = _OPENED.setdefault(key, known)
@@ -1275,7 +1275,7 @@ def _copc_file(path: Location, stream: BinaryIO) -> _CopcFile:
 
 
 _SNIFFED: dict[tuple, int] = {}
-_SNIFFED_LOCK = threading.Lock()
+_KNOWN_LOCK = threading.Lock()
 
 
 def _sniffed(path: Location) -> int:
@@ -1283,11 +1283,11 @@ def _sniffed(path: Location) -> int:
     window read of a COPC file checked by an earlier tile costs no more
     header requests."""
     key = (str(path), tuple(sorted(urls.version(path).items())))
-    with _SNIFFED_LOCK:
+    with _KNOWN_LOCK:
         size = _SNIFFED.get(key)
     if size is None:
         size = _sniff(path)
-        with _SNIFFED_LOCK:
+        with _KNOWN_LOCK:
             if len(_SNIFFED) > 4096:
                 _SNIFFED.clear()
             _SNIFFED[key] = size

@@ -24,7 +24,6 @@ from pipeline.runner import run  # noqa: E402
 from pipeline.synthetic import SurveySpec, write_survey  # noqa: E402
 
 from .processes import stop_all  # noqa: E402
-from .s3server import start_s3_server  # noqa: E402
 from .store_checks import assert_same_store  # noqa: E402
 
 BIN = Path(sys.executable).parent
@@ -85,13 +84,6 @@ class Machines:
 
 
 @pytest.fixture(scope="module")
-def s3():
-    server = start_s3_server()
-    yield server
-    server.stop()
-
-
-@pytest.fixture(scope="module")
 def machines(tmp_path_factory):
     m = Machines(tmp_path_factory.mktemp("machines"))
     m.start_scheduler()
@@ -114,8 +106,9 @@ def _wait_for(fs, prefix: str, timeout: float, process: subprocess.Popen) -> boo
 
 
 def test_a_cluster_with_no_shared_disk_runs_on_s3_survives_a_killed_worker_and_a_killed_client(
-    s3, machines, tmp_path
+    server, machines, tmp_path
 ):
+    s3 = server
     folder = tmp_path / "survey"
     paths = write_survey(folder, SurveySpec(points=24_000, files=3, width=240.0, height=160.0, seed=43))
     fs = s3.filesystem()

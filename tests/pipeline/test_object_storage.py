@@ -28,13 +28,6 @@ SECRET = "secret-that-must-not-leak-7f3a"
 
 
 @pytest.fixture(scope="module")
-def server():
-    s3 = start_s3_server()
-    yield s3
-    s3.stop()
-
-
-@pytest.fixture(scope="module")
 def archive(server, tmp_path_factory):
     """A survey of two LAZ files in s3://archive/survey/, and its local copy."""
     local = tmp_path_factory.mktemp("archive")
