@@ -15,7 +15,7 @@ from .flip import flip_edges
 from .merge import merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
-from .predicates import lex_before
+from .predicates import cross_rounded, lex_before
 
 __all__ = ["build_mesh", "as_points"]
 
@@ -133,12 +133,20 @@ def _safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
 
     A fixed relative margin will not do: the slivers along a straight survey
     edge have circles of thousands of kilometres, where 1e-9 of the radius is
-    centimetres, which is the spacing of the points themselves.
+    centimetres, which is the spacing of the points themselves.  Their cross
+    product is evaluated exactly (then rounded), so the margin stays ulps of
+    the radius however thin the triangle.
     """
     dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
     err_d = 16.0 * _U * (abs(dx * ey) + abs(dy * ex))
-    if not abs(d) > 2.0 * err_d:
-        return 0.0, 0.0, math.inf
+    if not abs(d) > 1e12 * err_d:
+        # a sliver: its cross product has lost most of its digits, and its
+        # circle's centre would be known only to within a fraction of its
+        # radius (kilometres on the circles along a straight survey edge,
+        # which then reach the whole survey); exactly, it is known to ulps
+        d, err_d = cross_rounded(ax, ay, bx, by, cx, cy)
+        if not abs(d) > 2.0 * err_d:
+            return 0.0, 0.0, math.inf
     nx = ey * bl - dy * cl
     ny = dx * cl - ex * bl
     err_nx = 16.0 * _U * (abs(ey) * bl + abs(dy) * cl)

@@ -35,7 +35,7 @@ import numpy as np
 
 from ._jit import njit, stack_array
 
-__all__ = ["orient2d", "incircle", "incircle_sos"]
+__all__ = ["orient2d", "incircle", "incircle_sos", "cross_rounded"]
 
 _EPS = 2.0**-53
 _SPLITTER = 2.0**27 + 1.0
@@ -222,15 +222,42 @@ def _two_products_into(a, na, b, nb, c, nc, d, nd, sign, h, small) -> int:
 
 
 @njit
-def _orient2d_exact(ax, ay, bx, by, cx, cy) -> int:
-    buf = stack_array(64)
+def _orient2d_into(ax, ay, bx, by, cx, cy, buf) -> int:
+    """The orientation determinant exactly, as an expansion in ``buf[8:24]``
+    (``buf``: 52 doubles of scratch); returns its length."""
     acx, acy, bcx, bcy, det, small = buf[0:2], buf[2:4], buf[4:6], buf[6:8], buf[8:24], buf[24:52]
     n_acx = _diff_into(ax, cx, acx)
     n_acy = _diff_into(ay, cy, acy)
     n_bcx = _diff_into(bx, cx, bcx)
     n_bcy = _diff_into(by, cy, bcy)
-    n = _two_products_into(acx, n_acx, bcy, n_bcy, acy, n_acy, bcx, n_bcx, -1, det, small)
-    return _sign(det[n - 1])
+    return _two_products_into(acx, n_acx, bcy, n_bcy, acy, n_acy, bcx, n_bcx, -1, det, small)
+
+
+@njit
+def _orient2d_exact(ax, ay, bx, by, cx, cy) -> int:
+    buf = stack_array(64)
+    n = _orient2d_into(ax, ay, bx, by, cx, cy, buf)
+    return _sign(buf[8 + n - 1])
+
+
+@njit
+def cross_rounded(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
+    """The cross product ``(b - a) x (c - a)`` (twice the signed area of
+    ``a, b, c``), evaluated exactly and then rounded, with a bound of that
+    rounding: ``|value - exact| <= error``.
+
+    Of a near-collinear triangle's cross product, floating point keeps no
+    correct digit; this keeps all but the last few.
+    """
+    buf = stack_array(64)
+    n = _orient2d_into(ax, ay, bx, by, cx, cy, buf)
+    value = 0.0
+    size = 0.0
+    for k in range(8, 8 + n):  # smallest first
+        value += buf[k]
+        size += abs(buf[k])
+    # each of the n sums rounds by at most an ulp of a partial sum <= size
+    return value, (n + 1) * _EPS * size
 
 
 @njit

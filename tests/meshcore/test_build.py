@@ -420,3 +420,33 @@ def test_window_mask_takes_the_centroid_rule_for_every_triangle(offset, rng):
             expect.append(window[0] <= cx < window[2] and window[1] <= cy < window[3])
         assert np.array_equal(active.astype(bool), np.array(expect))
         assert 0 < active.sum() < len(tri)
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (6e5, 5e6), (484649.36, 6632629.73)])
+@pytest.mark.parametrize("bulge", [1, 2, 7])
+def test_a_sliver_circle_is_bounded_to_ulps_of_its_radius(offset, bulge):
+    """The circles of the slivers along a straight survey edge (thousands of
+    kilometres): their bound holds the exact circle and is ulps wider, so a
+    tile's certificate reads a thin lens along the edge, not the survey."""
+    from fractions import Fraction
+
+    from meshcore.build import _safe_circle
+
+    ox, oy = offset
+    # cm lattice points along a slanted edge 300 m long; the middle one off the line by 'bulge' cm
+    a = (round(ox + 0.0, 2), round(oy + 0.0, 2))
+    b = (round(ox + 150.0, 2), round(oy + 90.0 + 0.01 * bulge, 2))
+    c = (round(ox + 300.0, 2), round(oy + 180.0, 2))
+    ux, uy, r = _safe_circle(*a, *b, *c)
+    ax, ay, bx, by, cx, cy = map(Fraction, (*a, *b, *c))
+    dx, dy, ex, ey = bx - ax, by - ay, cx - ax, cy - ay
+    d = 2 * (dx * ey - dy * ex)
+    px = (ey * (dx * dx + dy * dy) - dy * (ex * ex + ey * ey)) / d
+    py = (dx * (ex * ex + ey * ey) - ex * (dx * dx + dy * dy)) / d
+    exact_r = math.sqrt(float(px * px + py * py))
+    assert exact_r > 1e5  # a sliver: more than 100 km
+    # the bound's disk holds the exact one ...
+    gap = math.hypot(float(px - Fraction(ux)), float(py - Fraction(uy)))
+    assert gap + exact_r <= r
+    # ... and is no wider than a micrometre per thousand kilometres
+    assert r - exact_r <= 4e-12 * exact_r + 1e-9

@@ -116,3 +116,27 @@ def test_the_exact_path_runs_inside_kernels_without_reference_counting():
     assert sum(e == 0 for e in expected_incircle) > 500  # the exact stage had work to do
     decided = out[:, 1] != 0
     assert np.all(out[decided, 2] == out[decided, 1])
+
+
+def exact_cross(a, b, c):
+    ax, ay, bx, by, cx, cy = map(Fraction, (*a, *b, *c))
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(-1e3, 1e3), st.floats(-1e3, 1e3), st.integers(1, 40000), st.integers(1, 40000),
+    st.integers(-3, 3), st.sampled_from([0.01, 0.00025, 1e-7]),
+)
+def test_cross_rounded_is_within_its_bound_on_near_collinear_lattice_points(x0, y0, i, j, k, scale):
+    from meshcore.predicates import cross_rounded
+
+    # three points of a LAS lattice along a slanted line, the middle one
+    # nudged by k steps: the float cross product keeps no correct digit
+    a = (round(6e5 + x0, 2), round(5e6 + y0, 2))
+    b = (a[0] + i * scale * 3, a[1] + i * scale * 7 + k * scale)
+    c = (a[0] + (i + j) * scale * 3, a[1] + (i + j) * scale * 7)
+    value, error = cross_rounded(*a, *b, *c)
+    exact = exact_cross(a, b, c)
+    assert abs(Fraction(value) - exact) <= Fraction(error)
+    assert error <= 1e-14 * abs(value) or exact == 0
