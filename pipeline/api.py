@@ -12,16 +12,18 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import xarray as xr
 
 import meshcore
 
 from . import store
 from .errors import UsageError
 from .tiling import TileGrid
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 __all__ = ["TiledStore", "Tile", "open_store"]
 

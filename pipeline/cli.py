@@ -8,8 +8,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from meshcore import MeshError
-
 from .config import positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
@@ -20,6 +18,13 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+
+
+def _mesh_errors() -> tuple[type[Exception], ...]:
+    """meshcore's error type, when meshcore was imported (else none of its
+    errors can have been raised): the command line starts without it."""
+    errors = sys.modules.get("meshcore.errors")
+    return () if errors is None else (errors.MeshError,)
 
 
 def _positive_int(text: str) -> int:
@@ -301,7 +306,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OutputWriteError, SeamError, StorageUnreachableError) as exc:  # the job failed part way: resumable
         LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
         return EXIT_FAILED
-    except (PipelineError, MeshError) as exc:
+    except (PipelineError, *_mesh_errors()) as exc:
         LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
         return EXIT_USAGE
     except KeyboardInterrupt:

@@ -8,21 +8,83 @@ folder and the store by URL, with the credentials of their own environment,
 or those of the job file's ``storage_options``, which :func:`connect` hands to
 every worker (:class:`pipeline.worker_setup.StorageOptions`), over the scheduler's connection (TLS
 on a cluster that spans machines).
+
+Without a scheduler the tasks run on a pool of this process's threads
+(:class:`LocalThreads`): the kernels release the GIL, and an in-process Dask
+cluster would add nothing but its start-up (a third of a second, and as much
+again to import it) to a one-file job.
 """
 
 from __future__ import annotations
 
 import os
+import queue
 import sys
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, as_completed
 from typing import Any
 
 from . import urls
 from .config import RunConfig
 from .errors import PipelineError
 
-__all__ = ["Progress", "close", "connect", "map_tasks"]
+__all__ = ["Progress", "LocalThreads", "close", "connect", "map_tasks"]
+
+
+class LocalThreads:
+    """A pool of this process's threads that runs a run's tasks.
+
+    Its threads are daemons: an interrupted run exits without waiting for the
+    tasks still running (their work is redone when the run resumes).
+    """
+
+    def __init__(self, threads: int):
+        self._tasks: queue.SimpleQueue = queue.SimpleQueue()
+        self._pending: set[Future] = set()
+        self._lock = threading.Lock()
+        self._threads = [
+            threading.Thread(target=self._work, name=f"terrain-{k}", daemon=True) for k in range(max(1, threads))
+        ]
+        for t in self._threads:
+            t.start()
+
+    @property
+    def threads(self) -> int:
+        return len(self._threads)
+
+    def submit(self, fn: Callable, item: Any) -> Future:
+        future: Future = Future()
+        with self._lock:
+            self._pending.add(future)
+        self._tasks.put((future, fn, item))
+        return future
+
+    def _work(self) -> None:
+        while True:
+            task = self._tasks.get()
+            if task is None:
+                return
+            future, fn, item = task
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(item))
+                except BaseException as exc:  # handed to the caller, as a worker would
+                    future.set_exception(exc)
+            with self._lock:
+                self._pending.discard(future)
+
+    def cancel_pending(self) -> None:
+        """Cancel the tasks not yet started (those running finish)."""
+        with self._lock:
+            for future in list(self._pending):
+                future.cancel()
+
+    def close(self) -> None:
+        self.cancel_pending()
+        for _ in self._threads:
+            self._tasks.put(None)
 
 
 class Progress:
@@ -54,32 +116,25 @@ class Progress:
 
 
 def connect(config: RunConfig):
-    """A Dask client: the given scheduler, or an in-process cluster of threads."""
-    import dask
-    from distributed import Client, LocalCluster
-
+    """The run's cluster: a Dask client of the given scheduler, or a pool of
+    this process's threads (:class:`LocalThreads`); and what :func:`close`
+    needs besides it."""
     address = config.scheduler_address
-    if address:
-        try:
-            # not the process's default client: a caller's own, and its dask config, stay as they were
-            client = Client(address, timeout="10s", set_as_default=False)
-        except OSError as exc:
-            raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
-        options = urls.storage_options()
-        if options:  # the job file's credentials, for workers that read and write URLs
-            from .worker_setup import StorageOptions
+    if not address:
+        return LocalThreads(config.workers or os.cpu_count() or 1), None
+    from distributed import Client
 
-            client.register_plugin(StorageOptions(options), name=StorageOptions.name)
-        return client, None
-    threads = config.workers or os.cpu_count() or 1
-    # the worker's statistical profiler walks every thread's stack 100 times a
-    # second for the dashboard's profile page: 1% of a run's wall time, for a
-    # page nobody opens on an in-process cluster
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
-        cluster = LocalCluster(
-            n_workers=1, threads_per_worker=threads, processes=False, dashboard_address=":0", memory_limit=0
-        )
-    return Client(cluster, set_as_default=False), cluster
+    try:
+        # not the process's default client: a caller's own, and its dask config, stay as they were
+        client = Client(address, timeout="10s", set_as_default=False)
+    except OSError as exc:
+        raise PipelineError(f"cannot reach the Dask scheduler at {address}: {exc}") from None
+    options = urls.storage_options()
+    if options:  # the job file's credentials, for workers that read and write URLs
+        from .worker_setup import StorageOptions
+
+        client.register_plugin(StorageOptions(options), name=StorageOptions.name)
+    return client, None
 
 
 def close(client, cluster) -> None:
@@ -98,18 +153,30 @@ def map_tasks(
 ) -> list:
     """``fn`` over ``items`` on the cluster; ``finished(item, result)`` runs here
     as each task ends (to record it), before the next result is taken."""
-    from distributed import as_completed
-
     results: list[Any] = [None] * len(items)
     if not items:
         return results
+    if isinstance(client, LocalThreads):
+        futures = [client.submit(fn, item) for item in items]
+        index = {f: i for i, f in enumerate(futures)}
+        try:
+            for future in as_completed(futures):
+                _take(future.result(), index[future], items, results, finished, progress, points)
+        except BaseException:
+            client.cancel_pending()  # a failed task ends the stage, as on a cluster
+            raise
+        return results
+    from distributed import as_completed as as_completed_on_cluster
+
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
-    for future in as_completed(futures, loop=client.loop):
-        result = future.result()
-        i = index[future.key]
-        results[i] = result
-        if finished is not None:
-            finished(items[i], result)
-        progress.update(points(result))
+    for future in as_completed_on_cluster(futures, loop=client.loop):
+        _take(future.result(), index[future.key], items, results, finished, progress, points)
     return results
+
+
+def _take(result, i: int, items: list, results: list, finished, progress: Progress, points) -> None:
+    results[i] = result
+    if finished is not None:
+        finished(items[i], result)
+    progress.update(points(result))

@@ -324,8 +324,13 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         tile_cells = int(round(config.tile_size / config.resolution))
     else:
         per_tile = POINTS_PER_TILE if config.surface == "linear" else SMOOTH_POINTS_PER_TILE
-        edge = math.sqrt(per_tile / density)
-        tile_cells = max(16, int(round(edge / config.resolution / 16)) * 16)
+        target = math.sqrt(per_tile / density) / config.resolution
+        # as many tiles along each side as that size needs, all of one size:
+        # 351 x 370 m of 700k points is 2 x 2 tiles of 192 m, not one of
+        # 304 m that holds 60% of the points beside three small ones
+        cells = [max(1.0, (bounds[2] - bounds[0]) / config.resolution), max(1.0, (bounds[3] - bounds[1]) / config.resolution)]
+        even = max(math.ceil(side / max(1, math.ceil(side / target))) for side in cells)
+        tile_cells = max(16, -(-even // 16) * 16)
     buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
     return tile_cells, float(buffer)
 

@@ -67,12 +67,11 @@ import struct
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numcodecs
 import numpy as np
 import pyproj
-import xarray as xr
 import zarr
 import zarr.errors
 from zarr.codecs import BloscCodec
@@ -81,6 +80,9 @@ from numpy.typing import ArrayLike, NDArray
 from .config import Layer
 from .errors import CrsError, StoreError, UsageError
 from .urls import describe_os_error, filesystem, is_url, options_for
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 __all__ = [
     "StoreError",
@@ -651,6 +653,8 @@ def open_dem(path: StorePath, **kwargs: Any) -> xr.Dataset:
     ``spatial_ref`` is a coordinate (the data variables list it in
     ``coordinates``), so rioxarray finds the CRS and GeoTransform.
     """
+    import xarray as xr
+
     return xr.open_zarr(_zarr_store(path, read_only=True), **kwargs)
 
 

@@ -312,19 +312,40 @@ def test_repeated_points_on_the_hull_leave_no_gap_between_tiles(tmp_path):
     assert np.isfinite(ds.elevation.values[inside]).all()
 
 
-def test_the_in_process_cluster_runs_no_statistical_profiler(tmp_path):
-    """The dashboard's profiler samples every thread 100 times a second: the
-    local cluster a run starts leaves it off (a run's own cluster has no page
-    to show it on)."""
-    from pipeline.cluster import close, connect
+def test_a_local_run_maps_its_tasks_over_threads_and_stops_at_the_first_failure(tmp_path):
+    """Without a scheduler a run's tasks go to a pool of this process's
+    threads (no in-process Dask cluster to start): they run side by side, a
+    failed task raises from the stage after the tasks not yet started are
+    cancelled, and closing the pool ends its threads."""
+    import threading
 
-    client, cluster = connect(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=1))
-    try:
-        (worker,) = cluster.workers.values()
-        assert "profile" not in worker.periodic_callbacks
-        assert "profile-cycle" not in worker.periodic_callbacks
-    finally:
-        close(client, cluster)
+    from pipeline.cluster import LocalThreads, Progress, close, connect, map_tasks
+
+    pool, extra = connect(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=2))
+    assert isinstance(pool, LocalThreads) and pool.threads == 2 and extra is None
+    both = threading.Barrier(2, timeout=10)  # passes only when two tasks run at once
+    names = map_tasks(pool, lambda i: both.wait() >= 0 and threading.current_thread().name, [0, 1],
+                      Progress("t", 2, False), lambda _: 0)
+    assert len(set(names)) == 2
+    started = []
+    release = threading.Event()
+
+    def task(i):
+        started.append(i)
+        if i == 0:
+            raise ValueError("tile 0 failed")
+        release.wait(timeout=10)  # the other tasks hold their threads until the stage is given up
+        return i
+
+    with pytest.raises(ValueError, match="tile 0 failed"):
+        map_tasks(pool, task, list(range(50)), Progress("t", 50, False), lambda _: 0)
+    release.set()
+    close(pool, extra)
+    for t in threading.enumerate():
+        if t.name.startswith("terrain-"):
+            t.join(timeout=10)
+    assert not [t for t in threading.enumerate() if t.name.startswith("terrain-")]
+    assert len(started) <= 3  # the two running and one taken at the failure; the rest were cancelled
 
 
 def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_piece(tmp_path, monkeypatch):
