@@ -45,7 +45,10 @@ from .scratch import Scratch
 from .windows import WindowSource, hull_copies, survey_hull
 from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, piece_intact, reached_tiles
-from .changes import forget_changed_inputs, forget_tiles, tiles_depending_on, tiles_whose_hull_moved
+from .changes import (
+    forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on, tiles_moved_by_growth,
+    tiles_whose_hull_moved,
+)
 from .tiling import (
     TileGrid, TileSpiller, check_cells, drop_source_spill, grow_hull, hull_candidates, spill_by_source, spill_intact,
     tile_key,
@@ -289,6 +292,34 @@ def frame_moved(before: dict[str, Any], now: dict[str, Any]) -> bool:
     return "heights" in before and before["heights"] != now.get("heights")
 
 
+def frame_grew(before: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether the frame ``now`` keeps the tiles of ``before`` and only grows
+    its grid to the north or east (or leaves it as it was while the data
+    extent moved inside it): the same origin, cells, tiles, buffer and heights.
+    The tiles written then stay (:func:`pipeline.store.grow_store`)."""
+    if "grid" not in before or before.get("buffer") != now.get("buffer"):
+        return False
+    if "heights" in before and before["heights"] != now.get("heights"):
+        return False
+    return TileGrid.from_dict(now["grid"]).extends(TileGrid.from_dict(before["grid"]))
+
+
+def frame_change(before: dict[str, Any], now: dict[str, Any], done: bool = True) -> str:
+    """Why every tile is (``done``) or will be computed again when a frame
+    moved and did not grow."""
+    if "grid" in before and before.get("buffer") == now.get("buffer"):
+        was, grid = TileGrid.from_dict(before["grid"]), TileGrid.from_dict(now["grid"])
+        if (was.resolution, was.tile_cells) == (grid.resolution, grid.tile_cells) and (grid.x0, grid.y0) != (was.x0, was.y0):
+            return f"the survey grew south or west of the grid's origin, which {'moved' if done else 'moves'} every tile"
+    return f"the grid, extent, buffer or height unit {'changed' if done else 'changes'}"
+
+
+def _grid_spec(grid: TileGrid):
+    from . import store
+
+    return store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
+
+
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
     """A file's header bounds in the target CRS (None for an empty file)."""
     from pyproj import CRS, Transformer
@@ -432,12 +463,18 @@ def _execute(
         "crs_wkt": plan.target_wkt,
         **job_frame_record(grid, bounds, buffer, plan),
     }
-    spec = store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
+    spec = _grid_spec(grid)
     work = WorkDir(work_dir_for(config.output, config.scratch_dir, cluster=config.scheduler_address is not None))
     previous = _existing_job(config, provenance, allow_new_inputs=incremental)
     fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
-    if incremental and fresh_frame:
-        report.notes.append("the grid, extent, buffer or height unit changed: every tile was computed again")
+    grown_from = None  # the grid an incremental run grows north or east
+    if incremental and fresh_frame and previous.get(store.GROWING_ATTR):
+        report.notes.append("an earlier run stopped while it grew the grid: every tile was computed again")
+        previous = None
+    elif incremental and fresh_frame and frame_grew(previous["provenance"], provenance):
+        grown_from = TileGrid.from_dict(previous["provenance"]["grid"])
+    elif incremental and fresh_frame:
+        report.notes.append(f"{frame_change(previous['provenance'], provenance)}: every tile was computed again")
         previous = None
     elif fresh_frame:
         raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")
@@ -458,6 +495,8 @@ def _execute(
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
     client, cluster = connect(config)
     try:
+        if grown_from is not None and grown_from != grid:
+            store.grow_store(config.output, _grid_spec(grown_from), spec)
         if previous is None:
             store.create_store(
                 config.output,
@@ -478,6 +517,14 @@ def _execute(
         elif not same_inputs:
             changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
             tiles = tiles_depending_on(work, grid, changed)
+            if grown_from is not None:
+                tiles |= tiles_moved_by_growth(grown_from, grid)
+                reroute_near_growth(work, grown_from, provenance["inputs"], buffer)
+                if grown_from != grid:
+                    report.notes.append(
+                        f"the grid grew from {grown_from.n_rows} x {grown_from.n_cols} to {grid.n_rows} x {grid.n_cols} "
+                        "tiles (north or east): the tiles written were kept"
+                    )
             forget_tiles(work, config.output, grid, tiles)
             report.notes.append(
                 f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again"

@@ -86,6 +86,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "StoreError",
+    "grow_store",
     "Layer",
     "GridSpec",
     "create_store",
@@ -356,6 +357,77 @@ def create_store(
         attrs={"long_name": "1 where the tile's DEM is written (tile rows from the south)", "flag_values": [0, 1]},
     )
     _consolidate(path)
+
+
+GROWING_ATTR = "growing"
+"""Root attribute set while :func:`grow_store` moves chunks: a store that
+still has it was left half grown by a stopped run (and is made again)."""
+
+
+def grow_store(path: StorePath, before: GridSpec, after: GridSpec) -> None:
+    """Extend the store's grid to the north and east, keeping every chunk written.
+
+    ``after`` has the origin, cells and tiles of ``before`` and at least its
+    rows and columns.  Each layer is resized (Zarr ``resize``): a chunk keeps
+    its file and bytes.  New tile rows at the north move every chunk row of
+    the north-up layers down by as many: their files are renamed (on object
+    storage, copied within the bucket), never decoded or written again.  The
+    coordinates, the GeoTransform, the tiles' status and the ``grid``
+    attribute follow; the new cells read as no data until their tiles are
+    written.
+
+    Raises
+    ------
+    UsageError
+        ``after`` does not extend ``before`` to the north and east only.
+    """
+    same = (before.x0, before.y0, before.resolution, before.tile_cells) == (
+        after.x0, after.y0, after.resolution, after.tile_cells
+    )
+    if not (same and after.nx >= before.nx and after.ny >= before.ny):
+        raise UsageError(f"grow_store: grid {after.to_dict()} does not extend {before.to_dict()} to the north and east")
+    root = _open_group(path, mode="r+")
+    root.attrs.update({GROWING_ATTR: {"from": before.to_dict(), "to": after.to_dict()}, "complete": False})
+    shift = after.n_tile_rows - before.n_tile_rows
+    for layer in Layer:
+        if layer.value not in root:
+            continue
+        array = root[layer.value]
+        if shift:
+            _shift_chunk_rows(path, array, before, shift)
+        array.resize((after.ny, after.nx))
+    for name, values in (("x", after.x), ("y", after.y)):
+        old = root[name]
+        _create_array(root, name, data=values, dims=(name,), attrs=_user_attrs(old), overwrite=True)
+    mapping = root[GRID_MAPPING]
+    mapping.attrs.update({"GeoTransform": " ".join(repr(v) for v in after.geotransform)})
+    _open_array(path, TILE_DONE).resize((after.n_tile_rows, after.n_tile_cols))  # rows from the south: none move
+    root.attrs.update({"grid": after.to_dict()})
+    root.attrs.pop(GROWING_ATTR)
+    _consolidate(path)
+
+
+def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: GridSpec, shift: int) -> None:
+    """Rename the chunk files of a north-up layer ``shift`` chunk rows south,
+    the southern-most first (no new name meets one still in use)."""
+    where = os.fspath(path)
+    if is_url(where):
+        fs, base = filesystem(where)
+        base = base.rstrip("/")
+        exists, move = fs.exists, fs.mv
+    else:
+        fs, base = None, where
+        exists, move = os.path.exists, os.replace
+    prefix = f"{base}/{array.path}"
+    encode = array.metadata.encode_chunk_key
+    for i in reversed(range(grid.n_tile_rows)):
+        for j in range(grid.n_tile_cols):
+            old, new = f"{prefix}/{encode((i, j))}", f"{prefix}/{encode((i + shift, j))}"
+            if not exists(old):  # never written: reads as no data in both places
+                continue
+            if fs is None:
+                os.makedirs(os.path.dirname(new), exist_ok=True)
+            move(old, new)
 
 
 def mark_tile_done(path: StorePath, tile_row: int, tile_col: int) -> None:

@@ -155,6 +155,25 @@ class TileGrid:
             found.update((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1))
         return sorted(found)
 
+    def extends(self, other: TileGrid) -> bool:
+        """Whether this grid is ``other`` grown to the north or east (or equal):
+        the same origin, cells and tiles, at least its rows and columns.
+        Its tiles then keep their numbers (rows count from the south)."""
+        same = (self.x0, self.y0, self.resolution, self.tile_cells) == (other.x0, other.y0, other.resolution, other.tile_cells)
+        return same and self.nx >= other.nx and self.ny >= other.ny
+
+    def edge_tiles_moved_by(self, other: TileGrid) -> set[tuple[int, int]]:
+        """The tiles of ``other`` (which this grid extends) whose window or
+        box this grid changes: its northern row when rows were added (its
+        window reached to infinity), its eastern column when columns or cells
+        were (likewise, and its box is clipped to the grid)."""
+        moved: set[tuple[int, int]] = set()
+        if self.n_rows > other.n_rows:
+            moved.update((other.n_rows - 1, c) for c in range(other.n_cols))
+        if self.nx > other.nx:
+            moved.update((r, other.n_cols - 1) for r in range(other.n_rows))
+        return moved
+
     def to_dict(self) -> dict[str, float | int]:
         return asdict(self)
 

@@ -18,10 +18,17 @@ time, SHA-256 of the content) and keeps its work folder.  The next run
 recomputes only the tiles whose points changed: the tiles that held points in
 the bounds of a new, changed or removed file, or near a changed part of the
 convex hull, plus the DEM of their neighbours; every other tile's DEM chunk is
-left untouched.  The result equals a full run over the current archive.  When
-the grid, the data extent or the buffer changes (e.g. a file extends the
-survey, or ``tile_size``/``buffer`` are left to their density-derived
-defaults and the point count changes), every tile is computed again.
+left untouched.  The result equals a full run over the current archive.
+
+A survey that grows keeps its tiles when the grid only grows to the north or
+east: the store's layers are resized (their chunk files renamed where new
+tile rows come in at the north, never written again), and the new tiles, the
+old grid's northern row or eastern column, and the tiles the new files or the
+moved hull touch are computed.  Growth to the south or west moves the grid's
+origin, and with it every tile; so does a change of the buffer or of the tile
+size (keep ``tile_size`` and ``buffer`` in the job file: their defaults follow
+the point density), and ``terrain workflow status`` says why.  A workflow may
+declare its planned ``extent``: files inside it never move the grid.
 """
 
 from __future__ import annotations
@@ -164,9 +171,9 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
     """Tiles the next run would mesh again, decided from the inputs' headers as
     the run decides: the same grid (else every tile), the same skipped files,
     and bounds measured where a header's are unusable, in the target CRS."""
-    from .changes import tiles_depending_on
+    from .changes import tiles_depending_on, tiles_moved_by_growth
     from .crs import resolve_crs
-    from .runner import frame_moved, job_frame, job_frame_record, read_headers
+    from .runner import frame_change, frame_grew, frame_moved, job_frame, job_frame_record, read_headers
     from .tiling import TileGrid
 
     try:
@@ -175,15 +182,20 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
         grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, plan)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"
-    if frame_moved(provenance, job_frame_record(grid, bounds, buffer, plan)):
-        return "all (the grid, extent, buffer or height unit changes)"
+    frame = job_frame_record(grid, bounds, buffer, plan)
+    grows = frame_moved(provenance, frame) and frame_grew(provenance, frame)
+    if frame_moved(provenance, frame) and not grows:
+        return f"all ({frame_change(provenance, frame, done=False)})"
     if not work.exists():
         return "all"
     now = dict(zip(map(str, paths), file_bounds))
     regions = [now[p] for p in touched if now.get(p)]
     regions += [tuple(before[p]["bounds"]) for p in [*gone, *(p for p in touched if p not in now)]
                 if p in before and before[p].get("bounds")]
-    return len(tiles_depending_on(work, TileGrid.from_dict(provenance["grid"]), regions))
+    pending = tiles_depending_on(work, grid, regions)  # the grid's new tiles too
+    if grows:
+        pending |= tiles_moved_by_growth(TileGrid.from_dict(provenance["grid"]), grid)
+    return len(pending)
 
 
 def status_text(status: dict[str, Any]) -> str:

@@ -403,3 +403,69 @@ def test_finalize_removes_writes_a_killed_process_left_unfinished(tmp_path, grid
     assert not any(p.exists() for p in stray)
     assert kept.exists()
     assert open_dem(path).attrs["complete"] is True
+
+
+def _grow_and_check(where: str, zarr_format: int) -> None:
+    """A store of 2 x 3 tiles grown by a tile row north and a column east
+    (and 4 more cells in the old east column): every tile written reads back
+    where it was, the new cells are no data, and the coordinates and
+    GeoTransform follow.  Shared with the object-storage run below."""
+    from pipeline.store import grow_store, tiles_done, mark_tile_done
+
+    before = GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
+    after = GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=28, ny=24, tile_cells=8)
+    create_store(where, before, CRS_WKT, layers=("elevation", "face_kind"), attrs={"run": 1}, zarr_format=zarr_format)
+    written = {}
+    for r in range(before.n_tile_rows):
+        for c in range(before.n_tile_cols):
+            width = min(8, before.nx - 8 * c)
+            values = np.full((8, width), 100.0 * r + c, dtype=np.float32)
+            write_tile(where, before, r, c, {"elevation": values, "face_kind": np.full((8, width), r + 1, np.int8)})
+            mark_tile_done(where, r, c)
+            written[(r, c)] = values
+    grow_store(where, before, after)
+    with open_dem(where) as ds:
+        assert ds.elevation.shape == (24, 28)
+        assert_array_equal(ds.x.values, after.x)
+        assert_array_equal(ds.y.values, after.y)
+        assert ds.spatial_ref.attrs["GeoTransform"] == " ".join(repr(v) for v in after.geotransform)
+        south_up = ds.elevation.values[::-1]
+        for (r, c), values in written.items():
+            cells = south_up[8 * r:8 * r + 8, 8 * c:8 * c + values.shape[1]]
+            assert_array_equal(cells, values)
+        assert np.isnan(south_up[16:]).all()  # the new tile row
+        assert np.isnan(south_up[:, 20:]).all()  # the new columns, and the old east column's new cells
+        kind = ds.face_kind.values[::-1]
+        assert (kind[:16, :20] == np.repeat([1, 2], 8)[:, None]).all()
+    done = tiles_done(where)
+    assert done.shape == (3, 4) and done[:2, :3].all() and not done[2:].any() and not done[:, 3:].any()
+
+
+@FORMATS
+def test_a_store_grows_north_and_east_keeping_its_chunk_files(tmp_path, zarr_format):
+    path = tmp_path / "grow.zarr"
+    _grow_and_check(str(path), zarr_format)
+    files = sorted(p for p in (path / "elevation").rglob("*") if p.is_file() and not p.name.startswith((".z", "zarr")))
+    assert len(files) == 6  # the six chunks written, renamed; no new chunk was written for no data
+
+
+def test_a_grown_grid_must_keep_its_origin(tmp_path, grid):
+    from pipeline.store import grow_store
+
+    create_store(tmp_path / "s.zarr", grid, CRS_WKT, attrs={})
+    moved = GridSpec(x0=grid.x0 - 16.0, y0=grid.y0, resolution=2.0, nx=28, ny=16, tile_cells=8)
+    with pytest.raises(UsageError, match="does not extend"):
+        grow_store(tmp_path / "s.zarr", grid, moved)
+
+
+def test_a_store_on_object_storage_grows_by_renaming_its_objects(server):
+    """The same growth on a real S3 server (in a process of its own: s3fs in
+    this one would outlive the module's server)."""
+    import subprocess
+    import sys
+
+    server.filesystem().mkdir("grow")
+    code = "from tests.pipeline.test_store import _grow_and_check; _grow_and_check('s3://grow/dem.zarr', 3)"
+    done = subprocess.run([sys.executable, "-c", code], env=server.env(), capture_output=True, text=True,
+                          cwd=Path(__file__).parents[2])
+    assert done.returncode == 0, done.stderr[-3000:]

@@ -163,12 +163,12 @@ def test_unset_variables_in_paths_are_named(tmp_path, monkeypatch):
 def test_status_sees_a_new_file_that_moves_the_grid(job, tmp_path):
     workflow = Workflow.load(job)
     run_workflow(workflow, progress=False)
-    _patch(tmp_path / "archive", "beyond", (260.0, 40.0), seed=5)  # east of the old extent
+    _patch(tmp_path / "archive", "beyond", (-60.0, 40.0), seed=5)  # west of the old extent
     status = workflow_status(workflow)
     assert status["new_files"] == [str(tmp_path / "archive" / "beyond.laz")]
     assert str(status["tiles_pending"]).startswith("all")
     report = run_workflow(workflow, progress=False)
-    assert any("grid, extent, buffer or height unit changed" in note for note in report.notes), report.notes
+    assert any("grew south or west of the grid's origin" in note for note in report.notes), report.notes
     assert workflow_status(workflow)["tiles_pending"] == 0
 
 
@@ -274,8 +274,92 @@ def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touch
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
 
 
-def test_without_an_extent_a_block_that_grows_the_survey_says_why_every_tile_is_pending(job, tmp_path):
+# a block beyond a 400 x 240 m survey of 5 x 3 tiles of 80 m, without a declared extent
+GROWTH = {"north": (60.0, 240.0), "east": (400.0, 40.0), "south": (60.0, -80.0), "west": (-80.0, 40.0)}
+
+
+def _grown_chunk_times(before: dict[str, int], rows: int) -> dict[str, int]:
+    """Chunk file names of a north-up layer after the grid gained ``rows`` tile rows at the north."""
+    out = {}
+    for key, stamp in before.items():
+        c, i, j = key.split("/")
+        out[f"{c}/{int(i) + rows}/{j}"] = stamp
+    return out
+
+
+@pytest.mark.parametrize("side", ["north", "east"])
+def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_tiles(tmp_path, side):
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=400.0, height=240.0, points=20_000, files=2, seed=1))
+    job = tmp_path / "nightly.toml"
+    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
     workflow = Workflow.load(job)
     run_workflow(workflow, progress=False)
-    _patch(tmp_path / "archive", "north", BLOCKS["north"], seed=7, size=80.0)
-    assert workflow_status(workflow)["tiles_pending"] == "all (the grid, extent, buffer or height unit changes)"
+    out = Path(workflow.config.output)
+    before = _chunk_times(out)
+    assert {k.split("/")[1] for k in before} == {"0", "1", "2"}  # 3 tile rows
+
+    _patch(archive, side, GROWTH[side], seed=7, size=80.0)
+    status = workflow_status(workflow)
+    assert status["new_files"] == [str(archive / f"{side}.laz")]
+    assert isinstance(status["tiles_pending"], int), status
+    report = run_workflow(workflow, progress=False)
+    assert any("the grid grew from 3 x 5 to" in note for note in report.notes), report.notes
+    # the status foresaw the run: the new tiles, the old edge's, those the block touches
+    assert any(f"{status['tiles_pending']} of {report.tiles} tile(s) computed again" in n for n in report.notes), (
+        status, report.notes)
+    assert status["tiles_pending"] < report.tiles
+    after = _chunk_times(out)
+    moved = _grown_chunk_times(before, 1) if side == "north" else before
+    assert set(moved) <= set(after)  # every chunk file is still there (renamed at the north)
+    untouched = [k for k in moved if after[k] == moved[k]]
+    # the southern tiles, far from the block, were neither computed nor written again
+    assert len(untouched) >= 5, (len(untouched), len(moved))
+    assert_same_store(out, _full_run(workflow, tmp_path / "full.zarr"))
+    assert workflow_status(workflow)["tiles_pending"] == 0
+
+
+@pytest.mark.parametrize("side", ["south", "west"])
+def test_without_an_extent_growth_south_or_west_says_why_every_tile_is_pending(tmp_path, side):
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
+    job = tmp_path / "nightly.toml"
+    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    _patch(archive, side, GROWTH[side], seed=7, size=80.0)
+    why = "the survey grew south or west of the grid's origin, which {} every tile"
+    assert workflow_status(workflow)["tiles_pending"] == f"all ({why.format('moves')})"
+    report = run_workflow(workflow, progress=False)
+    assert f"{why.format('moved')}: every tile was computed again" in report.notes, report.notes
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_a_store_left_half_grown_is_made_again(tmp_path):
+    """A run stopped while it renamed chunks leaves a store whose chunks are
+    half moved: the next run makes it again instead of trusting it."""
+    from pipeline import store
+
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
+    job = tmp_path / "nightly.toml"
+    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    _patch(archive, "north", (60.0, 160.0), seed=7, size=80.0)
+    real = store._shift_chunk_rows
+
+    def stop_after_one(path, array, grid, shift):
+        real(path, array, grid, shift)
+        raise KeyboardInterrupt
+
+    store._shift_chunk_rows = stop_after_one
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_workflow(workflow, progress=False)
+    finally:
+        store._shift_chunk_rows = real
+    assert store.read_attrs(workflow.config.output)[store.GROWING_ATTR]
+    report = run_workflow(workflow, progress=False)
+    assert "an earlier run stopped while it grew the grid: every tile was computed again" in report.notes
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
