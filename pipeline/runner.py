@@ -210,6 +210,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
         hull = grow_hull(hull, x, y, z)
     spill.flush()
     counts["parts"] = spill.parts  # a resume checks they are still there
+    counts["tile_points"] = spill.points  # the tiles' work, to start the largest first
     counts["sha256"] = file_digest(job.path)
     counts["hull"] = hull
     counts["seconds"] = time.perf_counter() - t0
@@ -629,6 +630,12 @@ def _execute(
                 rec["window_counts"] = tuple(tuple(row) for row in rec.get("window_counts", ()))
                 summaries[(job.row, job.col)] = TileSummary(**rec)
         pending = [job for job in tile_jobs if (job.row, job.col) not in summaries]
+        # the largest tiles first, so that no core is left with one at the end
+        work_of: dict[tuple[int, int], int] = {}
+        for c in counts:
+            for r, col, n in (c or {}).get("tile_points", ()):
+                work_of[(r, col)] = work_of.get((r, col), 0) + n
+        pending.sort(key=lambda job: -work_of.get((job.row, job.col), 0))
 
         def meshed(job: TileJob, summary: TileSummary) -> None:
             work.record("mesh", _tile_key(job), asdict(summary))
@@ -636,7 +643,7 @@ def _execute(
 
         map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
         _count_windows(report, counts, infos, windows, summaries.values())
-        report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts", "window")}
+        report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts", "tile_points", "window")}
                         for c in counts if c is not None and "skipped" not in c]
         for s in summaries.values():
             report.duplicates += s.duplicates

@@ -211,6 +211,7 @@ class TileSpiller:
         self._pending: dict[tuple[int, int], list[NDArray[np.float64]]] = {}
         self._held = 0
         self._parts: dict[tuple[int, int], int] = {}
+        self._points: dict[tuple[int, int], int] = {}
 
     def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
         if x.size == 0:
@@ -221,7 +222,9 @@ class TileSpiller:
         )
         for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
             s, e = int(offsets[k]), int(offsets[k + 1])
-            self._pending.setdefault((k // g.n_cols, k % g.n_cols), []).append(pts[s:e])
+            key = (k // g.n_cols, k % g.n_cols)
+            self._pending.setdefault(key, []).append(pts[s:e])
+            self._points[key] = self._points.get(key, 0) + (e - s)
             self._held += e - s
         if self._held > self.budget:
             self.flush()
@@ -230,6 +233,11 @@ class TileSpiller:
     def parts(self) -> list[list[int]]:
         """``[row, col, n]``: the spill files written for each tile (for the record)."""
         return [[r, c, n] for (r, c), n in sorted(self._parts.items())]
+
+    @property
+    def points(self) -> list[list[int]]:
+        """``[row, col, n]``: the points sent to each tile (its window and buffer)."""
+        return [[r, c, n] for (r, c), n in sorted(self._points.items())]
 
     def flush(self) -> None:
         files = {}
