@@ -146,9 +146,21 @@ def _user_crs(text: str, option: str) -> pyproj.CRS:
     if not isinstance(text, str) or not text.strip():
         raise CrsError(f"{option} must be a CRS such as EPSG:2154, a WKT or a PROJ string, got {text!r}")
     try:
-        return pyproj.CRS.from_user_input(text.strip())
+        return _described(pyproj.CRS.from_user_input(text.strip()))
     except CRSError as exc:
         raise CrsError(f"{option} {text!r} is not a CRS pyproj understands ({one_line(exc)})") from exc
+
+
+def _described(crs: pyproj.CRS) -> pyproj.CRS:
+    """``crs``, once it is known that the store can describe it (CF grid
+    mapping and axes); CRSError for one that parses but cannot be: a damaged
+    record, such as a projection short of its parameters."""
+    try:
+        crs.to_cf()
+        crs.cs_to_cf()
+    except Exception as exc:  # noqa: BLE001 - pyproj raises KeyError, ValueError, ... on such records
+        raise CRSError(f"its definition is incomplete ({type(exc).__name__}: {one_line(exc)})") from None
+    return crs
 
 
 class _CrsCache:
@@ -158,9 +170,12 @@ class _CrsCache:
         self._by_wkt: dict[str, pyproj.CRS] = {}
 
     def get(self, wkt: str) -> pyproj.CRS:
+        """The CRS of ``wkt``; CRSError for one that does not parse, or that
+        parses but cannot be described as the store describes it (a file's
+        damaged record: a projection short of its parameters)."""
         crs = self._by_wkt.get(wkt)
         if crs is None:
-            crs = self._by_wkt[wkt] = pyproj.CRS.from_wkt(wkt)
+            crs = self._by_wkt[wkt] = _described(pyproj.CRS.from_wkt(wkt))
         return crs
 
 

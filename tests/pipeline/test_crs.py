@@ -53,6 +53,34 @@ def test_missing_crs_without_in_crs_lists_the_files(tmp_path: Path) -> None:
     assert "--in-crs" in message and "\n" not in message
 
 
+def _lambert93_without(parameter: str) -> str:
+    """Lambert-93 as WKT with one of its projection's parameters cut out (a
+    damaged record that pyproj still parses)."""
+    wkt = pyproj.CRS.from_epsg(2154).to_wkt()
+    start = wkt.index(f'PARAMETER["{parameter}"')
+    return wkt[:start] + wkt[wkt.index("]]", start) + 3:]
+
+
+@pytest.mark.parametrize("parameter", ["Easting at false origin", "Latitude of 1st standard parallel"])
+def test_a_file_crs_short_of_a_parameter_is_unusable_and_named(tmp_path: Path, parameter) -> None:
+    """pyproj parses such a record but fails with a KeyError when it is
+    described for the store: the file's CRS is unusable (exit 2, named), not
+    a crash part way through a run."""
+    import dataclasses
+
+    damaged = _lambert93_without(parameter)
+    pyproj.CRS.from_wkt(damaged)  # parses
+    good = info_for(tmp_path, "a.las", LAMBERT93)
+    bad = dataclasses.replace(info_for(tmp_path, "b.las", LAMBERT93), crs_wkt=damaged)
+    with pytest.raises(CrsError, match="incomplete") as exc:
+        resolve_crs([good, bad], None, None)
+    assert str(bad.path) in str(exc.value) and str(good.path) not in str(exc.value)
+    plan = resolve_crs([good, bad], LAMBERT93, None)  # --in-crs stands in for it, with a note
+    assert any(str(bad.path) in note and "incomplete" in note for note in plan.notes)
+    with pytest.raises(CrsError, match="--out-crs"):
+        resolve_crs([good], None, damaged)
+
+
 def test_in_crs_fills_missing_and_keeps_a_files_valid_crs(tmp_path: Path) -> None:
     a = info_for(tmp_path, "utm.las", "EPSG:32631")
     b = info_for(tmp_path, "nocrs.las", None)
