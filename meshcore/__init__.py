@@ -14,7 +14,6 @@ patches through every point, the paper's section 4).  No I/O.
 
 from __future__ import annotations
 
-from ._jit import drop_stale_kernels
 from ._order import lexicographic_order
 from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
@@ -28,8 +27,6 @@ from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3
 from .rasterize import rasterize
 from .smooth import DEFAULT_NEIGHBOURS, Neighbourhoods, Variogram, fit_variogram, smooth_neighbourhoods, smooth_nodes
 from .validate import convex_hull, validate
-
-drop_stale_kernels()
 
 __version__ = "0.1.0"
 

@@ -10,16 +10,65 @@ space on the stack (:func:`stack_array`).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import sys
 from pathlib import Path
 
 import numba
 import numpy as np
-from numba.core import cgutils, types
+from numba.core import caching, cgutils, types
 from numba.extending import intrinsic
 
 __all__ = ["njit", "njit_borrowing", "stack_array", "drop_stale_kernels"]
+
+_PACKAGE = Path(__file__).resolve().parent
+
+
+@functools.cache
+def _package_digest() -> str:
+    return sources_digest()
+
+
+class _PackageStamp:
+    """A cache locator's stamp of a kernel's sources: its own file, as numba
+    stamps it, and every source of this package.
+
+    numba checks only the file a kernel is defined in, but the flip and merge
+    kernels inline the quality measures of another module: after a ``git
+    pull`` in an editable install they would keep running the old code.  With
+    the package's digest in the stamp, a cache compiled from other sources
+    is stale and compiled again, with nothing deleted when the package is
+    imported.
+    """
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        try:
+            if Path(py_file).resolve().parent != _PACKAGE:
+                return None
+        except OSError:
+            return None
+        return super().from_function(py_func, py_file)  # type: ignore[misc]
+
+    def get_source_stamp(self):
+        return (super().get_source_stamp(), _package_digest())  # type: ignore[misc]
+
+
+class _UserProvided(_PackageStamp, caching.UserProvidedCacheLocator):
+    """``NUMBA_CACHE_DIR``, when set."""
+
+
+class _InTree(_PackageStamp, caching.InTreeCacheLocator):
+    """Beside the sources, when that folder is writable."""
+
+
+class _UserWide(_PackageStamp, caching.UserWideCacheLocator):
+    """The user's cache folder, for a read-only install (a system package, a container image)."""
+
+
+if not any(issubclass(c, _PackageStamp) for c in caching.CacheImpl._locator_classes):
+    caching.CacheImpl._locator_classes[:0] = [_UserProvided, _InTree, _UserWide]
 
 njit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -70,14 +119,9 @@ SOURCES_STAMP = "meshcore-sources.sha256"
 
 
 def drop_stale_kernels(folders: list[Path] | None = None) -> None:
-    """Delete cached kernels compiled from other sources of this package.
+    """Delete cached kernels compiled from other sources of this package (to
+    reclaim their space: they are never loaded, see :class:`_PackageStamp`).
 
-    numba checks only the file a kernel is defined in: a kernel that inlines
-    one from another module (the flip and merge kernels call the quality
-    measures) would keep running the old code after that module changed, as
-    after a ``git pull`` in an editable install.  The cache is dropped when a
-    digest of all the package's sources differs from the one it was built
-    with.  Called once, when the package is imported, before any kernel runs;
     ``folders`` defaults to the cache folders of the package's kernels.
     """
     digest = sources_digest()

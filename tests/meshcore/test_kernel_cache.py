@@ -27,3 +27,51 @@ def test_kernels_compiled_from_other_sources_are_dropped(tmp_path):
 
 def test_the_cache_folders_are_those_numba_uses():
     assert Path(s1_kernel._cache._cache_path) in _jit.kernel_cache_folders()
+
+
+def test_a_kernels_cache_is_stamped_with_every_source_of_the_package():
+    """A kernel inlines code of other modules (flips call the quality
+    measures): its cache is valid only for the sources of the whole package,
+    so an edit anywhere in it recompiles, and importing deletes nothing."""
+    locator = s1_kernel._cache._impl.locator
+    assert isinstance(locator, _jit._PackageStamp)
+    own, package = locator.get_source_stamp()
+    assert package == _jit.sources_digest()
+
+
+_PROBE = """
+import json, sys
+from numba.core import event
+compiled = []
+class Count(event.Listener):
+    def on_start(self, ev): compiled.append(ev.data["dispatcher"].py_func.__name__)
+    def on_end(self, ev): pass
+event.register("numba:compile", Count())
+from meshcore.quality import s1_kernel
+value = s1_kernel(0.0, 0.0, 1.0, 0.0, 0.0, 1.0)
+print(json.dumps({"compiled": compiled, "cache": s1_kernel._cache._cache_path, "value": value}))
+"""
+
+
+def test_a_read_only_install_keeps_its_kernels_in_the_users_cache(tmp_path):
+    """Where the package's folder takes no cache files (a system install, a
+    container image), kernels are cached in the user's cache folder: the
+    second process compiles nothing."""
+    import json
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    package = tmp_path / "site" / "meshcore"
+    shutil.copytree(Path(_jit.__file__).parent, package, ignore=shutil.ignore_patterns("__pycache__"))
+    (package / "__pycache__").write_text("not a folder: nothing can be written here")
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_CACHE", "XDG_CACHE"))}
+    env.update(PYTHONPATH=str(tmp_path / "site"), HOME=str(tmp_path / "home"), PYTHONDONTWRITEBYTECODE="1")
+    runs = []
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, cwd=tmp_path)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    assert "s1_kernel" in runs[0]["compiled"] and runs[1]["compiled"] == []
+    assert runs[0]["cache"].startswith(str(tmp_path / "home")) and runs[0]["value"] == runs[1]["value"]
