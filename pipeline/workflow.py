@@ -168,27 +168,25 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
 
 
 def _pending_after_changes(config: RunConfig, provenance, work, touched: list[str], gone: list[str], before) -> int | str:
-    """Tiles the next run would mesh again, decided from the inputs' headers as
-    the run decides: the same grid (else every tile), the same skipped files,
-    and bounds measured where a header's are unusable, in the target CRS."""
+    """Tiles the next run would mesh again, from the plan the run makes (its
+    headers, CRS plan and grid): every tile when the frame moved, else the
+    tiles the changed files touch (and, when the grid grows, its new tiles
+    and the old edge's)."""
     from .changes import tiles_depending_on, tiles_moved_by_growth
-    from .crs import resolve_crs
-    from .runner import frame_change, frame_grew, frame_moved, job_frame, job_frame_record, read_headers
+    from .plan import frame_change, frame_grew, frame_moved, plan_run
     from .tiling import TileGrid
 
     try:
-        paths, infos, _ = read_headers(config)
-        plan = resolve_crs(infos, config.in_crs, config.out_crs)
-        grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, plan)
+        plan = plan_run(config)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"
-    frame = job_frame_record(grid, bounds, buffer, plan)
+    grid, frame = plan.grid, plan.provenance
     grows = frame_moved(provenance, frame) and frame_grew(provenance, frame)
     if frame_moved(provenance, frame) and not grows:
         return f"all ({frame_change(provenance, frame, done=False)})"
     if not work.exists():
         return "all"
-    now = dict(zip(map(str, paths), file_bounds))
+    now = dict(zip(map(str, plan.paths), plan.file_bounds))
     regions = [now[p] for p in touched if now.get(p)]
     regions += [tuple(before[p]["bounds"]) for p in [*gone, *(p for p in touched if p not in now)]
                 if p in before and before[p].get("bounds")]

@@ -1,0 +1,253 @@
+"""A run's plan: what it fixes before it reads a point.
+
+:func:`plan_run` reads the inputs' headers, decides the CRS plan, the grid,
+the data extent and the buffer, and writes the provenance that a store keeps:
+the same code for ``terrain run`` and for ``terrain workflow status``, which
+asks what the next run would do.  :func:`frame_moved`, :func:`frame_grew`
+and :func:`frame_change` compare the frame of two provenances (the entries
+that fix the tiles).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from . import urls
+from .config import RunConfig
+from .errors import InputFileError, PipelineError, UsageError
+from .tiling import TileGrid, check_cells
+
+if TYPE_CHECKING:
+    from .crs import CrsPlan
+    from .sources import SourceInfo
+    from .store import GridSpec
+
+__all__ = [
+    "RunPlan", "plan_run", "read_headers", "job_frame", "job_frame_record", "frame_moved", "frame_grew",
+    "frame_change", "grid_spec", "union_bounds", "POINTS_PER_TILE", "SMOOTH_POINTS_PER_TILE",
+]
+
+POINTS_PER_TILE = 500_000
+"""Target number of points per tile when ``tile_size`` is not given.
+
+The mesh passes sweep a tile's half-edge arrays many times, and a smaller
+tile keeps more of them in cache; the buffer around a tile stays a few
+percent of its points.  On a 20M-point archive, 0.5M-point tiles mesh about
+9% faster than 1.5M-point ones, with a lower peak memory
+(``bench/bench_pipeline.py throughput``)."""
+
+SMOOTH_POINTS_PER_TILE = 125_000
+"""The same for ``surface="smooth"``: kriging its nodes costs several times
+meshing, so smaller tiles let every core krige (a survey of 500k points is
+four tiles, not one)."""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """What a run fixes before it reads a point: its inputs, their CRS plan,
+    the grid, the data extent, the buffer, and the provenance a store keeps."""
+
+    config: RunConfig
+    paths: tuple[Path | str, ...]
+    infos: tuple[SourceInfo, ...]
+    skipped_files: tuple[dict[str, Any], ...]
+    """Inputs left out with ``skip_bad_files`` (path, reason, points)."""
+    crs: CrsPlan
+    grid: TileGrid
+    bounds: tuple[float, float, float, float]
+    """The data extent: the headers' bounds (cut to the bbox, grown to a declared extent)."""
+    buffer: float
+    file_bounds: tuple[tuple[float, float, float, float] | None, ...]
+    """Each input's header bounds in the target CRS."""
+    provenance: dict[str, Any]
+
+    @property
+    def notes(self) -> list[str]:
+        """What the plan's readers should know: the headers' notes and the CRS plan's."""
+        return [f"{p}: {note}" for p, info in zip(self.paths, self.infos) for note in info.notes] + list(self.crs.notes)
+
+
+def plan_run(config: RunConfig) -> RunPlan:
+    """The plan of a run of ``config`` over its inputs as they are now."""
+    from .crs import resolve_crs
+
+    paths, infos, skipped = read_headers(config)
+    crs = resolve_crs(infos, config.in_crs, config.out_crs)
+    grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, crs)
+    provenance = {
+        "software": "terrain-pipeline",
+        "version": _version(),
+        "parameters": config.to_dict(),
+        "inputs": [
+            {
+                "path": str(i.path), "size": i.size_bytes, "points": i.point_count, **urls.version(i.path),
+                "bounds": b,
+            }
+            for i, b in zip(infos, file_bounds)
+        ],
+        "crs_wkt": crs.target_wkt,
+        **job_frame_record(grid, bounds, buffer, crs),
+    }
+    return RunPlan(config, tuple(paths), tuple(infos), tuple(skipped), crs, grid, bounds, buffer, tuple(file_bounds),
+                   provenance)
+
+
+def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, Any]]]:
+    """The inputs' paths and header information (bounds measured from the
+    points where the header's are unusable), and with ``skip_bad_files`` the
+    files left out and why."""
+    from .sources import discover_inputs, read_info, with_measured_bounds
+
+    paths, infos, skipped = [], [], []
+    for p in discover_inputs(config.inputs):
+        try:
+            info = read_info(p)
+            if info.point_count and not info.bounds_usable:  # the grid needs them
+                info = with_measured_bounds(info)
+        except InputFileError as exc:
+            if not config.skip_bad_files:
+                raise
+            skipped.append({"path": str(p), "reason": str(exc), "points": None})
+            continue
+        infos.append(info)
+        paths.append(p)
+    if not paths:
+        raise InputFileError("every input was skipped: " + "; ".join(f["reason"] for f in skipped))
+    return paths, infos, skipped
+
+
+def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, float, list]:
+    """The grid, the extent and the buffer of a job over these inputs (and the
+    files' bounds in the target CRS): what a run fixes before reading points."""
+    file_bounds = [_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)]
+    bounds = union_bounds(file_bounds)
+    if config.bbox is not None:
+        b = config.bbox
+        bounds = (max(bounds[0], b[0]), max(bounds[1], b[1]), min(bounds[2], b[2]), min(bounds[3], b[3]))
+    if not all(math.isfinite(v) for v in bounds) or bounds[0] > bounds[2] or bounds[1] > bounds[3]:
+        raise PipelineError("no points to grid: the inputs are empty or the bbox misses them")
+    if config.extent is not None:  # the planned area: files inside it never move the grid
+        bounds = union_bounds([bounds, config.extent])
+    if not (math.isfinite(bounds[2] - bounds[0]) and math.isfinite(bounds[3] - bounds[1])):
+        raise UsageError(f"the inputs span more than the largest float: x {bounds[0]:.6g} .. {bounds[2]:.6g}, "
+                         f"y {bounds[1]:.6g} .. {bounds[3]:.6g}")
+    tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
+    grid = TileGrid.covering(bounds, config.resolution, tile_cells)
+    try:
+        check_cells(grid, config.max_cells)
+    except UsageError as exc:  # say which file spans the most: a wrong CRS or header shows up here
+        spans = [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
+        widest = int(np.argmax(spans))
+        b = file_bounds[widest]
+        raise UsageError(
+            f"{exc}; the widest input is {paths[widest]}: x {b[0]:.2f} .. {b[2]:.2f}, y {b[1]:.2f} .. {b[3]:.2f}"
+        ) from None
+    return grid, bounds, buffer, file_bounds
+
+
+def job_frame_record(grid: TileGrid, bounds, buffer: float, plan: CrsPlan) -> dict[str, Any]:
+    """The provenance entries that fix a job's tiles, and the unit of its
+    heights (a slope compares heights with distances)."""
+    return {
+        "grid": grid.to_dict(), "extent": list(bounds), "buffer": buffer,
+        "heights": {"unit": plan.height_unit, "scale": plan.height_scale},
+    }
+
+
+def frame_moved(before: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether two provenances differ in the entries that fix the tiles or in
+    the heights' unit (every tile is then computed again: a new file in
+    another height unit changes the slopes of tiles it does not touch)."""
+    if any(before.get(k) != now.get(k) for k in ("grid", "extent", "buffer")):
+        return True
+    # stores written before the heights were recorded have none: taken as unchanged
+    return "heights" in before and before["heights"] != now.get("heights")
+
+
+def frame_grew(before: dict[str, Any], now: dict[str, Any]) -> bool:
+    """Whether the frame ``now`` keeps the tiles of ``before`` and only grows
+    its grid to the north or east (or leaves it as it was while the data
+    extent moved inside it): the same origin, cells, tiles, buffer and heights.
+    The tiles written then stay (:func:`pipeline.store.grow_store`)."""
+    if "grid" not in before or before.get("buffer") != now.get("buffer"):
+        return False
+    if "heights" in before and before["heights"] != now.get("heights"):
+        return False
+    return TileGrid.from_dict(now["grid"]).extends(TileGrid.from_dict(before["grid"]))
+
+
+def frame_change(before: dict[str, Any], now: dict[str, Any], done: bool = True) -> str:
+    """Why every tile is (``done``) or will be computed again when a frame
+    moved and did not grow."""
+    if "grid" in before and before.get("buffer") == now.get("buffer"):
+        was, grid = TileGrid.from_dict(before["grid"]), TileGrid.from_dict(now["grid"])
+        if (was.resolution, was.tile_cells) == (grid.resolution, grid.tile_cells) and (grid.x0, grid.y0) != (was.x0, was.y0):
+            return f"the survey grew south or west of the grid's origin, which {'moved' if done else 'moves'} every tile"
+    return f"the grid, extent, buffer or height unit {'changed' if done else 'changes'}"
+
+
+def grid_spec(grid: TileGrid) -> GridSpec:
+    """The store's description of the grid."""
+    from . import store
+
+    return store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
+
+
+def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
+    """A file's header bounds in the target CRS (None for an empty file)."""
+    from pyproj import CRS, Transformer
+
+    if info.point_count == 0:
+        return None
+    b = info.bounds
+    x0, y0, x1, y1 = b[0], b[1], b[3], b[4]
+    if source_wkt != target_wkt:
+        t = Transformer.from_crs(CRS.from_wkt(source_wkt), CRS.from_wkt(target_wkt), always_xy=True)
+        x0, y0, x1, y1 = t.transform_bounds(x0, y0, x1, y1, densify_pts=21)
+    return float(x0), float(y0), float(x1), float(y1)
+
+
+def union_bounds(boxes) -> tuple[float, float, float, float]:
+    """Union of boxes (None ones skipped); infinite when there are none."""
+    xmin = ymin = math.inf
+    xmax = ymax = -math.inf
+    for b in boxes:
+        if b is None:
+            continue
+        xmin, ymin = min(xmin, b[0]), min(ymin, b[1])
+        xmax, ymax = max(xmax, b[2]), max(ymax, b[3])
+    return xmin, ymin, xmax, ymax
+
+
+def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
+    """Tile edge in cells and buffer (CRS units) from the point density."""
+    area = max((bounds[2] - bounds[0]) * (bounds[3] - bounds[1]), config.resolution**2)
+    density = max(n_points, 1) / area
+    spacing = 1.0 / math.sqrt(density)
+    if config.tile_size is not None:
+        tile_cells = int(round(config.tile_size / config.resolution))
+    else:
+        per_tile = POINTS_PER_TILE if config.surface == "linear" else SMOOTH_POINTS_PER_TILE
+        target = math.sqrt(per_tile / density) / config.resolution
+        # as many tiles along each side as that size needs, all of one size:
+        # 351 x 370 m of 700k points is 2 x 2 tiles of 192 m, not one of
+        # 304 m that holds 60% of the points beside three small ones
+        cells = [max(1.0, (bounds[2] - bounds[0]) / config.resolution), max(1.0, (bounds[3] - bounds[1]) / config.resolution)]
+        even = max(math.ceil(side / max(1, math.ceil(side / target))) for side in cells)
+        tile_cells = max(16, -(-even // 16) * 16)
+    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
+    return tile_cells, float(buffer)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("terrain-pipeline")
+    except PackageNotFoundError:  # pragma: no cover
+        return "unknown"

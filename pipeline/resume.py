@@ -1,0 +1,190 @@
+"""Whether a run starts afresh, resumes, or updates a store: one place for
+both of a run's ledgers.
+
+A run's finished work is recorded in two places: the work folder's records
+(:class:`~pipeline.checkpoint.WorkDir`: routed files, meshed tiles, written
+mesh blocks) and the store's ``status/tile_done`` (DEM tiles written).
+:func:`decide` compares the plan of this run with the store's provenance;
+:func:`prepare` then makes the store and the work folder agree with the
+decision: a new store, a store grown north or east, the records of the units
+that changed forgotten, or nothing (a resume).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from .changes import (
+    forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on, tiles_moved_by_growth,
+)
+from .checkpoint import WorkDir
+from .config import RunConfig
+from .errors import PipelineError, UsageError
+from .plan import RunPlan, frame_change, frame_grew, frame_moved, grid_spec
+from .tiles import piece_intact
+from .tiling import TileGrid, spill_intact, tile_key
+
+__all__ = ["Resume", "decide", "prepare"]
+
+
+@dataclass(frozen=True)
+class Resume:
+    """What a run does with the store it finds."""
+
+    previous: dict[str, Any] | None
+    """The store's attributes when the run goes on from them; None: afresh."""
+    grown_from: TileGrid | None = None
+    """The grid an incremental run grows to the north or east."""
+    same_inputs: bool = False
+    keep_work: bool = False
+    """A workflow's store keeps its work folder between runs."""
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def complete(self) -> bool:
+        """The store is finished, from these very inputs: nothing to do."""
+        return self.previous is not None and bool(self.previous.get("complete")) and self.same_inputs
+
+
+def decide(plan: RunPlan, incremental: bool) -> Resume:
+    """Compare the plan with the store at ``plan.config.output``.
+
+    Raises UsageError for a store of another job (other parameters, other
+    inputs unless ``incremental``, another grid) unless ``overwrite``.
+    """
+    from . import store
+
+    config, provenance = plan.config, plan.provenance
+    previous = existing_job(config, provenance, allow_new_inputs=incremental)
+    fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
+    grown_from = None
+    notes: list[str] = []
+    if incremental and fresh_frame and previous.get(store.GROWING_ATTR):
+        notes.append("an earlier run stopped while it grew the grid: every tile was computed again")
+        previous = None
+    elif incremental and fresh_frame and frame_grew(previous["provenance"], provenance):
+        grown_from = TileGrid.from_dict(previous["provenance"]["grid"])
+    elif incremental and fresh_frame:
+        notes.append(f"{frame_change(previous['provenance'], provenance)}: every tile was computed again")
+        previous = None
+    elif fresh_frame:
+        raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")
+    same_inputs = previous is not None and input_keys(previous["provenance"]["inputs"]) == input_keys(provenance["inputs"])
+    # a workflow's store keeps its work folder: its next run reuses the tiles
+    # no changed input touches, whichever command finished the store meanwhile
+    keep_work = incremental or bool(previous is not None and previous.get("incremental"))
+    return Resume(previous, grown_from, same_inputs, keep_work, tuple(notes))
+
+
+def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, notes: list[str],
+            say: Callable[[str], None]) -> None:
+    """Make the store and the work folder agree with ``resume``: create the
+    store, or grow it, or forget the units that changed inputs touch, or
+    keep everything (a resume); then forget the units whose files are lost."""
+    from . import store
+    from .crs import cf_units
+
+    config, grid, provenance, previous = plan.config, plan.grid, plan.provenance, resume.previous
+    spec = grid_spec(grid)
+    if resume.grown_from is not None and resume.grown_from != grid:
+        store.grow_store(config.output, grid_spec(resume.grown_from), spec)
+    if previous is None:
+        store.create_store(
+            config.output,
+            spec,
+            plan.crs.target_wkt,
+            layers=config.layers,
+            attrs={"provenance": provenance, "complete": False, "incremental": resume.keep_work},
+            zarr_format=config.zarr_format,
+            overwrite=config.overwrite or incremental,
+            height_units=cf_units(plan.crs.height_unit),
+        )
+        work.reset()
+    elif not work.exists():
+        # the intermediate files are gone: every stage runs again
+        store.reset_tiles_done(config.output)
+        work.reset()
+        notes.append("the work folder was missing: every tile was computed again")
+    elif not resume.same_inputs:
+        changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
+        tiles = tiles_depending_on(work, grid, changed)
+        grown_from = resume.grown_from
+        if grown_from is not None:
+            tiles |= tiles_moved_by_growth(grown_from, grid)
+            reroute_near_growth(work, grown_from, provenance["inputs"], plan.buffer)
+            if grown_from != grid:
+                notes.append(
+                    f"the grid grew from {grown_from.n_rows} x {grown_from.n_cols} to {grid.n_rows} x {grid.n_cols} "
+                    "tiles (north or east): the tiles written were kept"
+                )
+        forget_tiles(work, config.output, grid, tiles)
+        notes.append(f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again")
+        store.finalize_store(config.output, {"provenance": provenance, "complete": False})
+    else:
+        say(f"{config.output}: resuming an unfinished run")
+        notes.append("resumed an unfinished run: finished work was kept")
+    if previous is not None and work.exists():
+        lost = forget_lost_units(work, len(plan.paths), grid, ("nodes",) if config.surface == "smooth" else ())
+        if lost:
+            notes.append(f"{lost} finished unit(s) had lost files in the work folder: done again")
+
+
+def forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra: tuple[str, ...] = ()) -> int:
+    """Forget the records of finished units whose files are gone from the work
+    folder (a cleaner, a user), so they are done again; returns how many.
+    ``piece_extra``: arrays a meshed piece must also hold (the smooth surface's nodes)."""
+    lost = 0
+    for i in range(n_inputs):
+        rec = work.recorded("route", f"{i:06d}")
+        if rec is not None and not spill_intact(work.scratch, i, rec.get("parts", [])):
+            work.forget_record("route", f"{i:06d}")  # routed again: its spill files are rewritten
+            lost += 1
+    for r, c in grid.tiles():
+        key = tile_key(r, c)
+        if work.recorded("mesh", key) is not None and not piece_intact(work.scratch, r, c, piece_extra):
+            work.forget_record("mesh", key)
+            work.forget_record("write", f"ids_{key}")
+            lost += 1
+        elif work.recorded("write", f"ids_{key}") is not None and not piece_intact(work.scratch, r, c, ("node_ids",)):
+            work.forget_record("write", f"ids_{key}")
+            lost += 1
+    return lost
+
+
+def input_keys(inputs: list[dict[str, Any]]) -> set[tuple]:
+    return {(i.get("path"), i.get("size"), i.get("mtime"), i.get("etag")) for i in inputs}
+
+
+def existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs: bool = False) -> dict[str, Any] | None:
+    """The attributes of an earlier run of the same job at ``config.output`` (to
+    resume or skip), or None to start afresh.  An existing store of another job
+    (or, unless ``allow_new_inputs``, of other inputs) is an error unless
+    ``config.overwrite``."""
+    from . import store
+
+    if config.overwrite:
+        return None
+    attrs = store.read_attrs(config.output)
+    if attrs is None:
+        return None
+    where = config.output
+    old = attrs.get("provenance", {})
+    try:
+        before = RunConfig.from_dict(old.get("parameters", {}))
+    except (PipelineError, TypeError):
+        raise UsageError(f"{where}: an existing store of unknown origin; pass --overwrite to replace it") from None
+    changed = config.differences(before)
+    if changed:
+        detail = ", ".join(f"{k}: {getattr(before, k)!r} -> {getattr(config, k)!r}" for k in changed)
+        raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass --overwrite to replace it")
+    was, now = input_keys(old.get("inputs", [])), input_keys(provenance["inputs"])
+    if was != now and not allow_new_inputs:
+        added = sorted(p for p, *_ in now - was)
+        gone = sorted(p for p, *_ in was - now)
+        raise UsageError(
+            f"{where}: the inputs changed since the store was made (new or changed: {added or 'none'}; "
+            f"gone or changed: {gone or 'none'}); pass --overwrite, or use 'terrain workflow' for incremental runs"
+        )
+    return attrs
