@@ -5,7 +5,7 @@
 A refactoring must leave every store as it was.  This checks out ``--ref``
 into a temporary worktree, runs ``terrain run`` of both versions on the demo
 survey and on each real sample with ground (default layers plus slope, face
-kind and point count; the samples at 1 unit and 20-unit tiles, so that each
+kind and point count; the samples at 1 unit and 100-unit tiles, so that each
 is several tiles), and compares every array and every chunk file.  Each
 version compiles its own kernels in a cache folder of its own.
 """
@@ -58,7 +58,7 @@ def main() -> None:
                         stores.append(out / "dem.zarr")
                     else:
                         _terrain(source, ["run", str(path), "-o", str(out / "dem.zarr"), "--resolution", "1",
-                                          "--tile-size", "20", "--layers", "slope,face_kind,point_count"],
+                                          "--tile-size", "100", "--layers", "slope,face_kind,point_count"],
                                  tmp_path / f"cache_{label}")
                         stores.append(out / "dem.zarr")
                 assert_same_store(stores[1], stores[0])

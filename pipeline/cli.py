@@ -115,7 +115,7 @@ def _parser() -> argparse.ArgumentParser:
         "every point, kriged between them (more accurate; 2-5x the time)",
     )
     run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
-    run.add_argument("--workers", type=_positive_int, help="threads of the local Dask cluster")
+    run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
     run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
@@ -357,7 +357,7 @@ def _command(args: argparse.Namespace) -> int:
         LOGGER.info(f"wrote {item_path} (STAC item)")
         return EXIT_OK
     if args.command == "info":
-        from .inspect import info_json, info_report
+        from .info import info_json, info_report
         from .sources import discover_inputs
 
         paths = discover_inputs(args.inputs)

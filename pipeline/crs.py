@@ -45,7 +45,7 @@ from .urls import Location, as_location
 if TYPE_CHECKING:
     from .sources import SourceInfo
 
-__all__ = ["CrsPlan", "Reprojector", "crs_label", "resolve_crs", "same_crs"]
+__all__ = ["CrsPlan", "Reprojector", "crs_label", "resolve_crs", "same_crs", "transform_bounds"]
 
 _MAX_LISTED = 5
 
@@ -182,6 +182,14 @@ class _CrsCache:
 # --------------------------------------------------------------------------- reprojection
 
 _thread_state = threading.local()
+
+
+def transform_bounds(source_wkt: str, target_wkt: str, box: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """The box (xmin, ymin, xmax, ymax) of ``source_wkt`` as a box of
+    ``target_wkt`` that holds it (its edges densified), by the calling
+    thread's cached Transformer."""
+    x0, y0, x1, y1 = _thread_transformer(source_wkt, target_wkt).transform_bounds(*box, densify_pts=21)
+    return float(x0), float(y0), float(x1), float(y1)
 
 
 def _thread_transformer(source_wkt: str, target_wkt: str) -> pyproj.Transformer:

@@ -200,16 +200,13 @@ def grid_spec(grid: TileGrid) -> GridSpec:
 
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
     """A file's header bounds in the target CRS (None for an empty file)."""
-    from pyproj import CRS, Transformer
+    from .crs import transform_bounds
 
     if info.point_count == 0:
         return None
     b = info.bounds
-    x0, y0, x1, y1 = b[0], b[1], b[3], b[4]
-    if source_wkt != target_wkt:
-        t = Transformer.from_crs(CRS.from_wkt(source_wkt), CRS.from_wkt(target_wkt), always_xy=True)
-        x0, y0, x1, y1 = t.transform_bounds(x0, y0, x1, y1, densify_pts=21)
-    return float(x0), float(y0), float(x1), float(y1)
+    box = (float(b[0]), float(b[1]), float(b[3]), float(b[4]))
+    return box if source_wkt == target_wkt else transform_bounds(source_wkt, target_wkt, box)
 
 
 def union_bounds(boxes) -> tuple[float, float, float, float]:

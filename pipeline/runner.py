@@ -243,7 +243,7 @@ def execute(
         if not isinstance(exc, OSError):
             raise
         if exc.filename is None:
-            if exc.errno in (errno.ENOSPC, errno.EDQUOT) or "requested and" in str(exc):  # a short write: full
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk (a short write says so: Scratch)
                 raise OutputWriteError(
                     f"{config.output}: cannot write the store or its work files ({exc.strerror or exc}); "
                     "run the same command again once there is room: finished work is kept"

@@ -12,6 +12,7 @@ and read with one request, many at once where a caller asks for many.
 
 from __future__ import annotations
 
+import errno
 import io
 import math
 import os
@@ -34,6 +35,22 @@ _NPY_HEADER_LOCK = threading.Lock()
 _MAP_ABOVE = 1 << 20
 """Local arrays up to this size are read, not memory-mapped: reading a small
 file costs half as much as mapping it."""
+
+
+def _short_write(exc: OSError, path: Path, size: int) -> OSError:
+    """The error of a write that stopped short.  numpy reports one with no
+    errno (``"56 requested and 0 written"``); the file system says why: no
+    room left (``ENOSPC``, with the free space it reports), else the original."""
+    if exc.errno is not None:
+        return exc
+    try:
+        room = os.statvfs(path.parent)
+        free = room.f_bavail * room.f_frsize
+    except OSError:
+        return exc
+    if free < size:
+        return OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} ({free:,} bytes free, {size:,} to write)")
+    return exc
 
 
 def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
@@ -130,7 +147,10 @@ class Scratch:
             target.parent.mkdir(parents=True, exist_ok=True)
             tmp = target.with_name(f".{target.name}.tmp")  # not listed as an array if left by a crash
             with open(tmp, "wb") as handle:
-                np.save(handle, value)
+                try:
+                    np.save(handle, value)
+                except OSError as exc:
+                    raise _short_write(exc, tmp, value.nbytes) from exc
             os.replace(tmp, target)
 
     def load(self, key: str, mmap: bool = False) -> np.ndarray:

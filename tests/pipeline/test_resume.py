@@ -256,6 +256,35 @@ def test_a_full_disk_under_the_work_files_is_one_line_and_resumes(survey, refere
     assert_same_store(out, reference)
 
 
+def test_a_short_write_of_a_work_file_on_a_full_disk_is_a_full_disk(survey, reference, tmp_path, monkeypatch):
+    """numpy reports a write that stopped short with no errno ("56 requested
+    and 0 written"): the file system's free space says the disk is full, and
+    the run says so, as for any full disk."""
+    import os
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from pipeline import scratch
+    from pipeline.errors import OutputWriteError
+
+    out = tmp_path / "short.zarr"
+    real_save, real_statvfs = np.save, os.statvfs
+
+    def short(handle, value, *args, **kwargs):
+        raise OSError(f"{value.nbytes} requested and 0 written")
+
+    monkeypatch.setattr(scratch.np, "save", short)
+    monkeypatch.setattr(scratch.os, "statvfs", lambda path: SimpleNamespace(f_bavail=0, f_frsize=4096))
+    with pytest.raises(OutputWriteError, match=r"cannot write the store or its work files \(No space left on device \(0 bytes free"):
+        run_module.run(_config(survey, out), progress=False)
+    assert store.read_attrs(out)["complete"] is False
+    monkeypatch.setattr(scratch.np, "save", real_save)
+    monkeypatch.setattr(scratch.os, "statvfs", real_statvfs)
+    run_module.run(_config(survey, out), progress=False)
+    assert_same_store(out, reference)
+
+
 def test_units_whose_work_files_were_lost_are_done_again(survey, reference, tmp_path, monkeypatch):
     import shutil
 

@@ -615,13 +615,13 @@ def test_real_sample_single_point() -> None:
     assert_allclose([chunks[0].x[0], chunks[0].y[0], chunks[0].z[0]], info.bounds[:3])
 
 
-# --------------------------------------------------------------------------- terrain info (pipeline.inspect)
+# --------------------------------------------------------------------------- terrain info (pipeline.info)
 
 
 def test_info_report_and_json(tmp_path: Path) -> None:
     import json
 
-    from pipeline.inspect import info_json, info_report
+    from pipeline.info import info_json, info_report
 
     w = write_las(tmp_path / "a.laz", point_format=6, version="1.4", crs="EPSG:2154", classes=(2, 2, 6),
                   extra_dims=(("height", "f4"),), n=30)
