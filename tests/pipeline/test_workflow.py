@@ -287,14 +287,21 @@ def _grown_chunk_times(before: dict[str, int], rows: int) -> dict[str, int]:
     return out
 
 
-@pytest.mark.parametrize("side", ["north", "east"])
-def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_tiles(tmp_path, side):
+def _first_run(tmp_path: Path, width: float, height: float, points: int) -> tuple[Path, Workflow]:
+    """A survey of ``width`` x ``height`` m without a declared extent, in 80 m
+    tiles, and its workflow's first run."""
     archive = tmp_path / "archive"
-    write_survey(archive, SurveySpec(origin=ORIGIN, width=400.0, height=240.0, points=20_000, files=2, seed=1))
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=width, height=height, points=points, files=2, seed=1))
     job = tmp_path / "nightly.toml"
     job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
     workflow = Workflow.load(job)
     run_workflow(workflow, progress=False)
+    return archive, workflow
+
+
+@pytest.mark.parametrize("side", ["north", "east"])
+def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_tiles(tmp_path, side):
+    archive, workflow = _first_run(tmp_path, 400.0, 240.0, 20_000)
     out = Path(workflow.config.output)
     before = _chunk_times(out)
     assert {k.split("/")[1] for k in before} == {"0", "1", "2"}  # 3 tile rows
@@ -321,12 +328,7 @@ def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_
 
 @pytest.mark.parametrize("side", ["south", "west"])
 def test_without_an_extent_growth_south_or_west_says_why_every_tile_is_pending(tmp_path, side):
-    archive = tmp_path / "archive"
-    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
-    job = tmp_path / "nightly.toml"
-    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
-    workflow = Workflow.load(job)
-    run_workflow(workflow, progress=False)
+    archive, workflow = _first_run(tmp_path, 240.0, 160.0, 12_000)
     _patch(archive, side, GROWTH[side], seed=7, size=80.0)
     why = "the survey grew south or west of the grid's origin, which {} every tile"
     assert workflow_status(workflow)["tiles_pending"] == f"all ({why.format('moves')})"
@@ -340,12 +342,7 @@ def test_a_store_left_half_grown_is_made_again(tmp_path):
     half moved: the next run makes it again instead of trusting it."""
     from pipeline import store
 
-    archive = tmp_path / "archive"
-    write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
-    job = tmp_path / "nightly.toml"
-    job.write_text(JOB.replace("tile_size = 40.0", "tile_size = 80.0"))
-    workflow = Workflow.load(job)
-    run_workflow(workflow, progress=False)
+    archive, workflow = _first_run(tmp_path, 240.0, 160.0, 12_000)
     _patch(archive, "north", (60.0, 160.0), seed=7, size=80.0)
     real = store._shift_chunk_rows
 
