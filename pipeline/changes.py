@@ -20,7 +20,7 @@ from .tiling import TileGrid, drop_source_spill, intersect_boxes, source_spill, 
 
 __all__ = [
     "forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles",
-    "tiles_moved_by_growth", "reroute_near_growth",
+    "reroute_near_growth",
 ]
 
 
@@ -130,30 +130,13 @@ def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[in
     work.forget("write")
 
 
-def tiles_moved_by_growth(before: TileGrid, after: TileGrid) -> set[tuple[int, int]]:
-    """Tiles of ``before`` that ``after`` (the same grid grown north or east)
-    changes besides those new points touch: its northern row and eastern
-    column, whose windows and boxes it changes (:meth:`TileGrid.edge_tiles_moved_by`).
-
-    The strips along the data extent's edges that a tile holds from the
-    start (:func:`pipeline.tiles.edge_bands`) move with the extent too, but
-    they only spare it rounds of loading: its piece is what its certificate
-    says, whatever else it holds.
-    """
-    return after.edge_tiles_moved_by(before)
-
-
-def reroute_near_growth(work: WorkDir, before: TileGrid, inputs: list[dict[str, Any]], buffer: float) -> int:
+def reroute_near_growth(work: WorkDir, before: TileGrid, inputs: list[dict[str, Any]], buffer: float) -> None:
     """Drop the routing of the files whose points reach the new tiles of a
     grid grown from ``before`` (within ``buffer`` of them): routed again,
-    they give those tiles their points; the tiles they held keep the same.
-    Returns how many."""
+    they give those tiles their points; the tiles they held keep the same."""
     north = before.y0 + before.n_rows * before.tile_size - buffer
     east = before.x0 + before.n_cols * before.tile_size - buffer
-    count = 0
     for k, item in enumerate(inputs):
         box = item.get("bounds")
         if box and (box[3] >= north or box[2] >= east) and work.recorded("route", f"{k:06d}") is not None:
             drop_source(work, k)
-            count += 1
-    return count

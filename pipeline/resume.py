@@ -16,9 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .changes import (
-    forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on, tiles_moved_by_growth,
-)
+from .changes import forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
 from .checkpoint import WorkDir
 from .config import RunConfig
 from .errors import PipelineError, UsageError
@@ -112,7 +110,7 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         tiles = tiles_depending_on(work, grid, changed)
         grown_from = resume.grown_from
         if grown_from is not None:
-            tiles |= tiles_moved_by_growth(grown_from, grid)
+            tiles |= grid.edge_tiles_moved_by(grown_from)
             reroute_near_growth(work, grown_from, provenance["inputs"], plan.buffer)
             if grown_from != grid:
                 notes.append(

@@ -38,7 +38,7 @@ from .tiling import TileGrid, intersect_boxes, neighbour_tile_points, points_in_
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
-    "reached_tiles", "edge_bands",
+    "reached_tiles",
 ]
 
 @dataclass(frozen=True)
@@ -351,20 +351,20 @@ def _merge_boxes(boxes: list) -> list:
     return out
 
 
-def edge_bands(grid: TileGrid, buffer: float, extent, box: tuple[float, float, float, float]) -> list:
-    """Strips along the data ``extent``'s edges that the tile's ``box`` reaches, a
+def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
+    """Strips along the data extent's edges that the tile's box reaches, a
     twentieth of the buffer deep and one tile longer than the box on either side.
 
     Near a straight survey edge the Delaunay triangles are slivers whose
     circumcircles reach far along the edge, just inside it; holding these
     strips from the start spares most edge tiles a second build.
     """
-    x0, y0, x1, y1 = extent
-    reach = min(grid.tile_size, 32.0 * buffer)
+    x0, y0, x1, y1 = job.extent
+    reach = min(job.grid.tile_size, 32.0 * job.buffer)
     # the lenses of those circles inside the survey are centimetres deep: a
     # twentieth of the buffer (about half a point spacing) holds them; a whole
     # buffer read up to twice a small edge tile's points for the same rounds
-    depth = buffer / 20.0
+    depth = job.buffer / 20.0
     lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
     lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
     bands = []
@@ -445,7 +445,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         # left outside its triangulation
         hull = hull_near(job.hull, held[0])
         points = np.concatenate([own, hull[~points_in_box(hull, held[0])]])
-    bands = edge_bands(g, job.buffer, job.extent, held[0])
+    bands = _edge_bands(job, held[0])
     loaded = 0  # points read beyond the buffer
     if bands:
         extra = _load_boxes(job, bands, held)

@@ -166,7 +166,12 @@ class TileGrid:
         """The tiles of ``other`` (which this grid extends) whose window or
         box this grid changes: its northern row when rows were added (its
         window reached to infinity), its eastern column when columns or cells
-        were (likewise, and its box is clipped to the grid)."""
+        were (likewise, and its box is clipped to the grid).
+
+        The strips along the data extent's edges that a tile holds from the
+        start move with the extent too, but they only spare it rounds of
+        loading: its piece is what its certificate says, whatever else it holds.
+        """
         moved: set[tuple[int, int]] = set()
         if self.n_rows > other.n_rows:
             moved.update((other.n_rows - 1, c) for c in range(other.n_cols))

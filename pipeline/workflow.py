@@ -172,7 +172,7 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
     headers, CRS plan and grid): every tile when the frame moved, else the
     tiles the changed files touch (and, when the grid grows, its new tiles
     and the old edge's)."""
-    from .changes import tiles_depending_on, tiles_moved_by_growth
+    from .changes import tiles_depending_on
     from .plan import frame_change, frame_grew, frame_moved, plan_run
     from .tiling import TileGrid
 
@@ -181,8 +181,9 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"
     grid, frame = plan.grid, plan.provenance
-    grows = frame_moved(provenance, frame) and frame_grew(provenance, frame)
-    if frame_moved(provenance, frame) and not grows:
+    moved = frame_moved(provenance, frame)
+    grows = moved and frame_grew(provenance, frame)
+    if moved and not grows:
         return f"all ({frame_change(provenance, frame, done=False)})"
     if not work.exists():
         return "all"
@@ -192,7 +193,7 @@ def _pending_after_changes(config: RunConfig, provenance, work, touched: list[st
                 if p in before and before[p].get("bounds")]
     pending = tiles_depending_on(work, grid, regions)  # the grid's new tiles too
     if grows:
-        pending |= tiles_moved_by_growth(TileGrid.from_dict(provenance["grid"]), grid)
+        pending |= grid.edge_tiles_moved_by(TileGrid.from_dict(provenance["grid"]))
     return len(pending)
 
 
