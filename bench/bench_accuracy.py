@@ -18,7 +18,7 @@ Methods:
 - ``NNI``: startinpy's natural-neighbour interpolation (``pip install -e .[bench]``; skipped when missing);
 - ``kriging``: a reference written here with numpy alone, ordinary kriging
   at each withheld point from its 32 nearest fitted points with the same
-  fitted variogram (no patches, not through a mesh).
+  fitted variogram (its model too) (no patches, not through a mesh).
 
 The lidR test re-enacted (``tests/testthat/test-rasterize_terrain.R``): 5,000
 uniform points on 100 x 100 m of ``0.1 x + 0.1 y + sin(0.01 x) - sin(0.1 y)
@@ -80,15 +80,12 @@ def kriging_reference(fit: np.ndarray, query: np.ndarray, variogram: meshcore.Va
     nb = xy[idx]  # (m, k, 2)
     h = np.linalg.norm(nb[:, :, None, :] - nb[:, None, :, :], axis=3)
 
-    def gamma(d):
-        return np.where(d > 0, variogram.nugget + variogram.sill * (1.0 - np.exp(-d / variogram.range)), 0.0)
-
     m = q.shape[0]
     a = np.ones((m, k + 1, k + 1))
-    a[:, :k, :k] = gamma(h)
+    a[:, :k, :k] = variogram.semivariance(h)
     a[:, k, k] = 0.0
     b = np.ones((m, k + 1))
-    b[:, :k] = gamma(np.linalg.norm(nb - q[:, None, :], axis=2))
+    b[:, :k] = variogram.semivariance(np.linalg.norm(nb - q[:, None, :], axis=2))
     w = np.linalg.solve(a, b[:, :, None])[:, :k, 0]
     return np.sum(w * fit[idx, 2], axis=1)
 
@@ -179,11 +176,11 @@ def main(argv: list[str] | None = None) -> None:
             f"{rmse[m]:.4f}" if m == "TIN" else f"{100.0 * (rmse[m] / tin - 1.0):+.1f}%" for m in methods
         ])
     table("RMSE at withheld ground points: the TIN's, and every method's change against it", header, rows)
-    rows = [[label, f"{v.nugget:.3g}", f"{v.sill:.3g}", f"{v.range:.3g}", f"{np.sqrt(v.nugget):.3g}",
+    rows = [[label, v.model, f"{v.nugget:.3g}", f"{v.sill:.3g}", f"{v.range:.3g}", f"{v.spacing:.3g}", f"{np.sqrt(v.nugget):.3g}",
              f"{100.0 * (r['kriging'] / r['TIN'] - 1.0):+.1f}%", f"{100.0 * (r['smooth S3/S4'] / r['TIN'] - 1.0):+.1f}%"]
             for label, _, r, v in results]
     table("Fitted variograms (first draw): the nugget's root is the noise floor in z units",
-          ["survey", "nugget", "sill", "range", "sqrt(nugget)", "kriging", "smooth S3/S4"], rows)
+          ["survey", "model", "nugget", "sill", "range", "spacing", "sqrt(nugget)", "kriging", "smooth S3/S4"], rows)
 
 
 if __name__ == "__main__":

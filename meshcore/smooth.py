@@ -1,21 +1,25 @@
-"""The smooth surface's node values: local kriging around every edge and face.
+"""The smooth surface's node values: local kriging in cells of one point spacing.
 
 The smooth surface (``surface="smooth"``) puts a cubic patch on every face
 (:mod:`meshcore.patches`).  Its corners take the points' z; its other nodes
-take the value of universal kriging with a linear drift:
+(two per edge, the inner ones of each face) take the value of universal
+kriging with a linear drift:
 
-- each edge's two nodes are kriged from the ``neighbours`` vertices nearest
-  the edge's midpoint, each face's inner nodes from those nearest its
-  centroid: one system per edge and per face, solved once in its dual form
+- the nodes are grouped in square cells of about one point spacing
+  (:attr:`Variogram.spacing`), aligned on multiples of the cell's side; each
+  cell's nodes are kriged from the ``neighbours`` vertices nearest the
+  cell's centre: one system per cell, solved once in its dual form
   (Cholesky of the covariances, the drift by its Schur complement), then
-  evaluated at each of its nodes;
+  evaluated at each of its nodes.  About one system per point: a system per
+  edge and per face (five per point) gave the same errors at five times the
+  cost;
 - nearest is exact, with ties broken by coordinates, so a node's value
-  depends only on the points inside its system's disk (the centre and the
+  depends only on the points inside its cell's disk (the centre and the
   distance to its last neighbour, :attr:`Neighbourhoods.disks`), never on the
   order of the points or on which points a tile happens to hold beyond it;
-- an edge's centre and nodes are placed from its end first in coordinate
-  order, and its system is built relative to its centre, so the two faces of
-  an edge, in one tile or in two, get bit-identical values: the surface is
+- an edge's nodes are placed from its end first in coordinate order, so the
+  two faces of an edge, in one tile or in two, put them at the same
+  positions, in the same cells, and get bit-identical values: the surface is
   continuous (C0 across every edge) and seamless across tiles;
 - the kriged value is clamped to the range of the neighbours' values and of
   its edge's (an inner node: its face's) corners.  Kriging with a linear
@@ -25,9 +29,10 @@ take the value of universal kriging with a linear drift:
 - a system whose neighbours are collinear (no plane fits) gives its nodes
   the linear surface's values.
 
-The covariance is the exponential model of a :class:`Variogram`;
-:func:`fit_variogram` chooses its nugget and range by leave-one-out
-cross-validation of this same kriging on a sample.
+The covariance is a :class:`Variogram` of one of :data:`MODELS`;
+:func:`fit_variogram` chooses the model, its nugget and range by
+leave-one-out cross-validation of this same kriging on a sample, and
+measures the spacing.
 """
 
 from __future__ import annotations
@@ -44,7 +49,7 @@ from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
 
-__all__ = ["Variogram", "Neighbourhoods", "fit_variogram", "smooth_nodes", "smooth_neighbourhoods", "DEFAULT_NEIGHBOURS"]
+__all__ = ["MODELS", "CELL_PER_SPACING", "Variogram", "Neighbourhoods", "fit_variogram", "smooth_nodes", "smooth_neighbourhoods", "DEFAULT_NEIGHBOURS"]
 
 DEFAULT_NEIGHBOURS = 16
 """Points per kriging neighbourhood (the vertex and its 15 nearest)."""
@@ -52,9 +57,21 @@ DEFAULT_NEIGHBOURS = 16
 _PIVOT_TOL = 1e-10
 """A kriging system whose pivot falls below this (relative) is singular."""
 
+MODELS = ("exponential", "matern32", "matern52")
+"""The covariance models, from the roughest to the smoothest (Matérn with
+smoothness 1/2, 3/2 and 5/2): :func:`fit_variogram` chooses among them."""
+
+
 @dataclass(frozen=True)
 class Variogram:
-    """An exponential variogram ``nugget + sill (1 - exp(-h / range))`` (h > 0).
+    """A variogram ``nugget + sill (1 - rho(h))`` (``h > 0``) of one of :data:`MODELS`.
+
+    ``rho`` is the correlation at lag ``h``: ``exp(-h / range)`` for the
+    exponential model, ``(1 + a) exp(-a)`` with ``a = sqrt(3) h / range``
+    for Matérn 3/2 and ``(1 + a + a^2 / 3) exp(-a)`` with ``a = sqrt(5) h / range``
+    for Matérn 5/2.  The rougher the model, the closer kriging stays to a
+    TIN; the smoother, the better it follows a smooth surface between
+    sparse points.
 
     Attributes
     ----------
@@ -63,34 +80,74 @@ class Variogram:
     sill : float
         The partial sill, ``> 0`` (z unit squared).
     range : float
-        The distance scale of the exponential, ``> 0`` (horizontal unit).
+        The distance scale of the model, ``> 0`` (horizontal unit).
+    model : str
+        One of :data:`MODELS`.
+    spacing : float or None
+        The survey's typical point spacing (horizontal unit): the smooth
+        surface groups its nodes in square cells of this side, each cell's
+        nodes kriged from one system.  :func:`fit_variogram` measures it;
+        ``None`` lets each mesh measure its own (pieces of one survey then
+        no longer agree on their shared edges).
 
-    Only ``nugget / sill`` and ``range`` change the kriging weights.
+    Only ``nugget / sill``, ``range`` and ``model`` change the kriging weights.
     """
 
     nugget: float
     sill: float
     range: float
+    model: str = "exponential"
+    spacing: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("nugget", "sill", "range"):
+        for name in ("nugget", "sill", "range", "spacing"):
             value = getattr(self, name)
+            if name == "spacing" and value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise InvalidInputError(f"variogram {name} must be a finite number, got {value!r}")
         if self.nugget < 0.0 or not self.sill > 0.0 or not self.range > 0.0:
             raise InvalidInputError(
                 f"variogram needs nugget >= 0, sill > 0 and range > 0, got {self.nugget!r}, {self.sill!r}, {self.range!r}"
             )
+        if self.model not in MODELS:
+            raise InvalidInputError(f"variogram model must be one of {', '.join(MODELS)}, got {self.model!r}")
+        if self.spacing is not None and not self.spacing > 0.0:
+            raise InvalidInputError(f"variogram spacing must be > 0, got {self.spacing!r}")
 
-    def to_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in asdict(self).items()}
+    def correlation(self, h: ArrayLike) -> NDArray[np.float64]:
+        """``rho(h)``, the model's correlation at lags ``h >= 0`` (1 at 0, without the nugget)."""
+        return _correlation(np.abs(np.asarray(h, dtype=np.float64)), self.range, MODELS.index(self.model))
+
+    def semivariance(self, h: ArrayLike) -> NDArray[np.float64]:
+        """``gamma(h)``: 0 at ``h == 0``, ``nugget + sill (1 - rho(h))`` beyond."""
+        h = np.abs(np.asarray(h, dtype=np.float64))
+        return np.where(h > 0.0, self.nugget + self.sill * (1.0 - self.correlation(h)), 0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {k: float(getattr(self, k)) for k in ("nugget", "sill", "range")}
+        out["model"] = self.model
+        out["spacing"] = None if self.spacing is None else float(self.spacing)
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "Variogram":
         try:
-            return cls(float(data["nugget"]), float(data["sill"]), float(data["range"]))
-        except (KeyError, TypeError, ValueError):
+            spacing = data.get("spacing")
+            return cls(float(data["nugget"]), float(data["sill"]), float(data["range"]),
+                       str(data.get("model", "exponential")), None if spacing is None else float(spacing))
+        except (KeyError, TypeError, ValueError, AttributeError):
             raise InvalidInputError(f"a variogram needs numbers nugget, sill and range, got {data!r}") from None
+
+
+def _correlation(h: NDArray[np.float64], range_: float, model: int) -> NDArray[np.float64]:
+    if model == 0:
+        return np.exp(-h / range_)
+    if model == 1:
+        a = math.sqrt(3.0) * h / range_
+        return (1.0 + a) * np.exp(-a)
+    a = math.sqrt(5.0) * h / range_
+    return (1.0 + a + a * a / 3.0) * np.exp(-a)
 
 
 # --------------------------------------------------------------------------
@@ -208,16 +265,26 @@ def _nearest(
 # --------------------------------------------------------------------------
 
 
+_SQRT3 = math.sqrt(3.0)
+_SQRT5 = math.sqrt(5.0)
+
+
 @njit
-def _covariance(h: float, inv_range: float) -> float:
-    """The exponential covariance per unit sill at lag ``h > 0``."""
-    return math.exp(-h * inv_range)
+def _covariance(h: float, inv_range: float, model: int) -> float:
+    """The covariance per unit sill at lag ``h > 0`` of model ``MODELS[model]``."""
+    if model == 0:
+        return math.exp(-h * inv_range)
+    if model == 1:
+        a = _SQRT3 * h * inv_range
+        return (1.0 + a) * math.exp(-a)
+    a = _SQRT5 * h * inv_range
+    return (1.0 + a + a * a * (1.0 / 3.0)) * math.exp(-a)
 
 
 @njit
 def _dual_system(
     xy: np.ndarray, z: np.ndarray, cx: float, cy: float, neighbours: np.ndarray, k: int,
-    nugget_ratio: float, inv_range: float, c: np.ndarray, g: np.ndarray, coef: np.ndarray,
+    nugget_ratio: float, inv_range: float, model: int, c: np.ndarray, g: np.ndarray, coef: np.ndarray,
 ) -> float:
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual form.
 
@@ -238,7 +305,8 @@ def _dual_system(
     if k < 3 or not radius > 0.0:
         return math.nan
     inv_r = 1.0 / radius
-    # C = L L' (lower triangle of c), the covariances with the nugget on the diagonal
+    # C = L L' (lower triangle of c), the covariances with the nugget on the
+    # diagonal; the diagonal of c keeps 1 / L[j, j]
     for i in range(k):
         q = neighbours[i]
         xi = xy[q, 0] - cx
@@ -247,7 +315,7 @@ def _dual_system(
             o = neighbours[j]
             dx = xy[o, 0] - cx - xi
             dy = xy[o, 1] - cy - yi
-            c[i, j] = _covariance(math.sqrt(dx * dx + dy * dy), inv_range)
+            c[i, j] = _covariance(math.sqrt(dx * dx + dy * dy), inv_range, model)
         c[i, i] = 1.0 + nugget_ratio
     for j in range(k):
         d = c[j, j]
@@ -255,48 +323,50 @@ def _dual_system(
             d -= c[j, m] * c[j, m]
         if not d > 1e-14:
             return math.nan
-        d = math.sqrt(d)
-        c[j, j] = d
+        inv_d = 1.0 / math.sqrt(d)
+        c[j, j] = inv_d
         for i in range(j + 1, k):
             v = c[i, j]
             for m in range(j):
                 v -= c[i, m] * c[j, m]
-            c[i, j] = v / d
-    # g: columns C^-1 [1, x / R, y / R, z - z0]
+            c[i, j] = v * inv_d
+    # g = L^-1 [1, x / R, y / R, z - z0], the four columns in one forward pass
     z0 = z[neighbours[0]]
     for i in range(k):
         q = neighbours[i]
-        g[i, 0] = 1.0
-        g[i, 1] = (xy[q, 0] - cx) * inv_r
-        g[i, 2] = (xy[q, 1] - cy) * inv_r
-        g[i, 3] = z[q] - z0
-    for col in range(4):  # forward then back substitution
-        for i in range(k):
-            v = g[i, col]
-            for m in range(i):
-                v -= c[i, m] * g[m, col]
-            g[i, col] = v / c[i, i]
-        for i in range(k - 1, -1, -1):
-            v = g[i, col]
-            for m in range(i + 1, k):
-                v -= c[m, i] * g[m, col]
-            g[i, col] = v / c[i, i]
-    # the drift: (F' C^-1 F) beta = F' C^-1 (z - z0), a 3 x 3 system
+        v0 = 1.0
+        v1 = (xy[q, 0] - cx) * inv_r
+        v2 = (xy[q, 1] - cy) * inv_r
+        v3 = z[q] - z0
+        for m in range(i):
+            l = c[i, m]
+            v0 -= l * g[m, 0]
+            v1 -= l * g[m, 1]
+            v2 -= l * g[m, 2]
+            v3 -= l * g[m, 3]
+        d = c[i, i]
+        g[i, 0] = v0 * d
+        g[i, 1] = v1 * d
+        g[i, 2] = v2 * d
+        g[i, 3] = v3 * d
+    # the drift: (F' C^-1 F) beta = F' C^-1 (z - z0), a 3 x 3 system, with
+    # F' C^-1 F = A' A and F' C^-1 (z - z0) = A' b for [A b] = g
     s00 = s01 = s02 = s11 = s12 = s22 = 0.0
     r0 = r1 = r2 = 0.0
     for i in range(k):
-        q = neighbours[i]
-        f1 = (xy[q, 0] - cx) * inv_r
-        f2 = (xy[q, 1] - cy) * inv_r
-        s00 += g[i, 0]
-        s01 += g[i, 1]
-        s02 += g[i, 2]
-        s11 += f1 * g[i, 1]
-        s12 += f1 * g[i, 2]
-        s22 += f2 * g[i, 2]
-        r0 += g[i, 3]
-        r1 += f1 * g[i, 3]
-        r2 += f2 * g[i, 3]
+        a0 = g[i, 0]
+        a1 = g[i, 1]
+        a2 = g[i, 2]
+        bi = g[i, 3]
+        s00 += a0 * a0
+        s01 += a0 * a1
+        s02 += a0 * a2
+        s11 += a1 * a1
+        s12 += a1 * a2
+        s22 += a2 * a2
+        r0 += a0 * bi
+        r1 += a1 * bi
+        r2 += a2 * bi
     m00 = s11 * s22 - s12 * s12
     m01 = s02 * s12 - s01 * s22
     m02 = s01 * s12 - s02 * s11
@@ -311,9 +381,12 @@ def _dual_system(
     b0 = (m00 * r0 + m01 * r1 + m02 * r2) / det
     b1 = (m01 * r0 + m11 * r1 + m12 * r2) / det
     b2 = (m02 * r0 + m12 * r1 + m22 * r2) / det
-    # alpha = C^-1 (z - z0) - C^-1 F beta
-    for i in range(k):
-        coef[i] = g[i, 3] - b0 * g[i, 0] - b1 * g[i, 1] - b2 * g[i, 2]
+    # alpha = C^-1 (z - z0 - F beta) = L^-T (b - A beta): one back substitution
+    for i in range(k - 1, -1, -1):
+        v = g[i, 3] - b0 * g[i, 0] - b1 * g[i, 1] - b2 * g[i, 2]
+        for m in range(i + 1, k):
+            v -= c[m, i] * coef[m]
+        coef[i] = v * c[i, i]
     coef[k] = b0 + z0
     coef[k + 1] = b1
     coef[k + 2] = b2
@@ -326,7 +399,7 @@ def _dual_system(
 @njit
 def _dual_value(
     xy: np.ndarray, cx: float, cy: float, neighbours: np.ndarray, k: int,
-    coef: np.ndarray, radius: float, inv_range: float, px: float, py: float,
+    coef: np.ndarray, radius: float, inv_range: float, model: int, px: float, py: float,
 ) -> float:
     """The kriging estimate at ``p`` of a system from :func:`_dual_system`."""
     qx = px - cx
@@ -336,7 +409,7 @@ def _dual_value(
         o = neighbours[i]
         dx = xy[o, 0] - cx - qx
         dy = xy[o, 1] - cy - qy
-        s += coef[i] * _covariance(math.sqrt(dx * dx + dy * dy), inv_range)
+        s += coef[i] * _covariance(math.sqrt(dx * dx + dy * dy), inv_range, model)
     return s
 
 
@@ -352,15 +425,16 @@ def _count(neighbours: np.ndarray) -> int:
 @njit
 def _nodes_kriged_kernel(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
-    positions: np.ndarray, low: np.ndarray, high: np.ndarray, linear: np.ndarray,
-    nugget_ratio: float, inv_range: float, out: np.ndarray,
+    positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, pattern_weights: np.ndarray,
+    nugget_ratio: float, inv_range: float, model: int, out: np.ndarray,
 ) -> None:
-    """Krig the nodes of every system (an edge, a face) and clamp them.
+    """Krig the nodes of every system (a cell) and clamp them.
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
-    ``first[s] .. first[s + 1] - 1``.  A node is clamped to ``[low, high]``
-    widened to its neighbours' values; a singular system, or one that meets
-    an unknown z, gives its nodes ``linear`` (the linear surface there).
+    ``first[s] .. first[s + 1] - 1``.  A node is clamped to the range of its
+    ``corners``' values widened to its neighbours' values; a singular system,
+    or one that meets an unknown z, gives its nodes the linear surface's
+    value (the corners' weights, row ``pattern[n]`` of ``pattern_weights``).
     """
     k = neighbours.shape[1]
     c = np.empty((k, k))
@@ -381,33 +455,44 @@ def _nodes_kriged_kernel(
         cy = centres[s, 1]
         radius = math.nan
         if finite:
-            radius = _dual_system(xy, z, cx, cy, neighbours[s], count, nugget_ratio, inv_range, c, g, coef)
+            radius = _dual_system(xy, z, cx, cy, neighbours[s], count, nugget_ratio, inv_range, model, c, g, coef)
         for n in range(first[s], first[s + 1]):
+            low = math.inf
+            high = -math.inf
+            linear = 0.0
+            for j in range(4):
+                v = corners[n, j]
+                if v >= 0 and math.isfinite(z[v]):
+                    low = min(low, z[v])
+                    high = max(high, z[v])
+                    linear += pattern_weights[pattern[n], j] * z[v]
             if math.isfinite(radius):
-                value = _dual_value(xy, cx, cy, neighbours[s], count, coef, radius, inv_range, positions[n, 0], positions[n, 1])
-                out[n] = min(max(value, min(lo, low[n])), max(hi, high[n]))
+                value = _dual_value(xy, cx, cy, neighbours[s], count, coef, radius, inv_range, model, positions[n, 0], positions[n, 1])
+                out[n] = min(max(value, min(lo, low)), max(hi, high))
             else:
-                out[n] = linear[n]
+                out[n] = linear
 
 
 class Neighbourhoods(NamedTuple):
     """Where the smooth surface's nodes are and which points each is kriged from.
 
-    One kriging system per edge (its two nodes) and per face (its inner
-    nodes), over the ``neighbours`` nearest vertices of the system's centre:
-    the edge's midpoint, the face's centroid.  Computed by
+    The nodes are grouped in square cells of side ``cell``, aligned on
+    multiples of it: one kriging system per cell that holds a node, over the
+    ``neighbours`` vertices nearest the cell's centre.  Computed by
     :func:`smooth_neighbourhoods` and taken by :func:`smooth_nodes`.
 
     Attributes
     ----------
-    centres : (m, 2) the systems' centres
+    centres : (m, 2) the cells' centres
     index : (m, k) their nearest vertices, nearest first (``-1`` pads)
     radius : (m,) the distance from each centre to its last neighbour
-    first : (m + 1,) system ``s`` gives the nodes ``first[s] .. first[s+1]-1``
+    first : (m + 1,) cell ``s`` holds the nodes ``first[s] .. first[s+1]-1``
     positions : (n, 2) the nodes
-    take : (n_f, 12) the node in each slot of a face's row (``-1``: unused)
-    corners : (n, 4) the vertices whose values bound each node's clamp (``-1`` pads)
-    weights : (n, 4) the linear surface's weights of those vertices at the node
+    take : (n_f, 12) int32, the node in each slot of a face's row (``-1``: unused)
+    corners : (n, 4) int32, the vertices whose values bound each node's clamp (``-1`` pads)
+    pattern : (n,) uint8, where the node lies in its face: the row of
+        :data:`_PATTERN_WEIGHTS` that gives the linear surface's weights of its corners
+    cell : float, the side of the cells
     """
 
     centres: NDArray[np.float64]
@@ -416,8 +501,14 @@ class Neighbourhoods(NamedTuple):
     first: NDArray[np.int64]
     positions: NDArray[np.float64]
     take: NDArray[np.int64]
-    corners: NDArray[np.int64]
-    weights: NDArray[np.float64]
+    corners: NDArray[np.int32]
+    pattern: NDArray[np.uint8]
+    cell: float
+
+    @property
+    def weights(self) -> NDArray[np.float64]:
+        """``(n, 4)``: the linear surface's weights of each node's corners."""
+        return _PATTERN_WEIGHTS[self.pattern]
 
     @property
     def disks(self) -> NDArray[np.float64]:
@@ -425,11 +516,22 @@ class Neighbourhoods(NamedTuple):
         return np.column_stack([self.centres, self.radius])
 
 
+_THIRD = 1.0 / 3.0
+_QUAD_INNER = ((_THIRD, _THIRD), (2 * _THIRD, _THIRD), (2 * _THIRD, 2 * _THIRD), (_THIRD, 2 * _THIRD))
+_PATTERN_WEIGHTS = np.array(
+    [[1.0 - _THIRD, _THIRD, 0.0, 0.0], [1.0 - 2.0 * _THIRD, 2.0 * _THIRD, 0.0, 0.0], [_THIRD, _THIRD, _THIRD, 0.0]]
+    + [[(1.0 - u) * (1.0 - v), u * (1.0 - v), u * v, (1.0 - u) * v] for u, v in _QUAD_INNER]
+)
+"""The linear surface's weights of a node's corners, by the node's place: an
+edge's node at a third and at two thirds, a triangle's centroid, a
+quadrangle's four inner nodes."""
+
+
 def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
-    """The systems and nodes of :class:`Neighbourhoods` (without the neighbours).
+    """The nodes of :class:`Neighbourhoods`: ``positions, take, corners, pattern``.
 
     An edge is listed once, from its end first in coordinate order, so that
-    every face (in any tile) computes its centre and nodes from the same numbers.
+    every face (in any tile) computes its nodes from the same numbers.
     """
     n_f = faces.shape[0]
     n_v = vertices.shape[0]
@@ -454,18 +556,10 @@ def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
     quad = np.flatnonzero(is_quad)
     corner = np.maximum(faces, 0)
     fx, fy = vertices[corner, 0], vertices[corner, 1]
-    centres = np.concatenate([
-        np.column_stack([ax + 0.5 * (bx - ax), ay + 0.5 * (by - ay)]),
-        np.column_stack([(fx[tri, 0] + fx[tri, 1] + fx[tri, 2]) * third, (fy[tri, 0] + fy[tri, 1] + fy[tri, 2]) * third]),
-        np.column_stack([fx[quad].mean(axis=1), fy[quad].mean(axis=1)]),
-    ])
-    counts = np.concatenate([np.full(n_e, 2), np.ones(tri.size, dtype=np.int64), np.full(quad.size, 4)])
-    first = np.zeros(counts.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=first[1:])
-    n_nodes = int(first[-1])
+    n_nodes = 2 * n_e + tri.size + 4 * quad.size
     positions = np.empty((n_nodes, 2))
-    corners = np.full((n_nodes, 4), -1, dtype=np.int64)
-    weights = np.zeros((n_nodes, 4))
+    corners = np.full((n_nodes, 4), -1, dtype=np.int32)
+    pattern = np.empty(n_nodes, dtype=np.uint8)
     # edges: nodes 2i (a third from a) and 2i + 1 (two thirds)
     for j, t in enumerate((third, 2.0 * third)):
         rows = 2 * np.arange(n_e) + j
@@ -473,40 +567,55 @@ def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
         positions[rows, 1] = ay + t * (by - ay)
         corners[rows, 0] = a
         corners[rows, 1] = b
-        weights[rows, 0] = 1.0 - t
-        weights[rows, 1] = t
-    take = np.full((n_f, 12), -1, dtype=np.int64)
+        pattern[rows] = j
+    take = np.full((n_f, 12), -1, dtype=np.int32)
     slot_face, slot_edge = np.nonzero(valid)
     take[slot_face, 2 * slot_edge] = 2 * which + np.where(forward, 0, 1)
     take[slot_face, 2 * slot_edge + 1] = 2 * which + np.where(forward, 1, 0)
     rows = 2 * n_e + np.arange(tri.size)
-    positions[rows] = centres[n_e:n_e + tri.size]
+    positions[rows, 0] = (fx[tri, 0] + fx[tri, 1] + fx[tri, 2]) * third
+    positions[rows, 1] = (fy[tri, 0] + fy[tri, 1] + fy[tri, 2]) * third
     corners[rows, :3] = faces[tri, :3]
-    weights[rows, :3] = third
+    pattern[rows] = 2
     take[tri, 8] = rows
     base = 2 * n_e + tri.size
-    for m, (u, v) in enumerate(((third, third), (2 * third, third), (2 * third, 2 * third), (third, 2 * third))):
-        w = np.array([(1.0 - u) * (1.0 - v), u * (1.0 - v), u * v, (1.0 - u) * v])
+    for m in range(4):
+        w = _PATTERN_WEIGHTS[3 + m]
         rows = base + 4 * np.arange(quad.size) + m
         positions[rows, 0] = fx[quad] @ w
         positions[rows, 1] = fy[quad] @ w
         corners[rows] = faces[quad]
-        weights[rows] = w
+        pattern[rows] = 3 + m
         take[quad, 8 + m] = rows
-    return np.ascontiguousarray(centres), first, positions, take, corners, weights
+    return positions, take, corners, pattern
 
 
-def _spatial_order(points: NDArray[np.float64]) -> NDArray[np.int64]:
-    """An order of ``points`` by blocks of 8 x 8 cells of a grid of about one point per cell."""
-    if points.shape[0] < 2:
-        return np.arange(points.shape[0])
-    lo = points.min(axis=0)
-    span = np.maximum(points.max(axis=0) - lo, 1e-300)
-    cell = max(math.sqrt(span[0] * span[1] / points.shape[0]), 1e-6 * float(span.max()))
-    i = ((points[:, 0] - lo[0]) / cell).astype(np.int64)
-    j = ((points[:, 1] - lo[1]) / cell).astype(np.int64)
-    blocks_x = int(i.max()) // 8 + 1
-    return np.argsort(((j // 8) * blocks_x + i // 8) * 64 + (j % 8) * 8 + i % 8, kind="stable")
+def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """The nodes grouped by cell: ``order`` (the nodes cell by cell), ``first`` and the cells' centres.
+
+    A node's cell is ``floor(position / cell)``, on multiples of ``cell`` from
+    the origin, so every piece of a survey puts a node in the same cell and
+    gives it the same centre.  The cells go in blocks of 8 x 8, so that
+    neighbouring systems read the same points, which stay in the cache.
+    """
+    if positions.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64), np.empty((0, 2))
+    scaled = np.floor(positions / cell)
+    if not np.all(np.abs(scaled) < 2.0**52):
+        raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for coordinates up to {np.abs(positions).max():.6g}")
+    i = scaled[:, 0].astype(np.int64)
+    j = scaled[:, 1].astype(np.int64)
+    ri = i - i.min()
+    rj = j - j.min()
+    blocks_x = int(ri.max()) // 8 + 1
+    key = ((rj // 8) * blocks_x + ri // 8) * 64 + (rj % 8) * 8 + ri % 8
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    first = np.append(starts, order.size).astype(np.int64)
+    lead = order[starts]
+    centres = np.column_stack([(i[lead] + 0.5) * cell, (j[lead] + 0.5) * cell])
+    return order, first, centres
 
 
 def _check_neighbours(neighbours: object) -> int:
@@ -515,40 +624,69 @@ def _check_neighbours(neighbours: object) -> int:
     return int(neighbours)
 
 
-def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS) -> Neighbourhoods:
+CELL_PER_SPACING = 1.0
+"""The side of the smooth surface's cells, in point spacings (:attr:`Variogram.spacing`).
+
+Measured (``bench/bench_accuracy.py``): smaller cells centre each system
+better on its nodes but cost one system per cell; at one spacing there is
+about one system per point, and the error is that of a system per edge and face."""
+
+
+def _spacing(d2_last: NDArray[np.float64], k: int) -> float:
+    """The point spacing ``1 / sqrt(density)`` from the squared distances to the ``k``-th nearest point."""
+    r = np.sqrt(d2_last[np.isfinite(d2_last)])
+    if r.size == 0:
+        return 1.0
+    value = float(np.median(r)) * math.sqrt(math.pi / k)
+    return value if value > 0.0 else 1.0
+
+
+def _mesh_spacing(vertices: NDArray[np.float64], k: int) -> float:
+    """:func:`_spacing` of a mesh's own vertices (a deterministic sample of them)."""
+    if vertices.shape[0] < 2:
+        return 1.0
+    order = np.lexsort((vertices[:, 1], vertices[:, 0]))
+    sample = order[:: max(1, order.size // 2000)]
+    kk = min(k, vertices.shape[0] - 1)
+    _, d2 = _nearest(vertices, vertices[sample], kk + 1)
+    return _spacing(d2[:, -1], kk)
+
+
+def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spacing: float | None = None) -> Neighbourhoods:
     """The smooth surface's kriging systems and nodes for ``mesh`` (see :class:`Neighbourhoods`).
 
-    The node values of :func:`smooth_nodes` depend on the mesh's vertices
-    inside the (closed) disks ``.disks`` only: a piece of a larger point set
-    gets the values of the whole set once every point of the set inside each
-    disk is among its vertices.
+    ``spacing`` is the survey's point spacing (:attr:`Variogram.spacing`);
+    the cells are ``CELL_PER_SPACING`` of it.  Without it the mesh's
+    vertices give it.  The node values of :func:`smooth_nodes` depend on the
+    mesh's vertices inside the (closed) disks ``.disks`` only: a piece of a
+    larger point set gets the values of the whole set once every point of the
+    set inside each disk is among its vertices, and both use one spacing.
 
     Examples
     --------
     >>> import numpy as np, meshcore
     >>> mesh = meshcore.build_mesh(np.random.default_rng(1).random((50, 2)))
-    >>> hoods = smooth_neighbourhoods(mesh)
-    >>> bool(np.all(hoods.disks[:, 2] > 0))
-    True
+    >>> hoods = smooth_neighbourhoods(mesh, spacing=0.15)
+    >>> bool(np.all(hoods.disks[:, 2] > 0)), hoods.cell
+    (True, 0.15)
     """
     k = _check_neighbours(neighbours)
     vertices, faces = mesh_arrays(mesh)
-    centres, first, positions, take, corners, weights = _layout(vertices, faces)
-    # the systems in the order of a coarse grid: neighbouring systems read the
-    # same points, which then stay in the cache (2-3x faster than edge order)
-    perm = _spatial_order(centres)
-    counts = np.diff(first)[perm]
-    new_first = np.zeros(perm.size + 1, dtype=np.int64)
-    np.cumsum(counts, out=new_first[1:])
-    old_nodes = np.repeat(first[:-1][perm], counts) + (np.arange(int(new_first[-1])) - np.repeat(new_first[:-1], counts))
-    renumber = np.empty(old_nodes.size, dtype=np.int64)
-    renumber[old_nodes] = np.arange(old_nodes.size)
-    centres, first = np.ascontiguousarray(centres[perm]), new_first
-    positions, corners, weights = positions[old_nodes], corners[old_nodes], weights[old_nodes]
-    take = np.where(take >= 0, renumber[np.maximum(take, 0)], -1)
+    if spacing is None:
+        spacing = _mesh_spacing(vertices, k)
+    elif isinstance(spacing, bool) or not isinstance(spacing, (int, float)) or not (math.isfinite(spacing) and spacing > 0.0):
+        raise InvalidInputError(f"spacing must be a finite number > 0, got {spacing!r}")
+    cell = float(spacing) * CELL_PER_SPACING
+    positions, take, corners, pattern = _layout(vertices, faces)
+    order, first, centres = _cells(positions, cell)
+    renumber = np.empty(order.size, dtype=np.int32)
+    renumber[order] = np.arange(order.size)
+    positions, corners, pattern = positions[order], corners[order], pattern[order]
+    take = np.where(take >= 0, renumber[np.maximum(take, 0)], np.int32(-1))
     index, d2 = _nearest(vertices, centres, k)
     radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
-    return Neighbourhoods(centres, index, radius, first, positions, take, corners, weights)
+    return Neighbourhoods(np.ascontiguousarray(centres), index, radius, first, np.ascontiguousarray(positions),
+                          take, corners, pattern, cell)
 
 
 def smooth_nodes(
@@ -560,13 +698,13 @@ def smooth_nodes(
 ) -> NDArray[np.float64]:
     """The node values of the smooth surface's patches, one row of twelve per face.
 
-    Each edge's two nodes are kriged (universal kriging, linear drift) from
-    the ``neighbours`` vertices nearest its midpoint, each face's inner nodes
-    from those nearest its centroid.  A node is then clamped to the range of
-    its neighbours' values and of its edge's (an inner node: its face's)
-    corners: a linear function is within that range, so the clamp keeps it
-    exact while stopping overshoot where the neighbours lie to one side (the
-    hull, voids).
+    The nodes are grouped in cells of about one point spacing; each cell's
+    nodes are kriged (universal kriging, linear drift) from the
+    ``neighbours`` vertices nearest the cell's centre.  A node is then
+    clamped to the range of its neighbours' values and of its edge's (an
+    inner node: its face's) corners: a linear function is within that range,
+    so the clamp keeps it exact while stopping overshoot where the neighbours
+    lie to one side (the hull, voids).
 
     Parameters
     ----------
@@ -576,12 +714,13 @@ def smooth_nodes(
     z : (n_v,) array
         The value at every vertex.
     variogram : Variogram, optional
-        The covariance model; fitted from the mesh's vertices by
-        :func:`fit_variogram` when omitted.
+        The covariance model and the point spacing; fitted from the mesh's
+        vertices by :func:`fit_variogram` when omitted.
     neighbours : int
         Points per kriging neighbourhood, 4 to 64.
     neighbourhoods : Neighbourhoods, optional
-        From :func:`smooth_neighbourhoods` for this mesh (computed when omitted).
+        From :func:`smooth_neighbourhoods` for this mesh and the variogram's
+        spacing (computed when omitted).
 
     Returns
     -------
@@ -608,17 +747,16 @@ def smooth_nodes(
     out = np.full((faces.shape[0], NODES_PER_FACE), np.nan)
     if faces.shape[0] == 0:
         return out
-    hoods = smooth_neighbourhoods(mesh, k) if neighbourhoods is None else neighbourhoods
+    hoods = smooth_neighbourhoods(mesh, k, variogram.spacing) if neighbourhoods is None else neighbourhoods
     if hoods.take.shape != out.shape:
         raise InvalidInputError("neighbourhoods were computed for another mesh")
-    zc = np.where(hoods.corners >= 0, zv[np.maximum(hoods.corners, 0)], np.nan)
-    low = np.nanmin(zc, axis=1)
-    high = np.nanmax(zc, axis=1)
-    linear = np.nansum(zc * hoods.weights, axis=1)
+    if variogram.spacing is not None and hoods.cell != variogram.spacing * CELL_PER_SPACING:
+        raise InvalidInputError(f"neighbourhoods were computed for cells of {hoods.cell!r}, the variogram's spacing gives "
+                                f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
     _nodes_kriged_kernel(
-        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, low, high, linear,
-        variogram.nugget / variogram.sill, 1.0 / variogram.range, values,
+        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, hoods.pattern, _PATTERN_WEIGHTS,
+        variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model), values,
     )
     used = hoods.take >= 0
     out[used] = values[hoods.take[used]]
@@ -633,7 +771,7 @@ def smooth_nodes(
 @njit
 def _loo_errors_kernel(
     xy: np.ndarray, z: np.ndarray, sample: np.ndarray, neighbours: np.ndarray,
-    nugget_ratio: float, inv_range: float, out: np.ndarray,
+    nugget_ratio: float, inv_range: float, model: int, out: np.ndarray,
 ) -> None:
     """Leave-one-out errors: each sample point kriged from its neighbours (itself left out)."""
     k = neighbours.shape[1]
@@ -645,24 +783,42 @@ def _loo_errors_kernel(
         count = _count(neighbours[s])
         px = xy[p, 0]
         py = xy[p, 1]
-        radius = _dual_system(xy, z, px, py, neighbours[s], count, nugget_ratio, inv_range, c, g, coef)
+        radius = _dual_system(xy, z, px, py, neighbours[s], count, nugget_ratio, inv_range, model, c, g, coef)
         if math.isfinite(radius):
-            out[s] = _dual_value(xy, px, py, neighbours[s], count, coef, radius, inv_range, px, py) - z[p]
+            out[s] = _dual_value(xy, px, py, neighbours[s], count, coef, radius, inv_range, model, px, py) - z[p]
         else:
             out[s] = math.nan
+
+
+_RANGES = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
+"""The ranges tried, in median neighbour distances."""
+
+_NUGGETS = (0.0, 1e-4, 0.01, 0.03, 0.1, 0.3, 1.0, 5.0)
+"""The nugget / sill ratios tried (Matérn models start at 1e-4: with none their systems are near singular)."""
+
+_SCREEN = 500
+"""Every candidate is first scored on this many of the sample's points; the best :data:`_FINALISTS` on all."""
+
+_FINALISTS = 6
 
 
 def fit_variogram(
     xy: ArrayLike, z: ArrayLike, neighbours: int = DEFAULT_NEIGHBOURS, sample: int = 2000, seed: int = 0
 ) -> Variogram:
-    """The exponential variogram that best predicts left-out points of ``(xy, z)``.
+    """The variogram that best predicts left-out points of ``(xy, z)``, and the points' spacing.
 
     ``sample`` points (drawn with ``seed``) are each kriged, left out, from
-    their ``neighbours`` nearest others, for ranges from a tenth to a hundred times the median
-    neighbour distance and nuggets from none to five times the sill; the pair
-    with the smallest root mean square error wins (ties: the smoother one).
-    The sill is then scaled to the empirical semivariance of the neighbour
-    pairs, so that ``nugget`` reads as the noise variance in z units squared.
+    their ``neighbours`` nearest others, for each of :data:`MODELS`, ranges
+    from a tenth to a hundred times the median neighbour distance and nuggets
+    from none to five times the sill: every candidate on a quarter of the
+    sample first, the best few on all of it.  The candidate with the smallest
+    root mean square error wins (ties: the first in the order models,
+    ranges, nuggets).  A candidate whose systems are singular at more than
+    one point in a thousand is not taken.  The sill is then scaled to the
+    empirical semivariance of the neighbour pairs, so that ``nugget`` reads
+    as the noise variance in z units squared.  ``spacing`` is
+    ``1 / sqrt(density)``, the density measured by the distance to each
+    sample point's ``neighbours``-th nearest.
 
     Deterministic: the same points (in any order) give the same variogram.
 
@@ -678,7 +834,7 @@ def fit_variogram(
     >>> xy = rng.random((800, 2)) * 100.0
     >>> z = np.sin(xy[:, 0] / 15.0) + 0.01 * rng.standard_normal(800)
     >>> v = fit_variogram(xy, z)
-    >>> v.range > 0 and v.nugget < v.sill
+    >>> v.range > 0 and v.nugget < v.sill and 2.0 < v.spacing < 5.0
     True
     """
     k = _check_neighbours(neighbours)
@@ -701,31 +857,38 @@ def fit_variogram(
     index, d2 = _nearest(pts, pts[chosen], k + 1)
     index = np.ascontiguousarray(index[:, 1:])  # leave the point itself out
     d2 = d2[:, 1:]
-    spacing = float(np.median(np.sqrt(d2[:, 0])))
-    if not spacing > 0.0:
-        spacing = float(np.median(np.sqrt(d2[np.isfinite(d2)]))) or 1.0
-    best: tuple[float, float, float] | None = None
-    errors = np.empty(m)
-    for factor in (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0):
-        inv_range = 1.0 / (factor * spacing)
-        for ratio in (0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 5.0):
-            _loo_errors_kernel(pts, zz, chosen, index, ratio, inv_range, errors)
-            ok = np.isfinite(errors)
-            if not ok.any():
-                continue
-            rmse = float(np.sqrt(np.mean(errors[ok] ** 2)))
-            if best is None or rmse < best[0] * (1.0 - 1e-9):
-                best = (rmse, factor * spacing, ratio)
-    if best is None:
-        best = (math.nan, 10.0 * spacing, 0.1)
-    _, rng_best, ratio = best
+    nearest = float(np.median(np.sqrt(d2[:, 0])))
+    if not nearest > 0.0:
+        nearest = float(np.median(np.sqrt(d2[np.isfinite(d2)]))) or 1.0
+    screen = np.sort(np.random.default_rng(seed + 1).permutation(m)[: min(_SCREEN, m)])
+
+    def score(rows: NDArray[np.int64], model: int, factor: float, ratio: float) -> float:
+        errors = np.empty(rows.size)
+        _loo_errors_kernel(pts, zz, chosen[rows], np.ascontiguousarray(index[rows]), ratio, 1.0 / (factor * nearest), model, errors)
+        ok = np.isfinite(errors)
+        if np.count_nonzero(~ok) > 1e-3 * rows.size or not ok.any():
+            return math.inf
+        return float(np.sqrt(np.mean(errors[ok] ** 2)))
+
+    candidates = [(model, factor, ratio) for model in range(len(MODELS)) for factor in _RANGES
+                  for ratio in _NUGGETS if model == 0 or ratio > 0.0]
+    screened = [score(screen, *c) for c in candidates]
+    ranked = sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS]
+    best: tuple[float, int] | None = None
+    every = np.arange(m)
+    for i in sorted(ranked):
+        rmse = score(every, *candidates[i]) if screen.size < m else screened[i]
+        if math.isfinite(rmse) and (best is None or rmse < best[0] * (1.0 - 1e-9)):
+            best = (rmse, i)
+    model, factor, ratio = candidates[best[1]] if best is not None else (0, 10.0, 0.1)
+    rng_best = factor * nearest
     # the sill: semivariances of neighbour pairs against the model's shape
     first = index[:, :4]
     h = np.sqrt(d2[:, :4]).ravel()
     gamma = 0.5 * (zz[chosen][:, None] - zz[first]).ravel() ** 2
-    shape = ratio + 1.0 - np.exp(-h / rng_best)
+    shape = ratio + 1.0 - _correlation(h, rng_best, model)
     good = np.isfinite(gamma) & (shape > 0)
     sill = float(np.sum(gamma[good] * shape[good]) / np.sum(shape[good] ** 2)) if good.any() else 1.0
     if not sill > 0.0:
         sill = float(np.finfo(float).tiny) * 1e10
-    return Variogram(nugget=ratio * sill, sill=sill, range=rng_best)
+    return Variogram(nugget=ratio * sill, sill=sill, range=rng_best, model=MODELS[model], spacing=_spacing(d2[:, -1], k))

@@ -44,8 +44,17 @@ def _spread(n: int, count: int) -> list[int]:
 
 def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
     """One point per distinct x, y, with the z the run keeps (``policy``, as its tiles merge them)."""
-    xy, inverse = np.unique(points[:, :2], axis=0, return_inverse=True)
-    return np.column_stack([xy, vertex_z(inverse.reshape(-1), xy.shape[0], points[:, 2], policy)])
+    if points.shape[0] == 0:
+        return np.empty((0, 3))
+    order = np.lexsort((points[:, 1], points[:, 0]))  # np.unique(axis=0)'s order, five times faster
+    xy = points[order, :2]
+    new = np.empty(order.size, dtype=bool)
+    new[0] = True
+    new[1:] = (xy[1:, 0] != xy[:-1, 0]) | (xy[1:, 1] != xy[:-1, 1])
+    inverse = np.empty(order.size, dtype=np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    xy = xy[new]
+    return np.column_stack([xy, vertex_z(inverse, xy.shape[0], points[:, 2], policy)])
 
 
 def run_variogram(
@@ -55,7 +64,9 @@ def run_variogram(
     and its provenance entry; ``points``: how many the run kept."""
     recorded = work.recorded("surface", "variogram")
     if recorded is not None:
-        return meshcore.Variogram.from_dict(recorded["variogram"]), recorded
+        variogram = meshcore.Variogram.from_dict(recorded["variogram"])
+        if variogram.spacing is not None:  # else recorded before node cells: fitted again
+            return variogram, recorded
     tiles = grid.tiles()
     parts: list[NDArray[np.float64]] = []
     used: list[list[int]] = []
@@ -82,11 +93,11 @@ def run_variogram(
     except meshcore.InvalidInputError:
         # too few points to fit: any model gives the few faces there are
         span = max(grid.tile_size, grid.resolution)
-        variogram = meshcore.Variogram(nugget=0.0, sill=1.0, range=span)
+        variogram = meshcore.Variogram(nugget=0.0, sill=1.0, range=span, spacing=span)
         how = "too few points to fit: a default"
     entry = {
         "variogram": variogram.to_dict(),
-        "model": "exponential",
+        "model": variogram.model,
         "fitted": how,
         "neighbours": meshcore.DEFAULT_NEIGHBOURS,
         "sample_points": int(sample.shape[0]),

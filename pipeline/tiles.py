@@ -477,7 +477,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         escapes = mesh.window_escapes
         if smooth:  # the smoother's neighbourhoods must be held too
             if hoods is None:
-                hoods = meshcore.smooth_neighbourhoods(mesh)
+                hoods = meshcore.smooth_neighbourhoods(mesh, spacing=job.variogram.spacing)
             escapes = np.concatenate([escapes, _open_disks(hoods.disks, held[0])])
         for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)

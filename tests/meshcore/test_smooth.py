@@ -17,7 +17,9 @@ from meshcore.interpolate import _surface_at, gradient, interpolate
 from meshcore.mesh import Mesh
 
 from .mesh_checks import hand_mesh
-from meshcore.smooth import Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes
+from meshcore.smooth import (
+    CELL_PER_SPACING, MODELS, Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes,
+)
 
 OFFSET = np.array([6.0e5, 6.8e6])
 
@@ -29,7 +31,7 @@ def rng() -> np.random.Generator:
 
 def _nodes_of(mesh: Mesh, f) -> np.ndarray:
     """Node rows holding ``f`` at every node position (the layout's own positions)."""
-    _, _, positions, take, _, _ = _layout(mesh.vertices, mesh.faces)
+    positions, take, _, _ = _layout(mesh.vertices, mesh.faces)
     values = f(positions[:, 0], positions[:, 1])
     rows = np.full(take.shape, np.nan)
     rows[take >= 0] = values[take[take >= 0]]
@@ -287,6 +289,59 @@ def test_fit_variogram_is_deterministic_and_finds_the_noise(rng):
     assert Variogram.from_dict(a.to_dict()) == a
     with pytest.raises(InvalidInputError, match="at least 18 finite points"):
         fit_variogram(xy[:10], noisy[:10])
+
+
+def test_variogram_models_are_correlations_and_round_trip():
+    h = np.array([0.0, 0.5, 1.0, 3.0, 30.0])
+    previous = None
+    for model in MODELS:
+        v = Variogram(0.1, 2.0, 1.5, model, spacing=0.7)
+        rho = v.correlation(h)
+        assert rho[0] == 1.0 and np.all(np.diff(rho) < 0) and rho[-1] < 1e-6
+        assert_allclose(v.semivariance(h), np.where(h > 0, 0.1 + 2.0 * (1.0 - rho), 0.0))
+        if previous is not None:  # smoother models stay correlated longer at short lags
+            assert rho[1] > previous[1]
+        previous = rho
+        assert Variogram.from_dict(v.to_dict()) == v
+    # a record from before the models and cells reads as exponential, with no spacing
+    assert Variogram.from_dict({"nugget": 0.0, "sill": 1.0, "range": 2.0}) == Variogram(0.0, 1.0, 2.0, "exponential", None)
+    with pytest.raises(InvalidInputError, match="model must be one of exponential, matern32, matern52, got 'gauss'"):
+        Variogram(0.0, 1.0, 1.0, "gauss")
+    with pytest.raises(InvalidInputError, match="spacing must be > 0"):
+        Variogram(0.0, 1.0, 1.0, spacing=0.0)
+
+
+def test_nodes_are_kriged_in_cells_of_the_spacing(rng):
+    """One system per cell on multiples of the cell's side; every node lies in its cell."""
+    xy = rng.random((2000, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    hoods = smooth_neighbourhoods(mesh, spacing=2.5)
+    cell = 2.5 * CELL_PER_SPACING
+    assert hoods.cell == cell
+    assert_allclose(hoods.centres / cell - 0.5, np.round(hoods.centres / cell - 0.5), atol=1e-9)
+    owner = np.repeat(np.arange(hoods.centres.shape[0]), np.diff(hoods.first))
+    assert np.all(np.abs(hoods.positions - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
+    assert len(np.unique(owner)) == hoods.centres.shape[0]  # no empty cell
+    # about one system per point at one spacing of ~2.2 m (100 m / sqrt(2000))
+    assert 0.5 * xy.shape[0] < hoods.centres.shape[0] < 2.0 * xy.shape[0]
+    z = np.sin((mesh.vertices[:, 0] - OFFSET[0]) / 9.0)
+    with pytest.raises(InvalidInputError, match="neighbourhoods were computed for cells of 2.5"):
+        smooth_nodes(mesh, z, Variogram(0.0, 1.0, 10.0, spacing=3.0), neighbourhoods=hoods)
+    # the spacing a fit measures is the points' own: 1 / sqrt(density)
+    fitted = fit_variogram(mesh.vertices, z)
+    assert 0.8 * 100.0 / np.sqrt(2000) < fitted.spacing < 1.25 * 100.0 / np.sqrt(2000)
+
+
+def test_a_smooth_surface_gets_a_smooth_model_and_a_rough_one_the_exponential(rng):
+    """The fit chooses the model by its errors: Matérn on an analytic surface, exponential on a rough one."""
+    xy = rng.random((3000, 2)) * 100.0
+    smooth = np.sin(xy[:, 0] / 13.0) * np.cos(xy[:, 1] / 17.0) * 5.0
+    assert fit_variogram(xy, smooth).model in ("matern32", "matern52")
+    # a random walk's increments: a Brownian-like (rough) surface of many tiny steps
+    order = np.argsort(xy[:, 0])
+    rough = np.empty(3000)
+    rough[order] = np.cumsum(rng.standard_normal(3000))
+    assert fit_variogram(xy, rough).model == "exponential"
 
 
 def test_smooth_predicts_withheld_points_better_than_the_tin(rng):

@@ -50,6 +50,9 @@ def test_smooth_run_differs_from_linear_and_its_slope_is_its_own(tmp_path):
     attrs = zarr.open_group(str(tmp_path / "smooth.zarr"), mode="r").attrs
     fitted = attrs["provenance"]["smooth_surface"]
     assert fitted["variogram"]["sill"] > 0 and fitted["sample_points"] == smooth.vertices
+    # the model and the node cells' spacing are the run's, recorded for every tile
+    assert fitted["model"] == fitted["variogram"]["model"] in ("exponential", "matern32", "matern52")
+    assert 0.0 < fitted["variogram"]["spacing"] < 60.0
     assert "smooth_surface" not in zarr.open_group(str(tmp_path / "linear.zarr"), mode="r").attrs["provenance"]
 
 
