@@ -527,67 +527,158 @@ edge's node at a third and at two thirds, a triangle's centroid, a
 quadrangle's four inner nodes."""
 
 
-def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
-    """The nodes of :class:`Neighbourhoods`: ``positions, take, corners, pattern``.
+@njit
+def _first_end(vertices: np.ndarray, s: int, e: int) -> bool:
+    """Whether ``s`` comes before ``e`` in coordinate order (x, then y)."""
+    sx = vertices[s, 0]
+    ex = vertices[e, 0]
+    return sx < ex or (sx == ex and vertices[s, 1] < vertices[e, 1])
 
-    An edge is listed once, from its end first in coordinate order, so that
-    every face (in any tile) computes its nodes from the same numbers.
-    """
+
+@njit
+def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray):
+    """:func:`_layout`: every edge found once by bucketing its slots by their first end."""
     n_f = faces.shape[0]
     n_v = vertices.shape[0]
-    is_quad = faces[:, 3] >= 0
-    ends = np.roll(faces, -1, axis=1)
-    ends[~is_quad, 2] = faces[~is_quad, 0]
-    valid = np.ones((n_f, 4), dtype=bool)
-    valid[~is_quad, 3] = False
-    s = faces[valid]
-    e = ends[valid]
-    sx, sy, ex, ey = vertices[s, 0], vertices[s, 1], vertices[e, 0], vertices[e, 1]
-    forward = (sx < ex) | ((sx == ex) & (sy < ey))
-    key = np.where(forward, s, e) * np.int64(n_v) + np.where(forward, e, s)
-    edge_key, which = np.unique(key, return_inverse=True)
-    which = which.reshape(-1)
-    a = edge_key // n_v
-    b = edge_key % n_v
-    ax, ay, bx, by = vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1]
-    n_e = a.size
-    third = 1.0 / 3.0
-    tri = np.flatnonzero(~is_quad)
-    quad = np.flatnonzero(is_quad)
-    corner = np.maximum(faces, 0)
-    fx, fy = vertices[corner, 0], vertices[corner, 1]
-    n_nodes = 2 * n_e + tri.size + 4 * quad.size
+    start = np.zeros(n_v + 1, dtype=np.int64)
+    n_tri = 0
+    for f in range(n_f):
+        nc = 4 if faces[f, 3] >= 0 else 3
+        if nc == 3:
+            n_tri += 1
+        for k in range(nc):
+            s = faces[f, k]
+            e = faces[f, (k + 1) % nc]
+            start[(s if _first_end(vertices, s, e) else e) + 1] += 1
+    for v in range(n_v):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    other = np.empty(start[n_v], dtype=np.int64)
+    slot = np.empty(start[n_v], dtype=np.int64)
+    for f in range(n_f):
+        nc = 4 if faces[f, 3] >= 0 else 3
+        for k in range(nc):
+            s = faces[f, k]
+            e = faces[f, (k + 1) % nc]
+            forward = _first_end(vertices, s, e)
+            a = s if forward else e
+            other[fill[a]] = e if forward else s
+            slot[fill[a]] = f * 4 + k
+            fill[a] += 1
+    edge = np.full(start[n_v], -1, dtype=np.int64)
+    n_e = 0
+    for v in range(n_v):
+        for i in range(start[v], start[v + 1]):
+            if edge[i] < 0:
+                edge[i] = n_e
+                for j in range(i + 1, start[v + 1]):
+                    if other[j] == other[i]:
+                        edge[j] = n_e
+                n_e += 1
+    n_quad = n_f - n_tri
+    n_nodes = 2 * n_e + n_tri + 4 * n_quad
     positions = np.empty((n_nodes, 2))
     corners = np.full((n_nodes, 4), -1, dtype=np.int32)
     pattern = np.empty(n_nodes, dtype=np.uint8)
-    # edges: nodes 2i (a third from a) and 2i + 1 (two thirds)
-    for j, t in enumerate((third, 2.0 * third)):
-        rows = 2 * np.arange(n_e) + j
-        positions[rows, 0] = ax + t * (bx - ax)
-        positions[rows, 1] = ay + t * (by - ay)
-        corners[rows, 0] = a
-        corners[rows, 1] = b
-        pattern[rows] = j
     take = np.full((n_f, 12), -1, dtype=np.int32)
-    slot_face, slot_edge = np.nonzero(valid)
-    take[slot_face, 2 * slot_edge] = 2 * which + np.where(forward, 0, 1)
-    take[slot_face, 2 * slot_edge + 1] = 2 * which + np.where(forward, 1, 0)
-    rows = 2 * n_e + np.arange(tri.size)
-    positions[rows, 0] = (fx[tri, 0] + fx[tri, 1] + fx[tri, 2]) * third
-    positions[rows, 1] = (fy[tri, 0] + fy[tri, 1] + fy[tri, 2]) * third
-    corners[rows, :3] = faces[tri, :3]
-    pattern[rows] = 2
-    take[tri, 8] = rows
-    base = 2 * n_e + tri.size
-    for m in range(4):
-        w = _PATTERN_WEIGHTS[3 + m]
-        rows = base + 4 * np.arange(quad.size) + m
-        positions[rows, 0] = fx[quad] @ w
-        positions[rows, 1] = fy[quad] @ w
-        corners[rows] = faces[quad]
-        pattern[rows] = 3 + m
-        take[quad, 8 + m] = rows
+    third = 1.0 / 3.0
+    for v in range(n_v):
+        for i in range(start[v], start[v + 1]):
+            f = slot[i] // 4
+            k = slot[i] % 4
+            b = other[i]
+            node = 2 * edge[i]
+            forward = faces[f, k] == v
+            take[f, 2 * k] = node if forward else node + 1
+            take[f, 2 * k + 1] = node + 1 if forward else node
+            if corners[node, 0] >= 0:
+                continue  # the edge's other face placed its nodes
+            for j in range(2):
+                t = third if j == 0 else 2.0 * third
+                positions[node + j, 0] = vertices[v, 0] + t * (vertices[b, 0] - vertices[v, 0])
+                positions[node + j, 1] = vertices[v, 1] + t * (vertices[b, 1] - vertices[v, 1])
+                corners[node + j, 0] = v
+                corners[node + j, 1] = b
+                pattern[node + j] = j
+    tri = 2 * n_e
+    quad = 2 * n_e + n_tri
+    for f in range(n_f):
+        if faces[f, 3] < 0:
+            positions[tri, 0] = (vertices[faces[f, 0], 0] + vertices[faces[f, 1], 0] + vertices[faces[f, 2], 0]) * third
+            positions[tri, 1] = (vertices[faces[f, 0], 1] + vertices[faces[f, 1], 1] + vertices[faces[f, 2], 1]) * third
+            for j in range(3):
+                corners[tri, j] = faces[f, j]
+            pattern[tri] = 2
+            take[f, 8] = tri
+            tri += 1
+        else:
+            for m in range(4):
+                x = 0.0
+                y = 0.0
+                for j in range(4):
+                    x += weights[3 + m, j] * vertices[faces[f, j], 0]
+                    y += weights[3 + m, j] * vertices[faces[f, j], 1]
+                    corners[quad, j] = faces[f, j]
+                positions[quad, 0] = x
+                positions[quad, 1] = y
+                pattern[quad] = 3 + m
+                take[f, 8 + m] = quad
+                quad += 1
     return positions, take, corners, pattern
+
+
+def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
+    """The nodes of :class:`Neighbourhoods`: ``positions, take, corners, pattern``.
+
+    An edge is listed once, its nodes placed from its end first in
+    coordinate order, so that every face (in any tile) computes them from the
+    same numbers.
+    """
+    return _layout_kernel(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64),
+                          _PATTERN_WEIGHTS)
+
+
+@njit
+def _cells_kernel(positions: np.ndarray, cell: float, order: np.ndarray) -> np.ndarray:
+    """Fill ``order`` (the nodes cell by cell, blocks of 8 x 8 cells in rows)
+    by a counting sort; returns the cells' ``(i, j)`` and their first nodes."""
+    n = positions.shape[0]
+    ci = np.empty(n, dtype=np.int64)
+    cj = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        ci[p] = np.int64(math.floor(positions[p, 0] / cell))
+        cj[p] = np.int64(math.floor(positions[p, 1] / cell))
+    i0 = ci.min()
+    j0 = cj.min()
+    blocks_x = (ci.max() - i0) // 8 + 1
+    blocks_y = (cj.max() - j0) // 8 + 1
+    key = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        ri = ci[p] - i0
+        rj = cj[p] - j0
+        key[p] = ((rj // 8) * blocks_x + ri // 8) * 64 + (rj % 8) * 8 + ri % 8
+    start = np.zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
+    for p in range(n):
+        start[key[p] + 1] += 1
+    cells = 0
+    for b in range(start.size - 1):
+        if start[b + 1] > 0:
+            cells += 1
+        start[b + 1] += start[b]
+    out = np.empty((cells, 3), dtype=np.int64)  # i, j, first node
+    pos = start[:-1].copy()
+    for p in range(n):
+        order[pos[key[p]]] = p
+        pos[key[p]] += 1
+    m = 0
+    for b in range(start.size - 1):
+        if start[b + 1] > start[b]:
+            lead = order[start[b]]
+            out[m, 0] = ci[lead]
+            out[m, 1] = cj[lead]
+            out[m, 2] = start[b]
+            m += 1
+    return out
 
 
 def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
@@ -600,21 +691,18 @@ def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int6
     """
     if positions.shape[0] == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64), np.empty((0, 2))
-    scaled = np.floor(positions / cell)
-    if not np.all(np.abs(scaled) < 2.0**52):
-        raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for coordinates up to {np.abs(positions).max():.6g}")
-    i = scaled[:, 0].astype(np.int64)
-    j = scaled[:, 1].astype(np.int64)
-    ri = i - i.min()
-    rj = j - j.min()
-    blocks_x = int(ri.max()) // 8 + 1
-    key = ((rj // 8) * blocks_x + ri // 8) * 64 + (rj % 8) * 8 + ri % 8
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    first = np.append(starts, order.size).astype(np.int64)
-    lead = order[starts]
-    centres = np.column_stack([(i[lead] + 0.5) * cell, (j[lead] + 0.5) * cell])
+    lo = np.array([positions[:, 0].min(), positions[:, 1].min()])  # min(axis=0) is ten times slower here
+    hi = np.array([positions[:, 0].max(), positions[:, 1].max()])
+    if not max(np.abs(lo).max(), np.abs(hi).max()) / cell < 2.0**52:
+        raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for coordinates up to "
+                                f"{max(np.abs(lo).max(), np.abs(hi).max()):.6g}")
+    if not float(((hi[0] - lo[0]) / cell + 9.0) * ((hi[1] - lo[1]) / cell + 9.0)) < 64.0 * positions.shape[0] + 1e6:
+        raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for nodes spread over "
+                                f"{hi[0] - lo[0]:.6g} x {hi[1] - lo[1]:.6g}")
+    order = np.empty(positions.shape[0], dtype=np.int64)
+    cells = _cells_kernel(np.ascontiguousarray(positions), float(cell), order)
+    first = np.append(cells[:, 2], order.size)
+    centres = np.column_stack([(cells[:, 0] + 0.5) * cell, (cells[:, 1] + 0.5) * cell])
     return order, first, centres
 
 
@@ -681,7 +769,7 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     order, first, centres = _cells(positions, cell)
     renumber = np.empty(order.size, dtype=np.int32)
     renumber[order] = np.arange(order.size)
-    positions, corners, pattern = positions[order], corners[order], pattern[order]
+    positions, corners, pattern = np.take(positions, order, axis=0), np.take(corners, order, axis=0), pattern[order]
     take = np.where(take >= 0, renumber[np.maximum(take, 0)], np.int32(-1))
     index, d2 = _nearest(vertices, centres, k)
     radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
