@@ -14,6 +14,7 @@ patches through every point, the paper's section 4).  No I/O.
 
 from __future__ import annotations
 
+from ._jit import kernel
 from ._order import lexicographic_order
 from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
@@ -34,6 +35,7 @@ __all__ = [
     "Mesh",
     "build_mesh",
     "lexicographic_order",
+    "kernel",
     "interpolate",
     "gradient",
     "rasterize",

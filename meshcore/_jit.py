@@ -20,7 +20,7 @@ import numpy as np
 from numba.core import caching, cgutils, types
 from numba.extending import intrinsic
 
-__all__ = ["njit", "njit_borrowing", "stack_array", "drop_stale_kernels"]
+__all__ = ["njit", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -71,6 +71,16 @@ if not any(issubclass(c, _PackageStamp) for c in caching.CacheImpl._locator_clas
     caching.CacheImpl._locator_classes[:0] = [_UserProvided, _InTree, _UserWide]
 
 njit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+def kernel(function):
+    """Compile ``function`` with meshcore's settings: cached on disk, the GIL
+    released, numpy's error model (a division by zero gives inf or NaN).
+
+    For the kernels of packages built on meshcore, so that every kernel of a
+    run is compiled alike.
+    """
+    return njit(function)
 
 #: for a helper that a kernel calls per element with its arrays, and that
 #: creates none (scratch space: :func:`stack_array`): compiled without

@@ -1,18 +1,18 @@
-"""The smooth surface's node values: local kriging in cells of one point spacing.
+"""The smooth surface's node values: local kriging in cells of about a point spacing.
 
 The smooth surface (``surface="smooth"``) puts a cubic patch on every face
 (:mod:`meshcore.patches`).  Its corners take the points' z; its other nodes
 (two per edge, the inner ones of each face) take the value of universal
 kriging with a linear drift:
 
-- the nodes are grouped in square cells of about one point spacing
+- the nodes are grouped in square cells of 1.4 point spacings
   (:attr:`Variogram.spacing`), aligned on multiples of the cell's side; each
   cell's nodes are kriged from the ``neighbours`` vertices nearest the
   cell's centre: one system per cell, solved once in its dual form
   (Cholesky of the covariances, the drift by its Schur complement), then
-  evaluated at each of its nodes.  About one system per point: a system per
-  edge and per face (five per point) gave the same errors at five times the
-  cost;
+  evaluated at each of its nodes.  About one system per two points: a system
+  per edge and per face (five per point) gave the same errors at several
+  times the cost;
 - nearest is exact, with ties broken by coordinates, so a node's value
   depends only on the points inside its cell's disk (the centre and the
   distance to its last neighbour, :attr:`Neighbourhoods.disks`), never on the
@@ -38,7 +38,7 @@ measures the spacing.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -712,12 +712,14 @@ def _check_neighbours(neighbours: object) -> int:
     return int(neighbours)
 
 
-CELL_PER_SPACING = 1.0
+CELL_PER_SPACING = 1.4
 """The side of the smooth surface's cells, in point spacings (:attr:`Variogram.spacing`).
 
 Measured (``bench/bench_accuracy.py``): smaller cells centre each system
-better on its nodes but cost one system per cell; at one spacing there is
-about one system per point, and the error is that of a system per edge and face."""
+better on its nodes but cost one system per cell.  At 1.4 spacings (a system
+per two points) the errors are those of 0.7 or 1.0 spacings, or of a system
+per edge and face (five per point), within the noise of the test; at 2
+spacings they grow."""
 
 
 def _spacing(d2_last: NDArray[np.float64], k: int) -> float:
@@ -786,7 +788,7 @@ def smooth_nodes(
 ) -> NDArray[np.float64]:
     """The node values of the smooth surface's patches, one row of twelve per face.
 
-    The nodes are grouped in cells of about one point spacing; each cell's
+    The nodes are grouped in cells of :data:`CELL_PER_SPACING` point spacings; each cell's
     nodes are kriged (universal kriging, linear drift) from the
     ``neighbours`` vertices nearest the cell's centre.  A node is then
     clamped to the range of its neighbours' values and of its edge's (an

@@ -13,9 +13,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+import meshcore
 
 from . import store
 from .errors import PipelineError
@@ -75,7 +76,7 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
     save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
 
 
-@numba.njit(cache=True, nogil=True)
+@meshcore.kernel
 def _sorted_rows(table: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
     """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2), sorted by x then
     y (a tile's owned points), or -1 where it is not there."""
@@ -138,7 +139,7 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
     return block.what, block.start, block.stop
 
 
-@numba.njit(cache=True, nogil=True)
+@meshcore.kernel
 def _renumber(node_ids: NDArray[np.integer], faces: NDArray[np.integer], out: NDArray[np.integer]) -> None:
     """``out[i, k] = node_ids[faces[i, k]]``: a piece's face corners as global
     node ids; a missing 4th corner (-1) takes the slot past the vertices (-1)."""

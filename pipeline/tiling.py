@@ -16,9 +16,10 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+import meshcore
 
 from .errors import UsageError
 from .scratch import Scratch
@@ -258,7 +259,7 @@ class TileSpiller:
 _ROUNDOFF = 2.0**-53
 
 
-@numba.njit(cache=True, nogil=True)
+@meshcore.kernel
 def _bin(v: float, origin: float, inv_size: float, below: NDArray[np.float64], above: NDArray[np.float64]) -> int:
     """:meth:`TileGrid.bins` of one value: bin ``k`` is ``[below[k], above[k])``
     (the inner edges with -inf and +inf at the ends); no branch."""
@@ -268,7 +269,7 @@ def _bin(v: float, origin: float, inv_size: float, below: NDArray[np.float64], a
     return k
 
 
-@numba.njit(cache=True, nogil=True)
+@meshcore.kernel
 def _bins(values, origin, inv_size, below, above):
     out = np.empty(values.shape, dtype=np.intp)
     for i in range(values.shape[0]):
@@ -276,7 +277,7 @@ def _bins(values, origin, inv_size, below, above):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@meshcore.kernel
 def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
     """Every point copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and

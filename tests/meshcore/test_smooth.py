@@ -322,8 +322,8 @@ def test_nodes_are_kriged_in_cells_of_the_spacing(rng):
     owner = np.repeat(np.arange(hoods.centres.shape[0]), np.diff(hoods.first))
     assert np.all(np.abs(hoods.positions - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
     assert len(np.unique(owner)) == hoods.centres.shape[0]  # no empty cell
-    # about one system per point at one spacing of ~2.2 m (100 m / sqrt(2000))
-    assert 0.5 * xy.shape[0] < hoods.centres.shape[0] < 2.0 * xy.shape[0]
+    # a system for nearly every cell of the hull (100 m x 100 m)
+    assert 0.8 * (100.0 / cell) ** 2 < hoods.centres.shape[0] <= (100.0 / cell + 1) ** 2
     z = np.sin((mesh.vertices[:, 0] - OFFSET[0]) / 9.0)
     with pytest.raises(InvalidInputError, match="neighbourhoods were computed for cells of 2.5"):
         smooth_nodes(mesh, z, Variogram(0.0, 1.0, 10.0, spacing=3.0), neighbourhoods=hoods)
