@@ -757,8 +757,8 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     >>> import numpy as np, meshcore
     >>> mesh = meshcore.build_mesh(np.random.default_rng(1).random((50, 2)))
     >>> hoods = smooth_neighbourhoods(mesh, spacing=0.15)
-    >>> bool(np.all(hoods.disks[:, 2] > 0)), hoods.cell
-    (True, 0.15)
+    >>> bool(np.all(hoods.disks[:, 2] > 0)), hoods.cell == 0.15 * CELL_PER_SPACING
+    (True, True)
     """
     k = _check_neighbours(neighbours)
     vertices, faces = mesh_arrays(mesh)
