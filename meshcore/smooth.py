@@ -38,6 +38,7 @@ measures the spacing.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -880,6 +881,15 @@ def _loo_errors_kernel(
             out[s] = math.nan
 
 
+def _in_order(pts: NDArray[np.float64], z: NDArray[np.float64]) -> bool:
+    """Whether the points are sorted by x, then y, then z (``np.lexsort((z, y, x))``'s order)."""
+    if pts.shape[0] < 2:
+        return True
+    x, y = pts[:, 0], pts[:, 1]
+    dx, dy, dz = x[1:] - x[:-1], y[1:] - y[:-1], z[1:] - z[:-1]
+    return bool(np.all((dx > 0) | ((dx == 0) & ((dy > 0) | ((dy == 0) & (dz >= 0))))))
+
+
 _RANGES = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0)
 """The ranges tried, in median neighbour distances."""
 
@@ -938,9 +948,11 @@ def fit_variogram(
     if pts.shape[0] < k + 2:
         raise InvalidInputError(f"fitting a variogram needs at least {k + 2} finite points, got {pts.shape[0]}")
     # a canonical order, so that the sample does not depend on the input order
-    order = np.lexsort((zz, pts[:, 1], pts[:, 0]))
-    pts = pts[order]
-    zz = zz[order]
+    # (points already in it, as a run's merged sample is, are not sorted again)
+    if not _in_order(pts, zz):
+        order = np.lexsort((zz, pts[:, 1], pts[:, 0]))
+        pts = np.ascontiguousarray(pts[order])
+        zz = np.ascontiguousarray(zz[order])
     rng = np.random.default_rng(seed)
     m = min(sample, pts.shape[0])
     chosen = np.sort(rng.choice(pts.shape[0], size=m, replace=False))
@@ -962,7 +974,11 @@ def fit_variogram(
 
     candidates = [(model, factor, ratio) for model in range(len(MODELS)) for factor in _RANGES
                   for ratio in _NUGGETS if model == 0 or ratio > 0.0]
-    screened = [score(screen, *c) for c in candidates]
+    # the candidates in two halves on two threads (the kernel releases the GIL)
+    half = (len(candidates) + 1) // 2
+    with ThreadPoolExecutor(2) as pool:
+        parts = pool.map(lambda part: [score(screen, *c) for c in part], (candidates[:half], candidates[half:]))
+        screened = [value for part in parts for value in part]
     ranked = sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS]
     best: tuple[float, int] | None = None
     every = np.arange(m)
