@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -285,6 +286,33 @@ def _progress(args: argparse.Namespace) -> bool | None:
     return None
 
 
+_SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
+_VALUES = re.compile(r"\b(in_crs|out_crs|max_cells|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
+_NAMES = re.compile(r"\b(in_crs|out_crs|max_cells|skip_bad_files)\b")
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def as_flags(text: str) -> str:
+    """A library message (which speaks of parameters) as the command line
+    says it: ``overwrite=True`` is ``--overwrite``, ``in_crs='EPSG:2154'``
+    is ``--in-crs EPSG:2154``, ``max_cells`` is ``--max-cells``.
+
+    >>> as_flags("pass overwrite=True to replace it; give in_crs='EPSG:2154'")
+    'pass --overwrite to replace it; give --in-crs EPSG:2154'
+    """
+    text = _SWITCHES.sub(lambda m: _flag(m.group(1)), text)
+    text = _VALUES.sub(lambda m: f"{_flag(m.group(1))} {m.group(2) if m.group(2) is not None else m.group(3)}", text)
+    return _NAMES.sub(lambda m: _flag(m.group(1)), text)
+
+
+def _said(args: argparse.Namespace, text: str) -> str:
+    """``text`` in the words of the command: flags for a command line, parameters (the job file's keys) for a workflow."""
+    return text if getattr(args, "command", None) == "workflow" else as_flags(text)
+
+
 def _report(args: argparse.Namespace, report) -> int:
     """Show a run's report (a table, or one JSON log line); its exit code."""
     if args.log_json:
@@ -292,7 +320,7 @@ def _report(args: argparse.Namespace, report) -> int:
     elif not args.quiet:
         print(report.table())
         for note in report.notes:
-            print(f"note: {note}")
+            print(f"note: {_said(args, note)}")
     return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
 
 
@@ -304,10 +332,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return _command(args)
     except (OutputWriteError, SeamError, StorageUnreachableError) as exc:  # the job failed part way: resumable
-        LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
+        LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_FAILED
     except (PipelineError, *_mesh_errors()) as exc:
-        LOGGER.error(f"terrain: error: {exc}", exc_info=args.verbose > 0)
+        LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_USAGE
     except KeyboardInterrupt:
         LOGGER.error("terrain: stopped; run the same command again to resume")

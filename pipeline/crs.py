@@ -1,7 +1,7 @@
 """Coordinate reference systems: decide each file's CRS and the target CRS, and reproject.
 
-:func:`resolve_crs` turns the files' CRS records plus the ``--in-crs`` and
-``--out-crs`` options into a :class:`CrsPlan`: one source CRS per file, one
+:func:`resolve_crs` turns the files' CRS records plus the ``in_crs`` and
+``out_crs`` parameters into a :class:`CrsPlan`: one source CRS per file, one
 target CRS (projected: the mesh is built in linear units), its horizontal
 unit, and notes for the run report. CRSs travel as WKT strings so that the
 plan and its :class:`Reprojector` recipes pickle and store as plain text.
@@ -144,11 +144,11 @@ def cf_metres(units: str) -> float | None:
 
 def _user_crs(text: str, option: str) -> pyproj.CRS:
     if not isinstance(text, str) or not text.strip():
-        raise CrsError(f"{option} must be a CRS such as EPSG:2154, a WKT or a PROJ string, got {text!r}")
+        raise CrsError(f"{option} must be a CRS such as 'EPSG:2154', a WKT or a PROJ string, got {text!r}")
     try:
         return _described(pyproj.CRS.from_user_input(text.strip()))
     except CRSError as exc:
-        raise CrsError(f"{option} {text!r} is not a CRS pyproj understands ({one_line(exc)})") from exc
+        raise CrsError(f"{option}={text!r} is not a CRS pyproj understands ({one_line(exc)})") from exc
 
 
 def _described(crs: pyproj.CRS) -> pyproj.CRS:
@@ -308,7 +308,7 @@ class CrsPlan:
     paths
         The input files, in the order given to :func:`resolve_crs`.
     source_wkts
-        Each file's source CRS (WKT2) after the ``--in-crs`` override.
+        Each file's source CRS (WKT2) after the ``in_crs`` override.
     target_wkt
         The CRS of the outputs (WKT2); always projected (linear units).
     target_name
@@ -423,8 +423,8 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
     if len(infos) == 0:
         raise UsageError("no input files to resolve a CRS for")
     cache = _CrsCache()
-    user_in = _user_crs(in_crs, "--in-crs") if in_crs is not None else None
-    user_out = _user_crs(out_crs, "--out-crs") if out_crs is not None else None
+    user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
+    user_out = _user_crs(out_crs, "out_crs") if out_crs is not None else None
     notes: list[str] = []
 
     sources: list[pyproj.CRS] = []
@@ -441,13 +441,13 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         if file_crs is not None:
             if user_in is not None and not same_crs(file_crs, user_in):
                 notes.append(
-                    f"{info.path}: its own CRS {crs_label(file_crs)} is kept; --in-crs {crs_label(user_in)} "
+                    f"{info.path}: its own CRS {crs_label(file_crs)} is kept; in_crs={crs_label(user_in)!r} "
                     "is for files without a usable CRS"
                 )
             sources.append(file_crs)
         elif user_in is not None:
             if problem:
-                notes.append(f"{info.path}: {problem}; using --in-crs {crs_label(user_in)}")
+                notes.append(f"{info.path}: {problem}; using in_crs={crs_label(user_in)!r}")
             else:
                 defaulted.append(info.path)
             sources.append(user_in)
@@ -459,10 +459,10 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         raise CrsError(
             f"no usable CRS for {len(unusable)} file(s): {shown}"
             + (f" and {more} more" if more > 0 else "")
-            + "; pass --in-crs (e.g. --in-crs EPSG:2154) to say which CRS they are in"
+            + "; give in_crs (e.g. in_crs='EPSG:2154') to say which CRS they are in"
         )
     if defaulted and user_in is not None:
-        notes.append(f"--in-crs {crs_label(user_in)} used for file(s) without a CRS: {_list_paths(defaulted)}")
+        notes.append(f"in_crs={crs_label(user_in)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
 
     groups: list[tuple[pyproj.CRS, list[int]]] = []
     for i, crs in enumerate(sources):
@@ -482,8 +482,8 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
             f"{crs_label(crs)}: {_list_paths([infos[i].path for i in members])}" for crs, members in groups
         )
         raise CrsError(
-            f"input files are in {len(groups)} different CRSs and no --out-crs was given: {listing}; "
-            "pass --out-crs to reproject them all to one CRS"
+            f"input files are in {len(groups)} different CRSs and no out_crs was given: {listing}; "
+            "give out_crs to reproject them all to one CRS"
         )
     _check_target(target, from_option=user_out is not None, infos=infos, sources=sources)
 
@@ -559,7 +559,7 @@ def _output_heights(heights: Sequence[_Heights], target: pyproj.CRS, notes: list
     if len(presumed) > 1:
         notes.append(
             f"the files' heights are in different units ({', '.join(sorted(presumed))}) and the DEM mixes them: "
-            "reproject to a --out-crs with a vertical component (e.g. EPSG:32631+5773) to convert them to one"
+            "reproject to an out_crs with a vertical component (e.g. out_crs='EPSG:32631+5773') to convert them to one"
         )
         return None, 1.0
     unit = units.pop() if len(units) == 1 else None
@@ -579,7 +579,7 @@ def _check_target(
 ) -> None:
     """Refuse targets whose x, y are not linear coordinates."""
     h = _horizontal(target)
-    what = f"--out-crs {crs_label(target)}" if from_option else f"the files' CRS {crs_label(target)}"
+    what = f"out_crs={crs_label(target)!r}" if from_option else f"the files' CRS {crs_label(target)}"
     if h.is_projected or h.type_name == "Engineering CRS":
         return
     if h.is_geographic:
@@ -592,14 +592,14 @@ def _check_target(
         kind = f"not projected ({h.type_name})"
     hint = _suggest_utm(infos, sources)
     if hint:
-        suggestion = f"use --out-crs {hint} or a national grid"
+        suggestion = f"use out_crs={hint[0]!r} ({hint[1]}) or a national grid"
     else:
-        suggestion = "use --out-crs with the EPSG code of a UTM zone or national grid"
+        suggestion = "give out_crs the EPSG code of a UTM zone or national grid"
     raise CrsError(f"{what} is {kind}; meshes need a projected CRS in metres or feet: {suggestion}")
 
 
-def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> str | None:
-    """The WGS 84 UTM zone at the centre of the files' header bounds, as ``"EPSG:326zz (...)"``."""
+def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> tuple[str, str] | None:
+    """The WGS 84 UTM zone at the centre of the files' header bounds: ``("EPSG:326zz", its name)``."""
     wgs84 = pyproj.CRS.from_epsg(4326)
     lons: list[float] = []
     lats: list[float] = []
@@ -620,7 +620,7 @@ def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> 
     zone = int((lon + 180) // 6) % 60 + 1
     north = lat >= 0
     code = (32600 if north else 32700) + zone
-    return f"EPSG:{code} (WGS 84 / UTM zone {zone}{'N' if north else 'S'})"
+    return f"EPSG:{code}", f"WGS 84 / UTM zone {zone}{'N' if north else 'S'}"
 
 
 def _reprojection_notes(

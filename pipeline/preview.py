@@ -188,18 +188,18 @@ def render_preview(
     if window is not None:
         x0, y0, x1, y1 = window
         if not (x0 < x1 and y0 < y1):
-            raise UsageError(f"--window must be xmin,ymin,xmax,ymax with min < max, got {window}")
+            raise UsageError(f"window={window!r} must be (xmin, ymin, xmax, ymax) with min < max")
         ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="red", linewidth=1.5))
         polys, quads = _window_faces(str(store_path), window)
         if polys.shape[0] == 0:
             plt.close(fig)
-            raise UsageError(f"--window {window} meets no face of the mesh (its extent: x {extent[0]:g} .. "
+            raise UsageError(f"window={window!r} meets no face of the mesh (its extent: x {extent[0]:g} .. "
                              f"{extent[1]:g}, y {extent[2]:g} .. {extent[3]:g})")
         if polys.shape[0] > MAX_MESH_FACES:
             plt.close(fig)
             raise UsageError(
                 f"the window holds {polys.shape[0]:,} faces, too many to draw legibly "
-                f"(at most {MAX_MESH_FACES:,}); choose a smaller --window"
+                f"(at most {MAX_MESH_FACES:,}); choose a smaller window"
             )
         zoom = axes[0, 1]
         c0 = max(0, int((x0 - (xs[0] - res / 2)) // res))

@@ -68,7 +68,7 @@ def decide(plan: RunPlan, incremental: bool) -> Resume:
         notes.append(f"{frame_change(previous['provenance'], provenance)}: every tile was computed again")
         previous = None
     elif fresh_frame:
-        raise UsageError(f"{config.output}: the existing store has another grid; pass --overwrite to replace it")
+        raise UsageError(f"{config.output}: the existing store has another grid; pass overwrite=True to replace it")
     same_inputs = previous is not None and input_keys(previous["provenance"]["inputs"]) == input_keys(provenance["inputs"])
     # a workflow's store keeps its work folder: its next run reuses the tiles
     # no changed input touches, whichever command finished the store meanwhile
@@ -172,17 +172,17 @@ def existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs
     try:
         before = RunConfig.from_dict(old.get("parameters", {}))
     except (PipelineError, TypeError):
-        raise UsageError(f"{where}: an existing store of unknown origin; pass --overwrite to replace it") from None
+        raise UsageError(f"{where}: an existing store of unknown origin; pass overwrite=True to replace it") from None
     changed = config.differences(before)
     if changed:
         detail = ", ".join(f"{k}: {getattr(before, k)!r} -> {getattr(config, k)!r}" for k in changed)
-        raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass --overwrite to replace it")
+        raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass overwrite=True to replace it")
     was, now = input_keys(old.get("inputs", [])), input_keys(provenance["inputs"])
     if was != now and not allow_new_inputs:
         added = sorted(p for p, *_ in now - was)
         gone = sorted(p for p, *_ in was - now)
         raise UsageError(
             f"{where}: the inputs changed since the store was made (new or changed: {added or 'none'}; "
-            f"gone or changed: {gone or 'none'}); pass --overwrite, or use 'terrain workflow' for incremental runs"
+            f"gone or changed: {gone or 'none'}); pass overwrite=True, or use a workflow for incremental runs"
         )
     return attrs

@@ -196,7 +196,7 @@ def _route(job: _RouteJob) -> dict[str, Any]:
 
 
 def _skipped_note(skipped: list) -> str:
-    return f"{len(skipped)} bad file(s) skipped (--skip-bad-files); their points are not in the output"
+    return f"{len(skipped)} bad file(s) skipped (skip_bad_files=True); their points are not in the output"
 
 
 def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str], None] | None = None) -> RunReport:

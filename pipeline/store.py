@@ -855,7 +855,7 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
         return
     if _is_zarr_store(where):
         if not overwrite:
-            raise StoreError(f"{where}: a Zarr store already exists; pass --overwrite to replace it")
+            raise StoreError(f"{where}: a Zarr store already exists; pass overwrite=True to replace it")
         if os.path.islink(where):
             raise StoreError(f"{where}: is a symbolic link; to replace the store, give the path it points to")
         strays = sorted(
@@ -885,7 +885,7 @@ def _make_room_remote(url: str, overwrite: bool) -> None:
     if not _is_zarr_store(url):
         raise StoreError(f"{url}: objects exist under this prefix and it is not a Zarr store; refusing to replace it")
     if not overwrite:
-        raise StoreError(f"{url}: a Zarr store already exists; pass --overwrite to replace it")
+        raise StoreError(f"{url}: a Zarr store already exists; pass overwrite=True to replace it")
     fs.rm(where, recursive=True)
 
 

@@ -469,7 +469,7 @@ def check_cells(grid: TileGrid, max_cells: int) -> None:
     if cells > max_cells:
         raise UsageError(
             f"the DEM would have {grid.nx} x {grid.ny} = {cells:,} cells, above max_cells={max_cells:,}; "
-            "check the bounds and resolution, or raise --max-cells"
+            "check the bounds and resolution, or raise max_cells"
         )
 
 

@@ -140,7 +140,7 @@ def test_a_dem_above_max_cells_names_the_widest_input(tmp_path, capsys):
                  "--no-progress"])
     assert code == 2
     (line,) = [line for line in capsys.readouterr().err.splitlines() if line.startswith("terrain: error")]
-    assert "above max_cells=10,000" in line and f"the widest input is {wide}: x " in line
+    assert "above --max-cells 10,000" in line and f"the widest input is {wide}: x " in line
 
 
 def test_common_flags_before_a_workflow_action_count(tmp_path, capsys):

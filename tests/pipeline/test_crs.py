@@ -50,7 +50,7 @@ def test_missing_crs_without_in_crs_lists_the_files(tmp_path: Path) -> None:
         resolve_crs([a, b, c], None, None)
     message = str(exc.value)
     assert str(b.path) in message and str(c.path) in message and str(a.path) not in message
-    assert "--in-crs" in message and "\n" not in message
+    assert "in_crs" in message and "\n" not in message
 
 
 def _lambert93_without(parameter: str) -> str:
@@ -77,7 +77,7 @@ def test_a_file_crs_short_of_a_parameter_is_unusable_and_named(tmp_path: Path, p
     assert str(bad.path) in str(exc.value) and str(good.path) not in str(exc.value)
     plan = resolve_crs([good, bad], LAMBERT93, None)  # --in-crs stands in for it, with a note
     assert any(str(bad.path) in note and "incomplete" in note for note in plan.notes)
-    with pytest.raises(CrsError, match="--out-crs"):
+    with pytest.raises(CrsError, match="out_crs"):
         resolve_crs([good], None, damaged)
 
 
@@ -102,7 +102,7 @@ def test_mixed_crs_without_out_crs_groups_the_files(tmp_path: Path) -> None:
     with pytest.raises(CrsError) as exc:
         resolve_crs([a, b, c], None, None)
     message = str(exc.value)
-    assert "2 different CRSs" in message and "--out-crs" in message
+    assert "2 different CRSs" in message and "out_crs" in message
     assert f"Lambert-93 (EPSG:2154): {a.path}, {c.path}" in message
     assert f"UTM zone 31N (EPSG:32631): {b.path}" in message
 
@@ -122,8 +122,8 @@ def test_geographic_target_suggests_the_utm_zone(tmp_path: Path) -> None:
     with pytest.raises(CrsError) as exc:
         resolve_crs([info], None, None)
     message = str(exc.value)
-    assert "geographic" in message and "--out-crs EPSG:32631" in message
-    with pytest.raises(CrsError, match="--out-crs WGS 84 .*EPSG:32631"):
+    assert "geographic" in message and "out_crs='EPSG:32631' (WGS 84 / UTM zone 31N)" in message
+    with pytest.raises(CrsError, match="out_crs='WGS 84 .*EPSG:32631'"):
         resolve_crs([info], None, "EPSG:4326")
     plan = resolve_crs([info], None, "EPSG:32631")
     assert plan.horizontal_unit == "metre"
@@ -142,7 +142,7 @@ def test_bad_crs_strings_are_named(tmp_path: Path, option: str) -> None:
     with pytest.raises(CrsError) as exc:
         resolve_crs([info], **{option: "EPSG:99999999"})
     message = str(exc.value)
-    assert message.startswith(f"--{option.replace('_', '-')} 'EPSG:99999999'") and "\n" not in message
+    assert message.startswith(f"{option}='EPSG:99999999'") and "\n" not in message
 
 
 def test_user_crs_accepts_proj_strings_and_wkt(tmp_path: Path) -> None:
@@ -241,7 +241,7 @@ def test_real_geographic_needs_a_projected_target() -> None:
     info = read_info(sample("geographic_epsg4326.las"))
     with pytest.raises(CrsError) as exc:
         resolve_crs([info], None, None)
-    assert "geographic" in str(exc.value) and "--out-crs EPSG:32615" in str(exc.value)
+    assert "geographic" in str(exc.value) and "out_crs='EPSG:32615'" in str(exc.value)
 
 
 def test_real_us_survey_feet() -> None:
@@ -268,7 +268,7 @@ def test_real_broken_crs() -> None:
         resolve_crs([info], None, None)
     assert str(info.path) in str(exc.value) and "WKT" in str(exc.value)
     plan = resolve_crs([info], "EPSG:2180", None)
-    assert any("using --in-crs" in n for n in plan.notes)
+    assert any("using in_crs=" in n for n in plan.notes)
 
 
 def test_real_single_point() -> None:

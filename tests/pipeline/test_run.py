@@ -113,13 +113,21 @@ def test_mesh_group_opens_with_xugrid(tiled):
     assert uds.ugrid.grid.n_face == report.faces
 
 
-def test_cli_run(survey, tmp_path):
+def test_cli_run(survey, tmp_path, capsys):
     out = tmp_path / "cli.zarr"
     code = main(["run", str(survey), "-o", str(out), "--resolution", "4", "--tile-size", "128", "--no-progress"])
     assert code == 0
     assert xr.open_zarr(out)["elevation"].shape[1] > 0
-    # a second run into the same store needs --overwrite
+    capsys.readouterr()
+    # a second run into the same store needs --overwrite: the library speaks of
+    # its parameter, the command line of its flag
     assert main(["run", str(survey), "-o", str(out), "--resolution", "4", "--no-progress"]) == 2
+    said = capsys.readouterr().err
+    assert "pass --overwrite" in said and "overwrite=True" not in said
+    from pipeline.errors import PipelineError
+
+    with pytest.raises(PipelineError, match="pass overwrite=True"):
+        run(RunConfig(inputs=(str(survey),), output=str(out), resolution=4.0))
 
 
 def test_python_api_over_tiles(tiled):

@@ -243,7 +243,7 @@ def test_existing_path_that_is_not_a_store_is_refused(tmp_path, grid):
 @FORMATS
 def test_existing_store_needs_overwrite(tmp_path, grid, zarr_format):
     path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
-    with pytest.raises(StoreError, match="--overwrite"):
+    with pytest.raises(StoreError, match="overwrite=True"):
         create_store(path, grid, CRS_WKT, attrs={}, zarr_format=zarr_format)
     create_store(path, grid, CRS_WKT, attrs={"second": True}, zarr_format=5 - zarr_format, overwrite=True)
     ds = open_dem(path)
