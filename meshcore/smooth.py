@@ -142,13 +142,11 @@ class Variogram:
 
 
 def _correlation(h: NDArray[np.float64], range_: float, model: int) -> NDArray[np.float64]:
-    if model == 0:
-        return np.exp(-h / range_)
-    if model == 1:
-        a = math.sqrt(3.0) * h / range_
-        return (1.0 + a) * np.exp(-a)
-    a = math.sqrt(5.0) * h / range_
-    return (1.0 + a + a * a / 3.0) * np.exp(-a)
+    """:func:`_covariance` at every lag of ``h`` (1 at 0)."""
+    flat = np.ascontiguousarray(h, dtype=np.float64).reshape(-1)
+    out = np.empty_like(flat)
+    _correlation_kernel(flat, 1.0 / range_, model, out)
+    return out.reshape(np.shape(h))
 
 
 # --------------------------------------------------------------------------
@@ -280,6 +278,12 @@ def _covariance(h: float, inv_range: float, model: int) -> float:
         return (1.0 + a) * math.exp(-a)
     a = _SQRT5 * h * inv_range
     return (1.0 + a + a * a * (1.0 / 3.0)) * math.exp(-a)
+
+
+@njit
+def _correlation_kernel(h: np.ndarray, inv_range: float, model: int, out: np.ndarray) -> None:
+    for i in range(h.shape[0]):
+        out[i] = _covariance(h[i], inv_range, model)
 
 
 @njit
