@@ -353,7 +353,8 @@ def _merge_boxes(boxes: list) -> list:
 
 def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     """Strips along the data extent's edges that the tile's box reaches, a
-    twentieth of the buffer deep and one tile longer than the box on either side.
+    twentieth of the buffer deep (with the smooth surface, at least four
+    point spacings) and one tile longer than the box on either side.
 
     Near a straight survey edge the Delaunay triangles are slivers whose
     circumcircles reach far along the edge, just inside it; holding these
@@ -365,6 +366,10 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     # twentieth of the buffer (about half a point spacing) holds them; a whole
     # buffer read up to twice a small edge tile's points for the same rounds
     depth = job.buffer / 20.0
+    if job.surface == "smooth" and job.variogram is not None and job.variogram.spacing is not None:
+        # the nodes of those slivers are kriged from disks of about 2.3
+        # spacings around cells of 1.4: 4 spacings hold them
+        depth = max(depth, 4.0 * job.variogram.spacing)
     lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
     lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
     bands = []
