@@ -230,6 +230,17 @@ def _knn_kernel(
             ring += 1
 
 
+@njit
+def _bucket_items(key: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The points bucket by bucket, in input order within each (a stable counting sort)."""
+    fill = start[:-1].copy()
+    items = np.empty(key.shape[0], dtype=np.int64)
+    for p in range(key.shape[0]):
+        items[fill[key[p]]] = p
+        fill[key[p]] += 1
+    return items
+
+
 def _nearest(
     xy: NDArray[np.float64], queries: NDArray[np.float64], k: int
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -240,8 +251,8 @@ def _nearest(
     out_d2 = np.full((queries.shape[0], k), np.inf)
     if n == 0 or queries.shape[0] == 0 or k == 0:
         return out_index, out_d2
-    lo = xy.min(axis=0)
-    hi = xy.max(axis=0)
+    lo = np.array([xy[:, 0].min(), xy[:, 1].min()])  # min(axis=0) is ten times slower here
+    hi = np.array([xy[:, 0].max(), xy[:, 1].max()])
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
     cell = math.sqrt(2.0 * area / n) if span > 0.0 else 1.0
@@ -251,16 +262,16 @@ def _nearest(
     ci = np.minimum(((xy[:, 0] - lo[0]) / cell).astype(np.int64), nbx - 1)
     cj = np.minimum(((xy[:, 1] - lo[1]) / cell).astype(np.int64), nby - 1)
     key = cj * nbx + ci
-    items = np.argsort(key, kind="stable").astype(np.int64)
     start = np.zeros(nbx * nby + 1, dtype=np.int64)
     np.cumsum(np.bincount(key, minlength=nbx * nby), out=start[1:])
+    items = _bucket_items(key, start)
     q = np.ascontiguousarray(queries, dtype=np.float64)
     _knn_kernel(xy, float(lo[0]), float(lo[1]), cell, nbx, nby, start, items, q, k, out_index, out_d2)
     return out_index, out_d2
 
 
 # --------------------------------------------------------------------------
-# Kriging: one system per vertex, solved in its dual form
+# Kriging: one system per cell, solved in its dual form
 # --------------------------------------------------------------------------
 
 
