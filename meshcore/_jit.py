@@ -82,6 +82,7 @@ def kernel(function):
     """
     return njit(function)
 
+
 #: for a helper that a kernel calls per element with its arrays, and that
 #: creates none (scratch space: :func:`stack_array`): compiled without
 #: reference counting.  Otherwise it takes and drops a reference to every

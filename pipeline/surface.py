@@ -46,7 +46,7 @@ def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
     """One point per distinct x, y, with the z the run keeps (``policy``, as its tiles merge them)."""
     if points.shape[0] == 0:
         return np.empty((0, 3))
-    order = np.lexsort((points[:, 1], points[:, 0]))  # np.unique(axis=0)'s order, five times faster
+    order = meshcore.lexicographic_order(points[:, :2])  # np.unique(axis=0)'s order, several times faster
     xy = points[order, :2]
     new = np.empty(order.size, dtype=bool)
     new[0] = True
