@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -69,6 +70,36 @@ class _UserWide(_PackageStamp, caching.UserWideCacheLocator):
 
 if not any(issubclass(c, _PackageStamp) for c in caching.CacheImpl._locator_classes):
     caching.CacheImpl._locator_classes[:0] = [_UserProvided, _InTree, _UserWide]
+
+
+def _load_array_functions() -> None:
+    """Import numba's array functions, as the first kernel call of a process
+    would, without importing SciPy's linear algebra.
+
+    numba imports ``scipy.linalg`` there only to learn whether a BLAS is at
+    hand for ``np.dot`` (0.2 s, as long as the rest of a one-file job's
+    start-up), and no kernel here calls a BLAS.  Whether SciPy is installed
+    gives the same answer; a kernel that does use one still imports it, as
+    numba does, when it is compiled.
+    """
+    if "numba.np.arraymath" in sys.modules:
+        return
+    from numba.np import linalg
+
+    checked = linalg.ensure_blas
+
+    def scipy_installed() -> None:
+        if importlib.util.find_spec("scipy") is None:
+            raise ImportError("scipy is required for linear algebra")
+
+    linalg.ensure_blas = scipy_installed
+    try:
+        import numba.np.arraymath  # noqa: F401
+    finally:
+        linalg.ensure_blas = checked
+
+
+_load_array_functions()
 
 njit = numba.njit(cache=True, nogil=True, error_model="numpy")
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import os
 import re
 import sys
 from collections.abc import Sequence
@@ -346,6 +348,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_FAILED
 
 
+def console() -> None:
+    """The ``terrain`` command: :func:`main`, then the process ends at once.
+
+    Everything a command writes is written and closed before :func:`main`
+    returns; what is left is the interpreter's own teardown (its threads,
+    modules and compiled kernels freed one by one), 0.15-0.25 s of a 2 s job.
+    """
+    code = main()
+    try:
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (OSError, ValueError):  # a closed or broken pipe: nothing more to say
+        pass
+    os._exit(code)
+
+
 def _command(args: argparse.Namespace) -> int:
     if args.command == "experiment":
         from .experiment import experiment_command
@@ -395,4 +414,4 @@ def _command(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console()
