@@ -45,41 +45,39 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
 
     A node's id is its owner tile's offset plus its rank in that tile's sorted
     table of owned points; every tile computes the same id for a shared node.
-    The piece knows the ranks of the corners it owns; the others (near its
-    edges) are looked up in their owners' tables.
+    A piece's vertex table starts with the vertices it owns, in that order;
+    the others (near its edges) are looked up in their owners' tables.
     """
     grid = job.grid
     scratch = job.scratch
-    piece = load_piece(scratch, job.row, job.col, ("vertex_xyz", "vertex_rank"))
-    v = piece["vertex_xyz"]
-    rank = piece["vertex_rank"]
+    v = load_piece(scratch, job.row, job.col, ("vertices",))["vertices"]
     here = job.row * grid.n_cols + job.col
+    owned = int(node_offsets[here + 1] - node_offsets[here])
     # the slot past the vertices stands for the -1 of a triangle's 4th corner
-    gid = np.empty(rank.size + 1, dtype=store.face_index_dtype(int(node_offsets[-1])))
-    gid[:-1] = node_offsets[here] + rank
+    gid = np.empty(v.shape[0] + 1, dtype=store.face_index_dtype(int(node_offsets[-1])))
+    gid[:owned] = node_offsets[here] + np.arange(owned)
     gid[-1] = -1
-    foreign = np.flatnonzero(rank < 0)
-    if foreign.size:
-        orow, ocol = grid.owner(v[foreign, 0], v[foreign, 1])
+    if v.shape[0] > owned:
+        fx = np.ascontiguousarray(v[owned:, 0])
+        fy = np.ascontiguousarray(v[owned:, 1])
+        orow, ocol = grid.owner(fx, fy)
         owner = orow * grid.n_cols + ocol
-        fx = np.ascontiguousarray(v[foreign, 0])
-        fy = np.ascontiguousarray(v[foreign, 1])
         for number in np.unique(owner).tolist():
             sel = owner == number
             r, c = divmod(number, grid.n_cols)
             # a binary search in the (memory-mapped) table reads a few of its pages, not all
-            table = np.asarray(load_piece(scratch, r, c, ("owned_xy",))["owned_xy"])
+            table = load_piece(scratch, r, c, ("vertices",))["vertices"][: node_offsets[number + 1] - node_offsets[number]]
             idx = _sorted_rows(table, fx[sel], fy[sel])
             if number == here or np.any(idx < 0):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
-            gid[foreign[sel]] = node_offsets[number] + idx
+            gid[owned + np.flatnonzero(sel)] = node_offsets[number] + idx
     save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
 
 
 @meshcore.kernel
 def _sorted_rows(table: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
-    """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2), sorted by x then
-    y (a tile's owned points), or -1 where it is not there."""
+    """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2 or more: x, y, ...),
+    sorted by x then y (a tile's owned vertices), or -1 where it is not there."""
     n = table.shape[0]
     out = np.empty(x.shape[0], dtype=np.int64)
     for i in range(x.shape[0]):
@@ -120,7 +118,7 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
             break
         if lo >= hi:
             continue
-        keys = ("owned_xy", "owned_z") if block.what == "nodes" else ("faces", "node_ids")
+        keys = ("vertices",) if block.what == "nodes" else ("faces", "node_ids")
         piece = load_piece(block.scratch, *block.tiles[k], keys)
         rows = slice(lo - offsets[k], hi - offsets[k])
         if block.what == "nodes":
@@ -132,8 +130,8 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
             parts.append({"faces": faces})
     writer = store.MeshWriter.attach(block.output)
     if block.what == "nodes":
-        xy = np.concatenate([p["owned_xy"] for p in parts])
-        writer.write_nodes(block.start, xy[:, 0], xy[:, 1], np.concatenate([p["owned_z"] for p in parts]))
+        xyz = np.concatenate([p["vertices"] for p in parts])
+        writer.write_nodes(block.start, xyz[:, 0], xyz[:, 1], xyz[:, 2])
     else:
         writer.write_faces(block.start, np.concatenate([p["faces"] for p in parts]))
     return block.what, block.start, block.stop

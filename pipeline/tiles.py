@@ -530,40 +530,35 @@ def mesh_tile(job: TileJob) -> TileSummary:
     points_owned = int(np.count_nonzero((porow == job.row) & (pocol == job.col)))
     vertices_owned = int(np.count_nonzero(owned))
 
-    # one slot past the vertices stands for the -1 of a triangle's 4th corner
+    # the piece's vertex table: the vertices it owns first, sorted by
+    # coordinates (their global node ids follow that order, and the store's
+    # nodes are these rows), then the others its faces use, in index order
     n = xy.shape[0]
+    owned_order = np.flatnonzero(owned)
+    # rows of (n, k) arrays are gathered with np.take: ten times faster than xy[index]
+    owned_order = owned_order[meshcore.lexicographic_order(np.take(xy, owned_order, axis=0))]
+    # one slot past the vertices stands for the -1 of a triangle's 4th corner
     used_mask = np.zeros(n + 1, dtype=bool)
     used_mask[mesh.faces.ravel()] = True
-    used = np.flatnonzero(used_mask[:n])
+    order = np.concatenate([owned_order, np.flatnonzero(used_mask[:n] & ~owned)])
     remap = np.full(n + 1, -1, dtype=np.int32)
-    remap[used] = np.arange(used.size, dtype=np.int32)
+    remap[order] = np.arange(order.size, dtype=np.int32)
     faces = remap[mesh.faces]
-    # rows of (n, k) arrays are gathered with np.take: ten times faster than xy[index]
-    owned_order = np.flatnonzero(owned)
-    owned_xy = np.take(xy, owned_order, axis=0)
-    by_coordinates = meshcore.lexicographic_order(owned_xy)
-    owned_order = owned_order[by_coordinates]
-    owned_xy = np.take(owned_xy, by_coordinates, axis=0)
-    rank = np.full(n, -1, dtype=np.int32)
-    rank[owned_order] = np.arange(owned_order.size, dtype=np.int32)
     counts = None
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
-    vertex_xyz = np.column_stack([np.take(xy, used, axis=0), z[used]])
+    vertices = np.column_stack([np.take(xy, order, axis=0), z[order]])
     # the patches' nodes: from the neighbourhoods held, the same in every tile
     nodes = {"nodes": meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods)} if smooth else {}
     save_piece(
         job.scratch, job.row, job.col, "piece",
-        owned_xy=owned_xy,
-        owned_z=z[owned_order],
-        vertex_xyz=vertex_xyz,
-        vertex_rank=rank[used],
+        vertices=vertices,
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
         **nodes,
     )
-    reaching = _reaching_out(vertex_xyz, faces, bx)
-    border_v, border_f = _compact(vertex_xyz, np.compress(reaching, faces, axis=0))
+    reaching = _reaching_out(vertices, faces, bx)
+    border_v, border_f = _compact(vertices, np.compress(reaching, faces, axis=0))
     border_nodes = {k: np.compress(reaching, v, axis=0) for k, v in nodes.items()}
     save_piece(job.scratch, job.row, job.col, "border", vertex_xyz=border_v, faces=border_f, **border_nodes)
     return TileSummary(
@@ -627,7 +622,7 @@ def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
 
 #: the arrays :func:`mesh_tile` saves, by piece name
 PIECE_ARRAYS = {
-    "piece": ("owned_xy", "owned_z", "vertex_xyz", "vertex_rank", "faces", "point_count"),
+    "piece": ("vertices", "faces", "point_count"),
     "border": ("vertex_xyz", "faces"),
 }
 
@@ -673,12 +668,15 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
-    keys = ("vertex_xyz", "faces", "nodes") if smooth else ("vertex_xyz", "faces")
+    keys = ("faces", "nodes") if smooth else ("faces",)
     tiles = [(job.row, job.col), *neighbours]
-    pieces = load_pieces(job.scratch, [(r, c, "piece" if k == 0 else "border") for k, (r, c) in enumerate(tiles)], keys)
+    pieces = [
+        *load_pieces(job.scratch, [(job.row, job.col, "piece")], ("vertices", *keys)),
+        *load_pieces(job.scratch, [(r, c, "border") for r, c in neighbours], ("vertex_xyz", *keys)),
+    ]
     for (r, c), piece in zip(tiles, pieces):
         own = (r, c) == (job.row, job.col)
-        v = piece["vertex_xyz"]
+        v = piece["vertices"] if own else piece["vertex_xyz"]
         f = piece["faces"]
         n = piece.get("nodes")
         if f.shape[0] == 0:
