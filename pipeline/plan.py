@@ -41,6 +41,15 @@ percent of its points.  On a 20M-point archive, 0.5M-point tiles mesh about
 9% faster than 1.5M-point ones, with a lower peak memory
 (``bench/bench_pipeline.py throughput``)."""
 
+MIN_AUTO_TILES = 6
+"""A survey too small to fill that many tiles of :data:`POINTS_PER_TILE` is
+still cut in about this many (of at least :data:`MIN_POINTS_PER_TILE`), so
+that the cores share its tiles evenly: a 700k-point file is 3 x 3 tiles, not
+2 x 2 of which two cores mesh three large ones and a nearly empty one (its
+mesh stage 0.50 s instead of 0.60 s, ``bench/bench_peer.py whitebox``)."""
+
+MIN_POINTS_PER_TILE = 100_000
+
 SMOOTH_POINTS_PER_TILE = 125_000
 """The same for ``surface="smooth"``: kriging its nodes costs several times
 meshing, so smaller tiles let every core krige (a survey of 500k points is
@@ -230,6 +239,7 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         tile_cells = int(round(config.tile_size / config.resolution))
     else:
         per_tile = POINTS_PER_TILE if config.surface == "linear" else SMOOTH_POINTS_PER_TILE
+        per_tile = min(per_tile, max(n_points // MIN_AUTO_TILES, MIN_POINTS_PER_TILE))
         target = math.sqrt(per_tile / density) / config.resolution
         # as many tiles along each side as that size needs, all of one size:
         # 351 x 370 m of 700k points is 2 x 2 tiles of 192 m, not one of
