@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from .config import RunConfig
-from .cluster import Progress, close, connect, map_tasks
+from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from .checkpoint import WorkDir, output_lock, work_dir_for
 from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
 from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
@@ -43,7 +43,7 @@ from .catalog import write_stac_item
 from .scratch import Scratch
 from .windows import WindowSource, hull_copies, survey_hull
 from . import urls
-from .tiles import TileJob, TileSummary, dem_tile, mesh_tile, reached_tiles
+from .tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, grid_spec, plan_run, union_bounds
@@ -377,6 +377,9 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         work.record("route", f"{index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
         counts[index] = result
 
+    if isinstance(client, LocalThreads) and client.threads > len(jobs):
+        # a thread with no file to read loads the tiles' kernels meanwhile
+        client.submit(load_kernels, _kernel_job(plan, scratch))
     map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"],
               lambda job, result: routed(job.index, result))
     surveys = [w for w in windows if counts[w.index] is None]
@@ -412,6 +415,13 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
     return Routed(done, windows, hull)
+
+
+def _kernel_job(plan: RunPlan, scratch: Scratch) -> TileJob:
+    """A tile job with the run's measures, for :func:`load_kernels`."""
+    config = plan.config
+    return TileJob(0, 0, scratch, plan.grid, plan.buffer, plan.bounds, config.duplicates, config.triangle_measure,
+                   config.quad_measure, config.merge, config.max_edge, config.layers)
 
 
 @dataclass(frozen=True)
