@@ -128,6 +128,8 @@ def _hull_filter(x, y) -> np.ndarray:
     """Indices of the points not strictly inside the polygon of the extreme points
     in eight directions (Akl-Toussaint): a superset of the hull, found in one pass."""
     n = x.shape[0]
+    if n == 0:
+        return np.empty(0, dtype=np.int64)
     ext = np.zeros(8, dtype=np.int64)
     best = np.full(8, -np.inf)
     for i in range(n):
@@ -146,11 +148,44 @@ def _hull_filter(x, y) -> np.ndarray:
             m += 1
     # a box inside the polygon settles most points with four comparisons
     bx_lo, by_lo, bx_hi, by_hi = _inner_box(x, y, poly, m)
+    # and a point farther inside every edge than rounding reaches is inside:
+    # the edges' inward unit normals, in coordinates about the first vertex
+    ox = x[poly[0]]
+    oy = y[poly[0]]
+    normal_x = np.empty(m)
+    normal_y = np.empty(m)
+    offset = np.empty(m)
+    size = 0.0
+    for k in range(m):
+        a = poly[k - 1 if k else m - 1]
+        b = poly[k]
+        ex = x[b] - x[a]
+        ey = y[b] - y[a]
+        length = math.hypot(ex, ey)
+        size = max(size, length)
+        if length == 0.0:  # never for distinct extremes; then only the exact test decides
+            normal_x[k] = normal_y[k] = 0.0
+            offset[k] = math.inf
+            continue
+        normal_x[k] = -ey / length
+        normal_y[k] = ex / length
+        offset[k] = normal_x[k] * (x[a] - ox) + normal_y[k] * (y[a] - oy)
+    margin = 1e-6 * size + 1e-12 * (abs(ox) + abs(oy) + size)
     keep = np.empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
         if bx_lo <= x[i] <= bx_hi and by_lo <= y[i] <= by_hi:
             continue
+        if m >= 3:
+            px = x[i] - ox
+            py = y[i] - oy
+            deep = True
+            for k in range(m):
+                if normal_x[k] * px + normal_y[k] * py - offset[k] <= margin:
+                    deep = False
+                    break
+            if deep:
+                continue
         if not (m >= 3 and _strictly_inside(x, y, poly, m, x[i], y[i])):
             keep[count] = i
             count += 1

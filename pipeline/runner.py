@@ -284,6 +284,11 @@ def _execute(
         return _already_complete(config, decision, work, report, say)
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
     client, cluster = connect(config)
+    if isinstance(client, LocalThreads):
+        # the tiles' kernels are loaded (from the compiled cache) by a thread
+        # that the store's creation and the inputs leave idle: 0.1-0.2 s of a
+        # one-file job that its first tiles waited for
+        client.submit(load_kernels, _kernel_job(plan, work.scratch))
     try:
         resume.prepare(plan, decision, work, incremental, report.notes, say)
         report.stages["scan"] = time.perf_counter() - t0
@@ -377,9 +382,6 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         work.record("route", f"{index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
         counts[index] = result
 
-    if isinstance(client, LocalThreads) and client.threads > len(jobs):
-        # a thread with no file to read loads the tiles' kernels meanwhile
-        client.submit(load_kernels, _kernel_job(plan, scratch))
     map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"],
               lambda job, result: routed(job.index, result))
     surveys = [w for w in windows if counts[w.index] is None]
