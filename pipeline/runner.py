@@ -521,8 +521,8 @@ def _dem_stage(plan: RunPlan, client, meshed: Meshed, show: bool) -> list[TileJo
     def dem_and_write(job: TileJob) -> int:
         layers = dem_tile(job)
         try:
-            store.write_tile(config.output, spec, job.row, job.col, layers)
-            store.mark_tile_done(config.output, job.row, job.col)
+            store.write_tile(config.output, spec, job.row, job.col, layers, run=job.run_id)
+            store.mark_tile_done(config.output, job.row, job.col, run=job.run_id)
         except OSError as exc:
             raise OutputWriteError(
                 f"{config.output}: cannot write tile ({job.row}, {job.col}): {exc.strerror or exc}; "

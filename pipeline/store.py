@@ -57,6 +57,7 @@ Examples
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import math
 import numbers
@@ -430,9 +431,10 @@ def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: GridSpec, shift:
             move(old, new)
 
 
-def mark_tile_done(path: StorePath, tile_row: int, tile_col: int) -> None:
-    """Record that a tile's layers are written (call only after writing them)."""
-    _open_array(path, TILE_DONE)[tile_row, tile_col] = 1
+def mark_tile_done(path: StorePath, tile_row: int, tile_col: int, *, run: str = "") -> None:
+    """Record that a tile's layers are written (call only after writing them);
+    ``run``: as in :func:`write_tile`."""
+    _open_array(path, TILE_DONE, run)[tile_row, tile_col] = 1
 
 
 def tiles_done(path: StorePath) -> NDArray[np.bool_]:
@@ -462,7 +464,7 @@ def read_attrs(path: StorePath) -> dict[str, Any] | None:
 
 
 def write_tile(
-    path: StorePath, grid: GridSpec, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike]
+    path: StorePath, grid: GridSpec, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike], *, run: str = ""
 ) -> None:
     """Write one tile's layers, given south-up, into their north-up chunk.
 
@@ -476,6 +478,11 @@ def write_tile(
     layers : mapping of layer name to array
         Each of shape ``(rows, cols)`` of the tile's cells, ``(tile_cells,
         tile_cells)`` except at the east edge; row 0 is the southern-most.
+
+    run : str, optional
+        Names a run during which the store's arrays keep their shape: the
+        arrays opened for it are kept open in this process for the other
+        tiles of the same run (a few milliseconds each).
 
     Each call opens only the arrays it writes (one small metadata read each)
     and writes whole chunks no other tile touches: safe from many threads or
@@ -496,7 +503,7 @@ def write_tile(
             raise UsageError(f"layer {layer.value!r}: cannot store {values.dtype} values as {dtype}")
         checked.append((layer, values[::-1].astype(dtype, copy=False)))
     for layer, north_up in checked:
-        _open_array(path, layer)[rows, cols] = north_up
+        _open_array(path, layer, run)[rows, cols] = north_up
 
 
 def face_index_dtype(n_nodes: int) -> np.dtype:
@@ -916,16 +923,24 @@ def _open_group(path: StorePath, name: str = "", mode: str = "r") -> zarr.Group:
         raise StoreError(f"{where}: {what}") from None
 
 
-def _open_array(path: StorePath, name: str) -> zarr.Array:
+def _open_array(path: StorePath, name: str, run: str = "") -> zarr.Array:
     """An array to write tiles to.  Every chunk written is stored, even one
     that equals the fill value: a v2 array without one (a null ``fill_value``)
-    leaves missing chunks undefined to its readers."""
+    leaves missing chunks undefined to its readers.  With ``run``, the array
+    opened for that run (see :func:`write_tile`)."""
+    if run:
+        return _open_array_of_run(os.fspath(path), name, run)
     try:
         array = zarr.open_array(store=_zarr_store(path), path=name, mode="r+")
         return array.with_config({"write_empty_chunks": True})
     except FileNotFoundError:
         where = os.fspath(path)
         raise StoreError(f"{where}: no array '{name}' (was the store created with this layer?)") from None
+
+
+@functools.lru_cache(maxsize=64)
+def _open_array_of_run(path: str, name: str, run: str) -> zarr.Array:
+    return _open_array(path, name)
 
 
 def _create_array(
