@@ -10,8 +10,10 @@ space on the stack (:func:`stack_array`).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
+import importlib.abc
 import importlib.util
 import sys
 from pathlib import Path
@@ -72,34 +74,67 @@ if not any(issubclass(c, _PackageStamp) for c in caching.CacheImpl._locator_clas
     caching.CacheImpl._locator_classes[:0] = [_UserProvided, _InTree, _UserWide]
 
 
-def _load_array_functions() -> None:
-    """Import numba's array functions, as the first kernel call of a process
-    would, without importing SciPy's linear algebra.
+def _scipy_installed() -> None:
+    if importlib.util.find_spec("scipy") is None:
+        raise ImportError("scipy is required for linear algebra")
 
-    numba imports ``scipy.linalg`` there only to learn whether a BLAS is at
-    hand for ``np.dot`` (0.2 s, as long as the rest of a one-file job's
-    start-up), and no kernel here calls a BLAS.  Whether SciPy is installed
-    gives the same answer; a kernel that does use one still imports it, as
-    numba does, when it is compiled.
+
+class _ArrayFunctionsLoader(importlib.abc.Loader):
+    """Runs numba's array functions module with a check for a BLAS that asks
+    whether SciPy is installed instead of importing ``scipy.linalg``.
+
+    numba imports that module at the first kernel call of a process, and there
+    imports ``scipy.linalg`` only to learn whether ``np.dot`` has a BLAS at
+    hand (0.2 s, as long as the rest of a one-file job's start-up); no kernel
+    here calls a BLAS.  Whether SciPy is installed gives the same answer, and a
+    kernel that does use one still imports it, as numba does, when it is
+    compiled.
     """
-    if "numba.np.arraymath" in sys.modules:
-        return
-    from numba.np import linalg
 
-    checked = linalg.ensure_blas
+    def __init__(self, loader: importlib.abc.Loader) -> None:
+        self._loader = loader
 
-    def scipy_installed() -> None:
-        if importlib.util.find_spec("scipy") is None:
-            raise ImportError("scipy is required for linear algebra")
+    def __getattr__(self, name: str):
+        return getattr(self._loader, name)
 
-    linalg.ensure_blas = scipy_installed
-    try:
-        import numba.np.arraymath  # noqa: F401
-    finally:
-        linalg.ensure_blas = checked
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        from numba.np import linalg
+
+        checked = linalg.ensure_blas
+        linalg.ensure_blas = _scipy_installed
+        try:
+            self._loader.exec_module(module)  # type: ignore[attr-defined]
+        finally:
+            linalg.ensure_blas = checked
 
 
-_load_array_functions()
+class _ArrayFunctionsFinder(importlib.abc.MetaPathFinder):
+    """Finds numba's array functions module once, with :class:`_ArrayFunctionsLoader`.
+
+    The module is still imported when numba first needs it (in whichever
+    thread calls the first kernel), not when this package is.
+    """
+
+    name = "numba.np.arraymath"
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != self.name:
+            return None
+        with contextlib.suppress(ValueError):
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _ArrayFunctionsLoader(spec.loader)
+        return spec
+
+
+if _ArrayFunctionsFinder.name not in sys.modules and not any(
+    isinstance(finder, _ArrayFunctionsFinder) for finder in sys.meta_path
+):
+    sys.meta_path.insert(0, _ArrayFunctionsFinder())
 
 njit = numba.njit(cache=True, nogil=True, error_model="numpy")
 

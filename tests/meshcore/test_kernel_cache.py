@@ -75,3 +75,23 @@ def test_a_read_only_install_keeps_its_kernels_in_the_users_cache(tmp_path):
         runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
     assert "s1_kernel" in runs[0]["compiled"] and runs[1]["compiled"] == []
     assert runs[0]["cache"].startswith(str(tmp_path / "home")) and runs[0]["value"] == runs[1]["value"]
+
+
+def test_the_first_kernel_call_does_not_import_scipy_linalg():
+    import importlib.util
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, numpy as np, meshcore\n"
+        "assert 'numba.np.arraymath' not in sys.modules, 'imported with the package, not at the first call'\n"
+        "meshcore.convex_hull(np.arange(100.0), np.arange(100.0) % 7)\n"
+        "import numba.np.arraymath as am, numba.np.linalg as la\n"
+        "print('scipy.linalg' in sys.modules, am._HAVE_BLAS, la.ensure_blas.__module__)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    scipy_linalg_imported, have_blas, ensure_blas_module = done.stdout.split()
+    assert scipy_linalg_imported == "False"
+    # numba's answer is the one its own check gives: is SciPy installed?
+    assert have_blas == str(importlib.util.find_spec("scipy") is not None)
+    assert ensure_blas_module == "numba.np.linalg"  # numba's own check is back for kernels that use a BLAS
