@@ -458,9 +458,19 @@ def neighbour_tile_points(
 def points_in_box(
     points: NDArray[np.float64], box: tuple[float, float, float, float]
 ) -> NDArray[np.bool_]:
-    """Mask of the points inside a closed box."""
-    x, y = points[:, 0], points[:, 1]
-    return (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3])
+    """Mask of the points (n, 2 or more: x, y, ...) inside a closed box."""
+    return _in_box(points, float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+
+
+@meshcore.kernel
+def _in_box(points, x_min, y_min, x_max, y_max):
+    """:func:`points_in_box` in one pass (numpy's takes seven over strided columns)."""
+    out = np.empty(points.shape[0], dtype=np.bool_)
+    for i in range(points.shape[0]):
+        x = points[i, 0]
+        y = points[i, 1]
+        out[i] = (x >= x_min) & (x <= x_max) & (y >= y_min) & (y <= y_max)
+    return out
 
 
 def check_cells(grid: TileGrid, max_cells: int) -> None:
