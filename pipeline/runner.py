@@ -233,7 +233,10 @@ def execute(
     urls.use_storage_options(config.storage_options)
     try:
         with output_lock(config.output):
-            return _execute(config, progress=progress, log=log, incremental=incremental)
+            try:
+                return _execute(config, progress=progress, log=log, incremental=incremental)
+            finally:
+                _finish_removals()
     except PipelineError:  # input errors are OSErrors too; their messages are already clear
         raise
     except Exception as exc:
@@ -253,6 +256,13 @@ def execute(
             f"{config.output}: cannot write {exc.filename} ({exc.strerror or exc}); "
             "run the same command again once this is fixed: finished work is kept"
         ) from exc
+
+
+def _finish_removals() -> None:
+    """Wait for the deletion of the store this run replaced (it runs beside the run)."""
+    from . import store
+
+    store.finish_removals()
 
 
 def _execute(

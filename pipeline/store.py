@@ -65,6 +65,8 @@ import os
 import re
 import shutil
 import struct
+import threading
+import uuid
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -644,7 +646,8 @@ class MeshWriter:
         faces = np.asarray(faces)
         if faces.ndim != 2 or faces.shape[1] != 4 or not np.issubdtype(faces.dtype, np.integer):
             raise UsageError(f"write_faces: faces must be (m, 4) integers, got {faces.dtype} {faces.shape}")
-        if faces.size and ((faces[:, :3] < 0).any() or (faces[:, 3] < -1).any() or faces.max() >= self.n_nodes):
+        lowest = faces.min(axis=0) if faces.size else None  # one pass for both checks of the low end
+        if faces.size and (lowest[:3].min() < 0 or lowest[3] < -1 or faces.max() >= self.n_nodes):
             raise UsageError(f"write_faces: node ids must be in [0, {self.n_nodes}), -1 only in the 4th column")
         stop = self._claim("faces", start, faces.shape[0], self.n_faces)
         self._group["face_nodes"][start:stop] = faces
@@ -873,9 +876,42 @@ def _make_room(path: StorePath, overwrite: bool) -> None:
             raise StoreError(
                 f"{where}: holds files that are not Zarr's ({', '.join(strays[:3])}); refusing to replace it"
             )
-        shutil.rmtree(where)
+        _remove_in_background(where)
     elif not (os.path.isdir(where) and not os.listdir(where)):
         raise StoreError(f"{where}: exists and is not a Zarr store; refusing to replace it")
+
+
+_REPLACED = ".replaced-"
+"""Infix of the name a replaced store takes while it is deleted (``.NAME.replaced-ID``)."""
+
+_removals: list[threading.Thread] = []
+_removals_lock = threading.Lock()
+
+
+def _remove_in_background(where: str) -> None:
+    """Delete a replaced local store on a thread of its own: it is renamed
+    aside at once (the new store takes its place), and its files, which can
+    take a quarter of a second to free on a file system that trims what it
+    frees, go while the run computes.  :func:`finish_removals` waits for
+    them; a copy left by a stopped process goes with the next replacement."""
+    parent, name = os.path.split(os.path.abspath(where))
+    for left in os.scandir(parent):
+        if left.name.startswith(f".{name}{_REPLACED}") and left.is_dir(follow_symlinks=False):
+            shutil.rmtree(left.path, ignore_errors=True)
+    aside = os.path.join(parent, f".{name}{_REPLACED}{uuid.uuid4().hex[:12]}")
+    os.rename(where, aside)
+    thread = threading.Thread(target=shutil.rmtree, args=(aside, True), name="terrain-remove", daemon=True)
+    thread.start()
+    with _removals_lock:
+        _removals.append(thread)
+
+
+def finish_removals() -> None:
+    """Wait until the stores replaced by this process are deleted."""
+    with _removals_lock:
+        threads, _removals[:] = list(_removals), []
+    for thread in threads:
+        thread.join()
 
 
 def _make_room_remote(url: str, overwrite: bool) -> None:

@@ -251,6 +251,22 @@ def test_existing_store_needs_overwrite(tmp_path, grid, zarr_format):
     assert list(ds.data_vars) == ["elevation"]
 
 
+def test_a_replaced_store_is_deleted_beside_the_new_one(tmp_path, grid):
+    from pipeline.store import finish_removals
+
+    path = new_store(tmp_path / "dem.zarr", grid, 3)
+    (path / "elevation" / "c").mkdir(parents=True, exist_ok=True)
+    (path / "elevation" / "c" / "0").write_bytes(b"a chunk of the old store")
+    stopped = tmp_path / ".dem.zarr.replaced-left"  # left by a process stopped while deleting
+    stopped.mkdir()
+    (stopped / "zarr.json").write_text("{}")
+    create_store(path, grid, CRS_WKT, attrs={"second": True}, overwrite=True)
+    finish_removals()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.zarr"]
+    assert not (path / "elevation" / "c" / "0").exists()
+    assert open_dem(path).attrs["second"] is True
+
+
 def test_overwrite_deletes_only_a_store_of_zarrs_files(tmp_path, grid):
     path = new_store(tmp_path / "dem.zarr", grid, 3)
     (path / "notes.csv").write_text("keep me")  # a user's file beside the store's
