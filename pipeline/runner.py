@@ -433,7 +433,7 @@ def _kernel_job(plan: RunPlan, scratch: Scratch) -> TileJob:
     """A tile job with the run's measures, for :func:`load_kernels`."""
     config = plan.config
     return TileJob(0, 0, scratch, plan.grid, plan.buffer, plan.bounds, config.duplicates, config.triangle_measure,
-                   config.quad_measure, config.merge, config.max_edge, config.layers)
+                   config.quad_measure, config.merge, config.max_edge, config.layers, surface=config.surface)
 
 
 @dataclass(frozen=True)

@@ -763,6 +763,12 @@ def load_kernels(job: TileJob) -> None:
     mesh = meshcore.build_mesh(
         xy, job.triangle_measure, job.quad_measure, job.merge, window=(1.0, 1.0, 6.0, 6.0), known=(-1.0, -1.0, 9.0, 9.0)
     )
-    z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0].copy(), job.duplicates)
+    z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0] * 0.1 + np.sin(xy[:, 1]), job.duplicates)
     meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=job.max_edge)
     meshcore.lexicographic_order(xy)
+    if job.surface == "smooth":
+        variogram = meshcore.fit_variogram(xy, z[mesh.input_to_vertex], neighbours=meshcore.DEFAULT_NEIGHBOURS)
+        hoods = meshcore.smooth_neighbourhoods(mesh, spacing=variogram.spacing)
+        nodes = meshcore.smooth_nodes(mesh, z, variogram, neighbourhoods=hoods)
+        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=job.max_edge, surface="smooth", nodes=nodes)
+        meshcore.gradient(mesh, z, xy[:8, 0], xy[:8, 1], surface="smooth", nodes=nodes)

@@ -173,12 +173,15 @@ def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
     assert len(hull) >= 2
 
 
-@pytest.mark.parametrize("measures", [("delaunay", None, "greedy"), ("s3", "s4", "optimal"), ("s1", "s2", "greedy")])
+@pytest.mark.parametrize(
+    "measures", [("delaunay", None, "greedy", "linear"), ("s3", "s4", "optimal", "smooth"), ("s1", "s2", "greedy", "linear")]
+)
 def test_loading_the_kernels_reads_and_writes_nothing(tmp_path, measures):
     from pipeline.tiles import TileJob, load_kernels
 
     scratch = Scratch(str(tmp_path / "work"))
     grid = TileGrid.covering((0.0, 0.0, 99.0, 99.0), 1.0, 50)
-    triangle, quad, merge = measures
-    load_kernels(TileJob(0, 0, scratch, grid, 5.0, (0.0, 0.0, 99.0, 99.0), "lowest", triangle, quad, merge, max_edge=3.0))
+    triangle, quad, merge, surface = measures
+    load_kernels(TileJob(0, 0, scratch, grid, 5.0, (0.0, 0.0, 99.0, 99.0), "lowest", triangle, quad, merge, max_edge=3.0,
+                         surface=surface))
     assert not (tmp_path / "work").exists()
