@@ -86,7 +86,8 @@ def mesh_arrays(mesh: Mesh) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         )
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     n_v = vertices.shape[0]
-    if faces.size and (faces[:, :3].min() < 0 or faces[:, 3].min() < -1 or faces.max() >= n_v):
+    lowest = faces.min(axis=0) if faces.size else None  # one pass for both checks of the low end
+    if faces.size and (lowest[:3].min() < 0 or lowest[3] < -1 or faces.max() >= n_v):
         raise InvalidMeshError(f"faces refer to vertices outside 0..{n_v - 1}")
     return np.ascontiguousarray(vertices[:, :2]), faces
 

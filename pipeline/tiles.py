@@ -608,8 +608,17 @@ def _reaching_out(vertex_xyz, faces, box) -> NDArray[np.bool_]:
     """Which faces reach outside the tile's box (its neighbours' DEM needs them)."""
     if faces.shape[0] == 0:
         return np.zeros(0, dtype=bool)
-    outside = ~points_in_box(vertex_xyz, box)
-    return outside[faces[:, 0]] | outside[faces[:, 1]] | outside[faces[:, 2]] | ((faces[:, 3] >= 0) & outside[faces[:, 3]])
+    return _corner_outside(~points_in_box(vertex_xyz, box), faces)
+
+
+@meshcore.kernel
+def _corner_outside(outside, faces):
+    """Whether any corner of each face (-1: no fourth corner) is ``outside``: one pass over the faces."""
+    out = np.empty(faces.shape[0], dtype=np.bool_)
+    for i in range(faces.shape[0]):
+        d = faces[i, 3]
+        out[i] = outside[faces[i, 0]] | outside[faces[i, 1]] | outside[faces[i, 2]] | ((d >= 0) and outside[d])
+    return out
 
 
 def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
