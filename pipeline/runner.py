@@ -321,11 +321,11 @@ def _execute(
         meshed = _mesh_stage(plan, work, client, routed, variogram, show, report)
         report.stages["mesh"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        tile_jobs = _dem_stage(plan, client, meshed, show)
+        node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
+        _dem_stage(plan, work, client, meshed, node_offsets, show)
         report.stages["dem"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
-        _write_mesh(client, config, grid, work, tile_jobs, node_offsets, face_offsets, show)
+        _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
         close(client, cluster)
@@ -510,10 +510,13 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     return Meshed(tile_jobs, summaries, pending)
 
 
-def _dem_stage(plan: RunPlan, client, meshed: Meshed, show: bool) -> list[TileJob]:
+def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offsets, show: bool) -> None:
     """Write the DEM of every tile not yet written, and of every tile that a
-    face meshed by this run reaches; returns the tile jobs with the tiles
-    whose faces reach each."""
+    face meshed by this run reaches.
+
+    The same tasks number the pieces' nodes for the mesh writer (they read
+    the pieces too, and need nothing of the DEM): the cores go from one to the
+    other without waiting at the end of the DEM for its last tile."""
     from . import store
 
     config, grid, spec = plan.config, plan.grid, grid_spec(plan.grid)
@@ -540,8 +543,19 @@ def _dem_stage(plan: RunPlan, client, meshed: Meshed, show: bool) -> list[TileJo
             ) from None
         return 0
 
-    map_tasks(client, dem_and_write, pending, Progress("dem", len(pending), show), lambda _: 0)
-    return tile_jobs
+    unnumbered = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
+    number = partial(global_node_ids, node_offsets=node_offsets)
+
+    def dem_or_number(task: tuple[str, TileJob]) -> int:
+        what, job = task
+        return dem_and_write(job) if what == "dem" else number(job) or 0
+
+    def done(task: tuple[str, TileJob], _) -> None:
+        if task[0] == "number":
+            work.record("write", f"ids_{_tile_key(task[1])}", {})
+
+    tasks = [("dem", job) for job in pending] + [("number", job) for job in unnumbered]
+    map_tasks(client, dem_or_number, tasks, Progress("dem", len(tasks), show), lambda _: 0, done)
 
 
 def _tile_key(job: TileJob) -> str:
@@ -626,18 +640,13 @@ def _hull_points(
 
 
 def _write_mesh(
-    client, config: RunConfig, grid: TileGrid, work: WorkDir, tile_jobs: list[TileJob], node_offsets, face_offsets, show: bool
+    client, config: RunConfig, grid: TileGrid, work: WorkDir, node_offsets, face_offsets, show: bool
 ) -> None:
-    """Renumber every piece's faces to global node ids, then write the nodes and
-    faces into the store's mesh group in blocks of whole chunks on the workers
-    (tiles renumbered and blocks written before a stop are kept)."""
+    """Write the nodes and faces into the store's mesh group in blocks of
+    whole chunks on the workers, renumbering the faces' corners to the global
+    node ids the DEM stage saved (blocks written before a stop are kept)."""
     from . import store
 
-    pending = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
-    map_tasks(
-        client, partial(global_node_ids, node_offsets=node_offsets), pending, Progress("number", len(pending), show),
-        lambda _: 0, lambda job, _: work.record("write", f"ids_{_tile_key(job)}", {}),
-    )
     order = tuple(grid.tiles())
     sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}
     if work.recorded("write", "created") == sizes:
