@@ -560,7 +560,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     reaching = _reaching_out(vertices, faces, bx)
     border_v, border_f = _compact(vertices, np.compress(reaching, faces, axis=0))
     border_nodes = {k: np.compress(reaching, v, axis=0) for k, v in nodes.items()}
-    save_piece(job.scratch, job.row, job.col, "border", vertex_xyz=border_v, faces=border_f, **border_nodes)
+    save_piece(job.scratch, job.row, job.col, "border", vertices=border_v, faces=border_f, **border_nodes)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -604,11 +604,11 @@ def _open_disks(disks: NDArray[np.float64], box) -> NDArray[np.float64]:
     return np.column_stack([x[~inside], y[~inside], r[~inside]])
 
 
-def _reaching_out(vertex_xyz, faces, box) -> NDArray[np.bool_]:
+def _reaching_out(vertices, faces, box) -> NDArray[np.bool_]:
     """Which faces reach outside the tile's box (its neighbours' DEM needs them)."""
     if faces.shape[0] == 0:
         return np.zeros(0, dtype=bool)
-    return _corner_outside(~points_in_box(vertex_xyz, box), faces)
+    return _corner_outside(~points_in_box(vertices, box), faces)
 
 
 @meshcore.kernel
@@ -632,7 +632,7 @@ def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
 #: the arrays :func:`mesh_tile` saves, by piece name
 PIECE_ARRAYS = {
     "piece": ("vertices", "faces", "point_count"),
-    "border": ("vertex_xyz", "faces"),
+    "border": ("vertices", "faces"),
 }
 
 
@@ -677,15 +677,12 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
-    keys = ("faces", "nodes") if smooth else ("faces",)
+    keys = ("vertices", "faces", "nodes") if smooth else ("vertices", "faces")
     tiles = [(job.row, job.col), *neighbours]
-    pieces = [
-        *load_pieces(job.scratch, [(job.row, job.col, "piece")], ("vertices", *keys)),
-        *load_pieces(job.scratch, [(r, c, "border") for r, c in neighbours], ("vertex_xyz", *keys)),
-    ]
+    pieces = load_pieces(job.scratch, [(r, c, "piece" if k == 0 else "border") for k, (r, c) in enumerate(tiles)], keys)
     for (r, c), piece in zip(tiles, pieces):
         own = (r, c) == (job.row, job.col)
-        v = piece["vertices"] if own else piece["vertex_xyz"]
+        v = piece["vertices"]
         f = piece["faces"]
         n = piece.get("nodes")
         if f.shape[0] == 0:
