@@ -31,7 +31,7 @@ def rng() -> np.random.Generator:
 
 def _nodes_of(mesh: Mesh, f) -> np.ndarray:
     """Node rows holding ``f`` at every node position (the layout's own positions)."""
-    positions, take, _, _ = _layout(mesh.vertices, mesh.faces)
+    positions, take, _, _ = _layout(mesh.vertices, mesh.faces, 1.0)
     values = f(positions[:, 0], positions[:, 1])
     rows = np.full(take.shape, np.nan)
     rows[take >= 0] = values[take[take >= 0]]
@@ -311,6 +311,19 @@ def test_variogram_models_are_correlations_and_round_trip():
         Variogram(0.0, 1.0, 1.0, spacing=0.0)
 
 
+def test_model_correlations_match_their_closed_forms_to_rounding():
+    """The kernels' table-and-series exponential against numpy's, on lags up to and past its cut-off."""
+    h = np.concatenate([np.linspace(0.0, 70.0, 200_001), [1e-300, 1e-9, 63.999999, 64.0, 1e3]])
+    for model, shape in zip(MODELS, (lambda a: np.exp(-a), lambda a: (1 + a) * np.exp(-a),
+                                     lambda a: (1 + a + a * a / 3) * np.exp(-a))):
+        a = h * (1.0, np.sqrt(3.0), np.sqrt(5.0))[MODELS.index(model)]
+        rho = Variogram(0.0, 1.0, 1.0, model).correlation(h)
+        exact = shape(a)
+        live = a < 64.0
+        assert np.all(np.abs(rho[live] - exact[live]) <= 1e-15 * exact[live] + 1e-300)  # a few ulp
+        assert np.all(rho[~live] == 0.0) and np.all(exact[~live] < 1e-24)
+
+
 def test_nodes_are_kriged_in_cells_of_the_spacing(rng):
     """One system per cell on multiples of the cell's side; every node lies in its cell."""
     xy = rng.random((2000, 2)) * 100.0 + OFFSET
@@ -320,7 +333,7 @@ def test_nodes_are_kriged_in_cells_of_the_spacing(rng):
     assert hoods.cell == cell
     assert_allclose(hoods.centres / cell - 0.5, np.round(hoods.centres / cell - 0.5), atol=1e-9)
     owner = np.repeat(np.arange(hoods.centres.shape[0]), np.diff(hoods.first))
-    assert np.all(np.abs(hoods.positions - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
+    assert np.all(np.abs(hoods.positions[hoods.order] - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
     assert len(np.unique(owner)) == hoods.centres.shape[0]  # no empty cell
     # a system for nearly every cell of the hull (100 m x 100 m)
     assert 0.8 * (100.0 / cell) ** 2 < hoods.centres.shape[0] <= (100.0 / cell + 1) ** 2
