@@ -4,7 +4,7 @@
     python bench/bench_pipeline.py memory [--small 5000000] [--large 50000000]
     python bench/bench_pipeline.py seams [--points 4000000] [--tile-size 256]
     python bench/bench_pipeline.py certify [--tile-sizes 10,20,50]
-    python bench/bench_pipeline.py surface [--repeat 3] [--points 2000000]
+    python bench/bench_pipeline.py surface [--repeat 3] [--points 2000000 (0: none)] [--samples a.laz,b.las]
 
 throughput: two all-ground synthetic LAZ archives to DEM + mesh, side by side
     (runs interleaved, medians): "flown" (strips, points in flight order,
@@ -244,12 +244,13 @@ def certify(cache: Path, tile_sizes: list[float], samples: tuple[str, ...] = GRO
                 print("   " + out.stderr.strip().splitlines()[-1])
 
 
-def surfaces(cache: Path, repeat: int, points: int) -> None:
+def surfaces(cache: Path, repeat: int, points: int, samples: list[str]) -> None:
     """``--surface smooth`` against ``linear``: whole runs at the same resolution, interleaved, medians."""
     import statistics
 
-    cases = [(name, REAL_SAMPLES / name, 0.5) for name in GROUND_SAMPLES if (REAL_SAMPLES / name).is_file()]
-    cases.append((f"flown {points:,}", archive(cache, points, max(1, points // 2_000_000)), 1.0))
+    cases = [(name, REAL_SAMPLES / name, 0.5) for name in samples if (REAL_SAMPLES / name).is_file()]
+    if points > 0:
+        cases.append((f"flown {points:,}", archive(cache, points, max(1, points // 2_000_000)), 1.0))
     rows = []
     for label, path, resolution in cases:
         walls: dict[str, list[float]] = {"linear": [], "smooth": []}
@@ -273,7 +274,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=["throughput", "memory", "seams", "certify", "surface"])
     parser.add_argument("--tile-sizes", default="10,20,50", help="certify: tile sizes in CRS units")
-    parser.add_argument("--samples", default=",".join(GROUND_SAMPLES), help="certify: the samples (file names)")
+    parser.add_argument("--samples", default=",".join(GROUND_SAMPLES),
+                        help="certify, surface: the samples (file names; empty for none)")
     parser.add_argument("--tile-size", type=float, default=256.0)
     parser.add_argument("--points", type=int, default=20_000_000)
     parser.add_argument("--files", type=int, default=10)
@@ -285,7 +287,7 @@ def main() -> None:
     args.cache.mkdir(parents=True, exist_ok=True)
     if args.what == "surface":
         surfaces(args.cache, args.repeat if "--repeat" in sys.argv else 3,
-                 args.points if "--points" in sys.argv else 2_000_000)
+                 args.points if "--points" in sys.argv else 2_000_000, args.samples.split(",") if args.samples else [])
         return
     if args.what == "certify":
         certify(args.cache, [float(v) for v in args.tile_sizes.split(",")], tuple(args.samples.split(",")))
