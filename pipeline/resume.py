@@ -20,7 +20,7 @@ from .changes import forget_changed_inputs, forget_tiles, reroute_near_growth, t
 from .checkpoint import WorkDir
 from .config import RunConfig
 from .errors import PipelineError, UsageError
-from .plan import RunPlan, frame_change, frame_grew, frame_moved, grid_spec
+from .plan import RunPlan, frame_change, frame_grew, frame_moved
 from .tiles import piece_intact
 from .tiling import TileGrid, spill_intact, tile_key
 
@@ -85,13 +85,12 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
     from .crs import cf_units
 
     config, grid, provenance, previous = plan.config, plan.grid, plan.provenance, resume.previous
-    spec = grid_spec(grid)
     if resume.grown_from is not None and resume.grown_from != grid:
-        store.grow_store(config.output, grid_spec(resume.grown_from), spec)
+        store.grow_store(config.output, resume.grown_from, grid)
     if previous is None:
         store.create_store(
             config.output,
-            spec,
+            grid,
             plan.crs.target_wkt,
             layers=config.layers,
             attrs={"provenance": provenance, "complete": False, "incremental": resume.keep_work},

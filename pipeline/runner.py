@@ -46,7 +46,7 @@ from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
-from .plan import RunPlan, grid_spec, plan_run, union_bounds
+from .plan import RunPlan, plan_run, union_bounds
 from .tiling import TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
@@ -519,7 +519,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     other without waiting at the end of the DEM for its last tile."""
     from . import store
 
-    config, grid, spec = plan.config, plan.grid, grid_spec(plan.grid)
+    config, grid = plan.config, plan.grid
     reached = {key: reached_tiles(grid, s.reach, *key) for key, s in meshed.summaries.items()}
     reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
     for key, tiles in reached.items():
@@ -534,7 +534,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     def dem_and_write(job: TileJob) -> int:
         layers = dem_tile(job)
         try:
-            store.write_tile(config.output, spec, job.row, job.col, layers, run=job.run_id)
+            store.write_tile(config.output, grid, job.row, job.col, layers, run=job.run_id)
             store.mark_tile_done(config.output, job.row, job.col, run=job.run_id)
         except OSError as exc:
             raise OutputWriteError(
