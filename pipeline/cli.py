@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .config import positive_integer
+from .config import LAYERS, positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
@@ -117,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
         help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
         "every point, kriged between them (more accurate; 2-5x the time)",
     )
-    run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
+    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])}")
     run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")

@@ -66,7 +66,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from meshcore import MergeMethod, Mesh, build_mesh, face_quadrature, l2_errors, s1, s2, s3, s4, smooth_nodes
+from meshcore import (
+    MergeMethod, Mesh, build_mesh, face_quadrature, l2_errors, parse_option, s1, s2, s3, s4, smooth_nodes,
+)
 
 from .errors import UsageError
 
@@ -244,9 +246,7 @@ def _check_parameters(points: object, trials: object, order: object, merge: obje
     for name, value, least in (("points", points, 3), ("trials", trials, 1), ("order", order, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise UsageError(f"{name} must be an integer >= {least}, got {value!r}")
-    valid = [m.value for m in MergeMethod]
-    if merge not in valid:
-        raise UsageError(f"merge={merge!r} is not valid; expected one of {', '.join(map(repr, valid))}")
+    parse_option(MergeMethod, merge, "merge", error=UsageError, fold_case=False)
 
 
 def run_experiment(
