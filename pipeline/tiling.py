@@ -15,7 +15,7 @@ import numbers
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,7 @@ from .errors import UsageError
 from .scratch import Scratch
 
 __all__ = [
-    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
+    "TileGrid", "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
     "intersect_boxes", "hull_candidates", "grow_hull", "tile_key",
 ]
 
@@ -269,6 +269,95 @@ class TileGrid:
 
 _STORE_ORDER = ("x0", "y0", "resolution", "nx", "ny", "tile_cells")
 """The key order of the store's ``grid`` attribute (:meth:`TileGrid.to_store_attr`)."""
+
+
+@dataclass(frozen=True)
+class PointCounts:
+    """One input file's points by fate: read, left out by class or as
+    withheld, outside the bbox, kept."""
+
+    path: str
+    read: int = 0
+    filtered_class: int = 0
+    filtered_withheld: int = 0
+    outside_bbox: int = 0
+    kept: int = 0
+
+    def by_fate(self) -> dict[str, int]:
+        """The counts by name, in :data:`POINT_FATES` order."""
+        return {name: getattr(self, name) for name in POINT_FATES}
+
+
+POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
+"""The counts of :class:`PointCounts`, in order."""
+
+
+@dataclass(frozen=True)
+class RouteResult(PointCounts):
+    """What routing one input file leaves, and its route record in the work
+    folder: its points counted by fate, its spill files, its digest and the
+    convex hull of its kept points.
+
+    Three kinds: a routed file; a bad file skipped with ``skip_bad_files``
+    (``skipped`` says why; its spill files are dropped); and a window source
+    (``window``: a COPC file the tiles read by window, of which routing only
+    takes the hull and bounds; its counts come from the tiles, :meth:`counted`).
+    """
+
+    beyond_grid: int = 0
+    """Kept points outside the grid (a stale header)."""
+    bounds: tuple[float, float, float, float] | None = None
+    """The kept points' box; None when none was kept."""
+    parts: tuple[tuple[int, ...], ...] = ()
+    """The spill files written, for a resume to check they are still there."""
+    tile_points: tuple[tuple[int, int, int], ...] = ()
+    """(row, col, points) of every tile it spilled to: the tiles' work."""
+    sha256: str | None = None
+    seconds: float | None = None
+    skipped: str | None = None
+    window: bool = False
+    hull: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False, repr=False)
+
+    def counted(self, read: int, filtered_class: int, filtered_withheld: int, outside_bbox: int, kept: int) -> RouteResult:
+        """This result with the counts the tiles made of a window source."""
+        return replace(self, read=read, filtered_class=filtered_class, filtered_withheld=filtered_withheld,
+                       outside_bbox=outside_bbox, kept=kept)
+
+    def _bounds(self) -> dict[str, Any]:
+        return {} if self.bounds is None else {"bounds": list(self.bounds)}
+
+    def to_record(self) -> dict[str, Any]:
+        """The record's JSON payload (the hull is saved beside it): each kind
+        with the entries, in the order, that work folders have always held,
+        so that a work folder of an earlier version resumes."""
+        if self.skipped is not None:
+            return {"path": self.path, "skipped": self.skipped, **self.by_fate()}
+        if self.window:
+            return {"path": self.path, "window": True, "parts": [list(p) for p in self.parts], "sha256": self.sha256,
+                    **self._bounds()}
+        return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
+                "parts": [list(p) for p in self.parts], "tile_points": [list(t) for t in self.tile_points],
+                "sha256": self.sha256, "seconds": self.seconds}
+
+    @classmethod
+    def from_record(cls, payload: Mapping[str, Any]) -> RouteResult:
+        """The result of a record read by ``WorkDir.recorded("route", key, "hull")``."""
+        data = {k: v for k, v in payload.items() if k in _ROUTE_FIELDS}
+        if data.get("bounds") is not None:
+            data["bounds"] = tuple(data["bounds"])
+        data["parts"] = tuple(tuple(p) for p in data.get("parts", ()))
+        data["tile_points"] = tuple(tuple(t) for t in data.get("tile_points", ()))
+        return cls(**data)
+
+    def to_report(self) -> dict[str, Any]:
+        """The file's entry in the run report (``RunReport.files``)."""
+        if self.window:
+            return {"path": self.path, "sha256": self.sha256, **self._bounds(), **self.by_fate()}
+        return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
+                "sha256": self.sha256, "seconds": self.seconds}
+
+
+_ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
 
 
 def tile_key(row: int, col: int) -> str:
