@@ -23,11 +23,12 @@ EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
 
-def _mesh_errors() -> tuple[type[Exception], ...]:
-    """meshcore's error type, when meshcore was imported (else none of its
-    errors can have been raised): the command line starts without it."""
-    errors = sys.modules.get("meshcore.errors")
-    return () if errors is None else (errors.MeshError,)
+def _library_errors() -> tuple[type[Exception], ...]:
+    """The error roots of meshcore and of the experiments, those imported
+    (else none of their errors can have been raised): the command line starts
+    without them."""
+    roots = (("meshcore.errors", "MeshError"), ("experiments.errors", "ExperimentError"))
+    return tuple(getattr(sys.modules[m], name) for m, name in roots if m in sys.modules)
 
 
 def _positive_int(text: str) -> int:
@@ -336,7 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OutputWriteError, SeamError, StorageUnreachableError) as exc:  # the job failed part way: resumable
         LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_FAILED
-    except (PipelineError, *_mesh_errors()) as exc:
+    except (PipelineError, *_library_errors()) as exc:
         LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -367,7 +368,7 @@ def console() -> None:
 
 def _command(args: argparse.Namespace) -> int:
     if args.command == "experiment":
-        from .experiment import experiment_command
+        from experiments.combined_mesh import experiment_command
 
         return experiment_command(points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge)
     if args.command == "run":
