@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 import meshcore
-from pipeline.experiment import run_experiment
+from experiments.combined_mesh import run_experiment
 
 PAIRED = {"s2": (meshcore.s1, meshcore.s2), "s4": (meshcore.s3, meshcore.s4)}
 

@@ -20,7 +20,7 @@ from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh
-from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure
+from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
 from .patches import NODES_PER_FACE
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
@@ -64,6 +64,7 @@ __all__ = [
     "TriangleMeasure",
     "QuadMeasure",
     "MergeMethod",
+    "parse_option",
     "MeshError",
     "InvalidInputError",
     "InvalidMeshError",

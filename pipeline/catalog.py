@@ -22,7 +22,8 @@ import numpy as np
 import pyproj
 
 from .errors import OutputWriteError, one_line
-from .store import GridSpec, read_attrs
+from .store import read_attrs
+from .tiling import TileGrid
 from .urls import Location, filesystem, location
 
 __all__ = ["STAC_VERSION", "PROJECTION_EXTENSION", "stac_item", "stac_item_path", "write_stac_item"]
@@ -59,7 +60,7 @@ def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | 
     """
     where = os.fspath(store)
     attrs = read_attrs(where) or {}
-    grid = GridSpec.from_dict(attrs["grid"])
+    grid = TileGrid.from_dict(attrs["grid"])
     provenance = attrs.get("provenance", {})
     history = attrs.get("run_history") or [{}]
     crs = pyproj.CRS.from_wkt(provenance["crs_wkt"]) if provenance.get("crs_wkt") else None

@@ -19,7 +19,7 @@ from .tiles import held_box, hull_near, reached_tiles
 from .tiling import TileGrid, drop_source_spill, intersect_boxes, source_spill, tile_key
 
 __all__ = [
-    "forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles",
+    "changed_inputs", "forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles",
     "reroute_near_growth",
 ]
 
@@ -35,13 +35,11 @@ def same_input(old: dict[str, Any], item: dict[str, Any], routed: dict[str, Any]
     return routed is not None and old["size"] == item["size"] and routed.get("sha256") == file_digest(item["path"])
 
 
-def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> list[tuple]:
-    """Drop the spilled points and records of inputs that changed or went away,
-    renumber the spill files of the others to their new place in the input
-    list, and return the regions (boxes) whose points changed."""
-    # a run stopped between the two renaming steps below left "tmp" names:
-    # their records are gone with them, so those files are routed again
-    work.scratch.remove([*work.scratch.glob("tiles/*/tmp*.npy"), *work.scratch.glob("records/route/tmp*")])
+def changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[str, Any]]) -> tuple[dict[int, int], list[tuple]]:
+    """Which inputs of the last run stay (their old index -> their new one),
+    and the regions (boxes) whose points changed: those of new or changed
+    inputs, and those of the inputs that changed or went away (their kept
+    points' bounds, else their header's).  Reads the work folder only."""
     old_index = {i["path"]: k for k, i in enumerate(before)}
     regions: list[tuple] = []
     keep: dict[int, int] = {}  # old index -> new index
@@ -60,13 +58,24 @@ def forget_changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list
         box = (rec or {}).get("bounds") or old.get("bounds")
         if box:
             regions.append(tuple(box))
-        drop_source(work, j)
+    return keep, regions
+
+
+def forget_changed_inputs(work: WorkDir, n_before: int, keep: dict[int, int]) -> None:
+    """Drop the spilled points and records of the last run's ``n_before``
+    inputs that are not kept, and renumber the spill files of those kept
+    (``keep``: old index -> new index, of :func:`changed_inputs`)."""
+    # a run stopped between the two renaming steps below left "tmp" names:
+    # their records are gone with them, so those files are routed again
+    work.scratch.remove([*work.scratch.glob("tiles/*/tmp*.npy"), *work.scratch.glob("records/route/tmp*")])
+    for j in range(n_before):
+        if j not in keep:
+            drop_source(work, j)
     # renumber in two steps, so no new name meets an old one still in use
     for j in keep:
         rename_source(work, j, f"tmp{j:06d}")
     for j, k in keep.items():
         rename_source(work, f"tmp{j:06d}", f"{k:06d}")
-    return regions
 
 
 def drop_source(work: WorkDir, index: int) -> None:

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .config import positive_integer
+from .config import LAYERS, positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
@@ -23,11 +23,12 @@ EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
 
-def _mesh_errors() -> tuple[type[Exception], ...]:
-    """meshcore's error type, when meshcore was imported (else none of its
-    errors can have been raised): the command line starts without it."""
-    errors = sys.modules.get("meshcore.errors")
-    return () if errors is None else (errors.MeshError,)
+def _library_errors() -> tuple[type[Exception], ...]:
+    """The error roots of meshcore and of the experiments, those imported
+    (else none of their errors can have been raised): the command line starts
+    without them."""
+    roots = (("meshcore.errors", "MeshError"), ("experiments.errors", "ExperimentError"))
+    return tuple(getattr(sys.modules[m], name) for m, name in roots if m in sys.modules)
 
 
 def _positive_int(text: str) -> int:
@@ -117,7 +118,7 @@ def _parser() -> argparse.ArgumentParser:
         help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
         "every point, kriged between them (more accurate; 2-5x the time)",
     )
-    run.add_argument("--layers", help="extra DEM layers: slope,face_kind,point_count")
+    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])}")
     run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
@@ -336,7 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OutputWriteError, SeamError, StorageUnreachableError) as exc:  # the job failed part way: resumable
         LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_FAILED
-    except (PipelineError, *_mesh_errors()) as exc:
+    except (PipelineError, *_library_errors()) as exc:
         LOGGER.error(f"terrain: error: {_said(args, str(exc))}", exc_info=args.verbose > 0)
         return EXIT_USAGE
     except KeyboardInterrupt:
@@ -367,7 +368,7 @@ def console() -> None:
 
 def _command(args: argparse.Namespace) -> int:
     if args.command == "experiment":
-        from .experiment import experiment_command
+        from experiments.combined_mesh import experiment_command
 
         return experiment_command(points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge)
     if args.command == "run":

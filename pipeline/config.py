@@ -38,11 +38,11 @@ class Layer(StrEnum):
         >>> Layer.parse("slope")
         <Layer.SLOPE: 'slope'>
         """
-        try:
-            return cls(value)
-        except ValueError:
-            valid = ", ".join(member.value for member in cls)
-            raise UsageError(f"unknown layer {value!r}; valid layers: {valid}") from None
+        from meshcore import parse_option
+
+        return parse_option(
+            cls, value, "layer", error=UsageError, fold_case=False, message="unknown layer {value!r}; valid layers: {names}"
+        )
 
 
 LAYERS = tuple(member.value for member in Layer)
@@ -62,11 +62,10 @@ class DuplicatePolicy(str, Enum):
 
 
 def _choice(enum: type[Enum], value: object, name: str) -> str:
-    try:
-        return enum(value).value  # type: ignore[no-any-return]
-    except ValueError:
-        valid = ", ".join(repr(m.value) for m in enum)
-        raise UsageError(f"{name}={value!r} is not valid; expected one of {valid}") from None
+    """The value of option ``name`` (exact text), by meshcore's parser of options."""
+    from meshcore import parse_option
+
+    return parse_option(enum, value, name, error=UsageError, fold_case=False).value  # type: ignore[no-any-return]
 
 
 def _flag(name: str, value: object) -> bool:

@@ -31,7 +31,8 @@ import numpy as np
 from .config import Layer
 from .errors import StoreError, UsageError
 from .urls import is_url
-from .store import GridSpec, layer_names, nodata_value, read_attrs, read_layer
+from .store import layer_names, nodata_value, read_attrs, read_layer
+from .tiling import TileGrid
 
 __all__ = ["ExportedLayer", "export_geotiff", "MAX_FILE_CELLS"]
 
@@ -107,7 +108,7 @@ def export_geotiff(
         raise StoreError(f"{where}: holds no layer {', '.join(map(repr, missing))} (it holds {', '.join(held)})")
     if not chosen:
         raise UsageError("layers is empty: name at least one layer")
-    grid = GridSpec.from_dict(attrs["grid"])
+    grid = TileGrid.from_dict(attrs["grid"])
     crs_wkt = attrs.get("provenance", {}).get("crs_wkt")
     crs = rasterio.crs.CRS.from_wkt(crs_wkt) if crs_wkt else None
     out = Path(output)
@@ -133,7 +134,7 @@ def _rasterio():
     return rasterio
 
 
-def _row_blocks(grid: GridSpec, max_file_cells: int) -> list[tuple[int, int]]:
+def _row_blocks(grid: TileGrid, max_file_cells: int) -> list[tuple[int, int]]:
     """North-up (first row, row count) of each file: whole tile rows, at most
     ``max_file_cells`` cells each (at least one tile row)."""
     if grid.nx * grid.ny <= max_file_cells:
@@ -143,7 +144,7 @@ def _row_blocks(grid: GridSpec, max_file_cells: int) -> list[tuple[int, int]]:
     return [(top, min(step, grid.ny - top)) for top in range(0, grid.ny, step)]
 
 
-def _export_layer(rasterio, store: str, grid: GridSpec, crs, layer: Layer, target: Path,
+def _export_layer(rasterio, store: str, grid: TileGrid, crs, layer: Layer, target: Path,
                   blocks: list[tuple[int, int]]) -> ExportedLayer:
     if len(blocks) == 1:
         _write_cog(rasterio, store, grid, crs, layer, target, *blocks[0])
@@ -158,7 +159,7 @@ def _export_layer(rasterio, store: str, grid: GridSpec, crs, layer: Layer, targe
     return ExportedLayer(layer.value, vrt, tuple(parts))
 
 
-def _write_cog(rasterio, store: str, grid: GridSpec, crs, layer: Layer, target: Path, top: int, rows: int) -> None:
+def _write_cog(rasterio, store: str, grid: TileGrid, crs, layer: Layer, target: Path, top: int, rows: int) -> None:
     """Rows ``top:top+rows`` (north-up) of ``layer`` as one COG at ``target``."""
     dtype = _DTYPES[layer]
     nodata = nodata_value(layer)
@@ -187,7 +188,7 @@ def _write_cog(rasterio, store: str, grid: GridSpec, crs, layer: Layer, target: 
         os.replace(partial, target)
 
 
-def _vrt_xml(grid: GridSpec, crs, layer: Layer, parts: list[Path], blocks: list[tuple[int, int]]) -> str:
+def _vrt_xml(grid: TileGrid, crs, layer: Layer, parts: list[Path], blocks: list[tuple[int, int]]) -> str:
     """A VRT mosaic of the row blocks: one band, each block a source at its rows."""
     gdal_type = _GDAL_TYPES[_DTYPES[layer]]
     nodata = nodata_value(layer)

@@ -25,11 +25,10 @@ from .tiling import TileGrid, check_cells
 if TYPE_CHECKING:
     from .crs import CrsPlan
     from .sources import SourceInfo
-    from .store import GridSpec
 
 __all__ = [
     "RunPlan", "plan_run", "read_headers", "job_frame", "job_frame_record", "frame_moved", "frame_grew",
-    "frame_change", "grid_spec", "union_bounds", "POINTS_PER_TILE", "SMOOTH_POINTS_PER_TILE",
+    "frame_change", "union_bounds", "POINTS_PER_TILE", "SMOOTH_POINTS_PER_TILE",
 ]
 
 POINTS_PER_TILE = 500_000
@@ -198,13 +197,6 @@ def frame_change(before: dict[str, Any], now: dict[str, Any], done: bool = True)
         if (was.resolution, was.tile_cells) == (grid.resolution, grid.tile_cells) and (grid.x0, grid.y0) != (was.x0, was.y0):
             return f"the survey grew south or west of the grid's origin, which {'moved' if done else 'moves'} every tile"
     return f"the grid, extent, buffer or height unit {'changed' if done else 'changes'}"
-
-
-def grid_spec(grid: TileGrid) -> GridSpec:
-    """The store's description of the grid."""
-    from . import store
-
-    return store.GridSpec(grid.x0, grid.y0, grid.resolution, grid.nx, grid.ny, grid.tile_cells)
 
 
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:

@@ -16,15 +16,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from .changes import forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
+from .changes import changed_inputs, forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
 from .checkpoint import WorkDir
 from .config import RunConfig
 from .errors import PipelineError, UsageError
-from .plan import RunPlan, frame_change, frame_grew, frame_moved, grid_spec
+from .plan import RunPlan, frame_change, frame_grew, frame_moved
 from .tiles import piece_intact
 from .tiling import TileGrid, spill_intact, tile_key
 
-__all__ = ["Resume", "decide", "prepare"]
+__all__ = ["Resume", "Update", "decide", "plan_update", "prepare"]
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,9 @@ class Resume:
     keep_work: bool = False
     """A workflow's store keeps its work folder between runs."""
     notes: tuple[str, ...] = field(default=())
+    moved_from: dict[str, Any] | None = None
+    """The store's provenance when this run moves its frame (not a growth
+    north or east): every tile is computed again, for :func:`~pipeline.plan.frame_change`'s reason."""
 
     @property
     def complete(self) -> bool:
@@ -57,7 +60,7 @@ def decide(plan: RunPlan, incremental: bool) -> Resume:
     config, provenance = plan.config, plan.provenance
     previous = existing_job(config, provenance, allow_new_inputs=incremental)
     fresh_frame = previous is not None and frame_moved(previous.get("provenance", {}), provenance)
-    grown_from = None
+    grown_from = moved_from = None
     notes: list[str] = []
     if incremental and fresh_frame and previous.get(store.GROWING_ATTR):
         notes.append("an earlier run stopped while it grew the grid: every tile was computed again")
@@ -65,7 +68,8 @@ def decide(plan: RunPlan, incremental: bool) -> Resume:
     elif incremental and fresh_frame and frame_grew(previous["provenance"], provenance):
         grown_from = TileGrid.from_dict(previous["provenance"]["grid"])
     elif incremental and fresh_frame:
-        notes.append(f"{frame_change(previous['provenance'], provenance)}: every tile was computed again")
+        moved_from = previous["provenance"]
+        notes.append(f"{frame_change(moved_from, provenance)}: every tile was computed again")
         previous = None
     elif fresh_frame:
         raise UsageError(f"{config.output}: the existing store has another grid; pass overwrite=True to replace it")
@@ -73,7 +77,31 @@ def decide(plan: RunPlan, incremental: bool) -> Resume:
     # a workflow's store keeps its work folder: its next run reuses the tiles
     # no changed input touches, whichever command finished the store meanwhile
     keep_work = incremental or bool(previous is not None and previous.get("incremental"))
-    return Resume(previous, grown_from, same_inputs, keep_work, tuple(notes))
+    return Resume(previous, grown_from, same_inputs, keep_work, tuple(notes), moved_from)
+
+
+@dataclass(frozen=True)
+class Update:
+    """What a run over changed inputs computes again in a store it keeps."""
+
+    keep: dict[int, int]
+    """The inputs of the last run that stay: old index -> new index."""
+    regions: tuple[tuple, ...]
+    """The boxes whose points changed."""
+    tiles: frozenset[tuple[int, int]]
+    """The tiles meshed again: those whose piece held points in a region,
+    those without a record, and the old edge of a grid grown north or east."""
+
+
+def plan_update(plan: RunPlan, resume: Resume, work: WorkDir) -> Update:
+    """The :class:`Update` of a store that ``resume`` keeps (``previous`` set,
+    inputs not the same), from its work folder, which it leaves as it is:
+    the run applies it (:func:`prepare`), ``terrain workflow status`` counts it."""
+    keep, regions = changed_inputs(work, resume.previous["provenance"]["inputs"], plan.provenance["inputs"])
+    tiles = tiles_depending_on(work, plan.grid, regions)
+    if resume.grown_from is not None:
+        tiles |= plan.grid.edge_tiles_moved_by(resume.grown_from)
+    return Update(keep, tuple(regions), frozenset(tiles))
 
 
 def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, notes: list[str],
@@ -85,13 +113,12 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
     from .crs import cf_units
 
     config, grid, provenance, previous = plan.config, plan.grid, plan.provenance, resume.previous
-    spec = grid_spec(grid)
     if resume.grown_from is not None and resume.grown_from != grid:
-        store.grow_store(config.output, grid_spec(resume.grown_from), spec)
+        store.grow_store(config.output, resume.grown_from, grid)
     if previous is None:
         store.create_store(
             config.output,
-            spec,
+            grid,
             plan.crs.target_wkt,
             layers=config.layers,
             attrs={"provenance": provenance, "complete": False, "incremental": resume.keep_work},
@@ -106,19 +133,20 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         work.reset()
         notes.append("the work folder was missing: every tile was computed again")
     elif not resume.same_inputs:
-        changed = forget_changed_inputs(work, previous["provenance"]["inputs"], provenance["inputs"])
-        tiles = tiles_depending_on(work, grid, changed)
+        update = plan_update(plan, resume, work)
+        forget_changed_inputs(work, len(previous["provenance"]["inputs"]), update.keep)
         grown_from = resume.grown_from
         if grown_from is not None:
-            tiles |= grid.edge_tiles_moved_by(grown_from)
             reroute_near_growth(work, grown_from, provenance["inputs"], plan.buffer)
             if grown_from != grid:
                 notes.append(
                     f"the grid grew from {grown_from.n_rows} x {grown_from.n_cols} to {grid.n_rows} x {grid.n_cols} "
                     "tiles (north or east): the tiles written were kept"
                 )
-        forget_tiles(work, config.output, grid, tiles)
-        notes.append(f"inputs changed ({len(changed)} region(s)): {len(tiles)} of {grid.n_tiles} tile(s) computed again")
+        forget_tiles(work, config.output, grid, set(update.tiles))
+        notes.append(
+            f"inputs changed ({len(update.regions)} region(s)): {len(update.tiles)} of {grid.n_tiles} tile(s) computed again"
+        )
         store.finalize_store(config.output, {"provenance": provenance, "complete": False})
     else:
         say(f"{config.output}: resuming an unfinished run")

@@ -46,8 +46,8 @@ from . import urls
 from .tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
-from .plan import RunPlan, grid_spec, plan_run, union_bounds
-from .tiling import TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
+from .plan import RunPlan, plan_run, union_bounds
+from .tiling import RouteResult, TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -129,11 +129,11 @@ class _RouteJob:
     skip_bad: bool = False
 
 
-def route_source(job: _RouteJob) -> dict[str, Any]:
+def route_source(job: _RouteJob) -> RouteResult:
     """Stream one file into the tiles' spill files; returns its counts.
 
     With ``job.skip_bad`` a file found broken while reading is dropped whole
-    (its spilled points removed) and the counts say why (``"skipped"``).
+    (its spilled points removed) and the result says why (``skipped``).
     """
     try:
         return _route(job)
@@ -141,11 +141,10 @@ def route_source(job: _RouteJob) -> dict[str, Any]:
         if not job.skip_bad:
             raise
         drop_source_spill(job.scratch, job.index)
-        return {"path": job.path, "skipped": str(exc), "read": 0, "filtered_class": 0, "filtered_withheld": 0,
-                "outside_bbox": 0, "kept": 0, "hull": np.empty((0, 3))}
+        return RouteResult(job.path, skipped=str(exc))
 
 
-def _route(job: _RouteJob) -> dict[str, Any]:
+def _route(job: _RouteJob) -> RouteResult:
     from .crs import Reprojector
     from .sources import PointFilter, file_digest, iter_points
 
@@ -156,43 +155,44 @@ def _route(job: _RouteJob) -> dict[str, Any]:
     point_filter = PointFilter(
         classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
     )
-    counts: dict[str, Any] = {
-        "path": job.path, "read": 0, "filtered_class": 0, "filtered_withheld": 0, "outside_bbox": 0, "kept": 0,
-        "beyond_grid": 0,
-    }
+    read = filtered_class = filtered_withheld = outside_bbox = kept = beyond_grid = 0
+    bounds: list[float] | None = None
     gx0, gy0, gx1, gy1 = job.grid.extent
     hull = np.empty((0, 3))
     # a COPC file in the target CRS reads only the octree nodes that meet the bbox
     window = job.bbox if reproject.is_identity else None
     for chunk in iter_points(job.path, point_filter, ROUTE_CHUNK, window=window):
-        counts["read"] += chunk.read
-        counts["outside_bbox"] += chunk.outside_window
-        counts["filtered_class"] += chunk.filtered_class
-        counts["filtered_withheld"] += chunk.filtered_withheld
+        read += chunk.read
+        outside_bbox += chunk.outside_window
+        filtered_class += chunk.filtered_class
+        filtered_withheld += chunk.filtered_withheld
         try:
             x, y, z = reproject.transform(chunk.x, chunk.y, chunk.z)
         except CrsError as exc:  # points of this file: a bad input, named (and skippable)
             raise InputFileError(f"{job.path}: {exc}") from None
         if job.bbox is not None:
             inside = (x >= job.bbox[0]) & (x <= job.bbox[2]) & (y >= job.bbox[1]) & (y <= job.bbox[3])
-            counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
+            outside_bbox += int(x.size - np.count_nonzero(inside))
             x, y, z = x[inside], y[inside], z[inside]
-        counts["kept"] += int(x.size)
+        kept += int(x.size)
         # a stale header: kept points (in the mesh) where the DEM has no cells
-        counts["beyond_grid"] += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
+        beyond_grid += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
         if x.size:
-            b = counts.setdefault("bounds", [math.inf, math.inf, -math.inf, -math.inf])
+            b = bounds = bounds or [math.inf, math.inf, -math.inf, -math.inf]
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
             b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
         spill.add(x, y, z)
         hull = grow_hull(hull, x, y, z)
     spill.flush()
-    counts["parts"] = spill.parts  # a resume checks they are still there
-    counts["tile_points"] = spill.points  # the tiles' work, to start the largest first
-    counts["sha256"] = file_digest(job.path)
-    counts["hull"] = hull
-    counts["seconds"] = time.perf_counter() - t0
-    return counts
+    return RouteResult(
+        job.path, read, filtered_class, filtered_withheld, outside_bbox, kept, beyond_grid,
+        bounds=None if bounds is None else tuple(bounds),
+        parts=tuple(tuple(p) for p in spill.parts),  # a resume checks they are still there
+        tile_points=tuple(tuple(t) for t in spill.points),  # the tiles' work, to start the largest first
+        sha256=file_digest(job.path),
+        seconds=time.perf_counter() - t0,
+        hull=hull,
+    )
 
 
 def _skipped_note(skipped: list) -> str:
@@ -359,10 +359,10 @@ def _already_complete(config: RunConfig, decision: resume.Resume, work: WorkDir,
 
 @dataclass(frozen=True)
 class Routed:
-    """What the route stage leaves for the tiles: each input's counts (its
+    """What the route stage leaves for the tiles: each input's result (its
     route record), the inputs the tiles read by window, the global hull."""
 
-    counts: list[dict[str, Any]]
+    results: list[RouteResult]
     windows: tuple[WindowSource, ...]
     hull: np.ndarray
 
@@ -374,10 +374,11 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     computed again."""
     config, grid, crs, scratch = plan.config, plan.grid, plan.crs, work.scratch
     paths, infos = plan.paths, plan.infos
-    counts: list[dict[str, Any] | None] = [work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths))]
+    records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
+    results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
     windows = tuple(w for w in _window_sources(config, paths, infos, crs)
-                    if counts[w.index] is None or counts[w.index].get("window"))
+                    if results[w.index] is None or results[w.index].window)
     windowed = {w.index for w in windows}
     jobs = [
         _RouteJob(
@@ -385,42 +386,42 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
             config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
         )
         for i, p in enumerate(paths)
-        if counts[i] is None and i not in windowed
+        if results[i] is None and i not in windowed
     ]
 
-    def routed(index: int, result: dict[str, Any]) -> None:
-        work.record("route", f"{index:06d}", {k: v for k, v in result.items() if k != "hull"}, hull=result["hull"])
-        counts[index] = result
+    def routed(index: int, result: RouteResult) -> None:
+        work.record("route", f"{index:06d}", result.to_record(), hull=result.hull)
+        results[index] = result
 
-    map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda c: c["read"],
+    map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda r: r.read,
               lambda job, result: routed(job.index, result))
-    surveys = [w for w in windows if counts[w.index] is None]
+    surveys = [w for w in windows if results[w.index] is None]
     map_tasks(client, survey_hull, surveys, Progress("hull", len(surveys), show), lambda _: 0,
               lambda w, result: routed(w.index, result))
-    done: list[dict[str, Any]] = []
-    for i, c in enumerate(counts):
+    done: list[RouteResult] = []
+    for i, c in enumerate(results):
         assert c is not None
         done.append(c)
-        if c.get("window"):  # counted by the tiles that read it
+        if c.window:  # counted by the tiles that read it
             continue
-        if "skipped" in c:
-            report.skipped_files.append({"path": c["path"], "reason": c["skipped"], "points": infos[i].point_count})
+        if c.skipped is not None:
+            report.skipped_files.append({"path": c.path, "reason": c.skipped, "points": infos[i].point_count})
             continue
-        report.points_read += c["read"]
-        report.filtered_class += c["filtered_class"]
-        report.filtered_withheld += c["filtered_withheld"]
-        report.outside_bbox += c["outside_bbox"]
-        report.points_kept += c["kept"]
-        if c["kept"] == 0:
-            report.notes.append(f"{c['path']}: no points of the chosen classes")
-        if c.get("beyond_grid", 0):
+        report.points_read += c.read
+        report.filtered_class += c.filtered_class
+        report.filtered_withheld += c.filtered_withheld
+        report.outside_bbox += c.outside_bbox
+        report.points_kept += c.kept
+        if c.kept == 0:
+            report.notes.append(f"{c.path}: no points of the chosen classes")
+        if c.beyond_grid:
             report.notes.append(
-                f"{c['path']}: {c['beyond_grid']:,} point(s) lie beyond the bounds its header announces "
+                f"{c.path}: {c.beyond_grid:,} point(s) lie beyond the bounds its header announces "
                 "(a stale header?): the mesh holds them, the DEM stops at the header's extent"
             )
     if report.skipped_files:
         report.notes.append(_skipped_note(report.skipped_files))
-    hull = _hull_points(np.concatenate([c["hull"] for c in done]), grid, scratch, config.duplicates, windows)
+    hull = _hull_points(np.concatenate([c.hull for c in done]), grid, scratch, config.duplicates, windows)
     moved = tiles_whose_hull_moved(work, grid, plan.buffer, hull)
     if moved:
         forget_tiles(work, config.output, grid, moved)
@@ -449,10 +450,10 @@ class Meshed:
 def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram, show: bool,
                 report: RunReport) -> Meshed:
     """Mesh every tile without a record, the largest first, and total the tiles' counts."""
-    config, grid, counts = plan.config, plan.grid, routed.counts
+    config, grid, results = plan.config, plan.grid, routed.results
     # where the points are: the headers' extent, grown where a stale header
     # understates it (the tiles' search for missing points must reach them)
-    extent = union_bounds([plan.bounds, *(tuple(c["bounds"]) for c in counts if "bounds" in c)])
+    extent = union_bounds([plan.bounds, *(c.bounds for c in results if c.bounds is not None)])
     run_id = uuid.uuid4().hex
     tile_jobs = [
         TileJob(
@@ -474,8 +475,8 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     pending = [job for job in tile_jobs if (job.row, job.col) not in summaries]
     # the largest tiles first, so that no core is left with one at the end
     work_of: dict[tuple[int, int], int] = {}
-    for c in counts:
-        for r, col, n in c.get("tile_points", ()):
+    for c in results:
+        for r, col, n in c.tile_points:
             work_of[(r, col)] = work_of.get((r, col), 0) + n
     pending.sort(key=lambda job: -work_of.get((job.row, job.col), 0))
 
@@ -484,9 +485,8 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         summaries[(job.row, job.col)] = summary
 
     map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
-    _count_windows(report, counts, plan.infos, routed.windows, summaries.values())
-    report.files = [{k: v for k, v in c.items() if k not in ("hull", "parts", "tile_points", "window")}
-                    for c in counts if "skipped" not in c]
+    _count_windows(report, results, plan.infos, routed.windows, summaries.values())
+    report.files = [c.to_report() for c in results if c.skipped is None]
     for s in summaries.values():
         report.duplicates += s.duplicates
         report.vertices += s.vertices_owned
@@ -519,7 +519,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     other without waiting at the end of the DEM for its last tile."""
     from . import store
 
-    config, grid, spec = plan.config, plan.grid, grid_spec(plan.grid)
+    config, grid = plan.config, plan.grid
     reached = {key: reached_tiles(grid, s.reach, *key) for key, s in meshed.summaries.items()}
     reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
     for key, tiles in reached.items():
@@ -534,7 +534,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     def dem_and_write(job: TileJob) -> int:
         layers = dem_tile(job)
         try:
-            store.write_tile(config.output, spec, job.row, job.col, layers, run=job.run_id)
+            store.write_tile(config.output, grid, job.row, job.col, layers, run=job.run_id)
             store.mark_tile_done(config.output, job.row, job.col, run=job.run_id)
         except OSError as exc:
             raise OutputWriteError(
@@ -580,7 +580,7 @@ def _window_sources(config: RunConfig, paths, infos, plan) -> tuple[WindowSource
     )
 
 
-def _count_windows(report: RunReport, counts: list, infos, windows, summaries) -> None:
+def _count_windows(report: RunReport, results: list[RouteResult], infos, windows, summaries) -> None:
     """The counts of each window source, from the tiles that counted its nodes:
     the points of nodes no tile read (outside the bbox) are outside the bbox."""
     totals = {w.path: [0] * 5 for w in windows}
@@ -594,9 +594,7 @@ def _count_windows(report: RunReport, counts: list, infos, windows, summaries) -
         unread = header - read
         if unread < 0:
             raise PipelineError(f"{w.path}: the tiles counted {read:,} points, more than its header's {header:,}")
-        c = counts[w.index]
-        c.update(read=header, filtered_class=filtered_class, filtered_withheld=filtered_withheld,
-                 outside_bbox=outside_bbox + unread, kept=kept)
+        results[w.index] = results[w.index].counted(header, filtered_class, filtered_withheld, outside_bbox + unread, kept)
         report.points_read += header
         report.filtered_class += filtered_class
         report.filtered_withheld += filtered_withheld

@@ -5,7 +5,7 @@ Layout
 ::
 
     <store>/                      root group; attrs: provenance, ``Conventions``,
-                                  ``grid`` (GridSpec.to_dict()), ``run_history``
+                                  ``grid`` (TileGrid.to_store_attr()), ``run_history``
         x          (x,)           cell-centre x, ascending        float64
         y          (y,)           cell-centre y, DESCENDING       float64
         spatial_ref ()            CF grid mapping: crs_wkt, spatial_ref (GDAL),
@@ -33,7 +33,7 @@ The raster layers are north-up (row 0 is the northern-most row), chunked in
 ``tile_cells x tile_cells`` tiles, so each tile of the pipeline writes exactly
 one chunk of each layer and tiles can be written in parallel without locks.
 The grid's tiles are counted from the south-west, so the store requires ``ny``
-to be a multiple of ``tile_cells`` (see :class:`GridSpec`): only then do the
+to be a multiple of ``tile_cells`` (see :class:`~pipeline.tiling.TileGrid`): only then do the
 tiles' rows fall on the north-up chunk boundaries.
 
 Both Zarr formats are written: 3 (the default, dimensions in
@@ -45,7 +45,7 @@ how GDAL before 3.9 reads a Zarr CRS.  Metadata is consolidated by
 Examples
 --------
 >>> import tempfile, numpy as np, xarray as xr
->>> grid = GridSpec(x0=0.0, y0=0.0, resolution=1.0, nx=3, ny=2, tile_cells=2)
+>>> grid = TileGrid(x0=0.0, y0=0.0, resolution=1.0, nx=3, ny=2, tile_cells=2)
 >>> with tempfile.TemporaryDirectory() as tmp:
 ...     store = f"{tmp}/out.zarr"
 ...     create_store(store, grid, "EPSG:2154", attrs={"run": 1})
@@ -82,6 +82,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .config import Layer
 from .errors import CrsError, StoreError, UsageError
+from .tiling import TileGrid
 from .urls import describe_os_error, filesystem, is_url, options_for
 
 if TYPE_CHECKING:
@@ -91,7 +92,6 @@ __all__ = [
     "StoreError",
     "grow_store",
     "Layer",
-    "GridSpec",
     "create_store",
     "write_tile",
     "mark_tile_done",
@@ -154,119 +154,15 @@ _LAYERS: dict[Layer, _LayerSpec] = {
 }
 
 
-# --------------------------------------------------------------------------
-# The grid
-# --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class GridSpec:
-    """The DEM grid and its tiles.
-
-    Attributes
-    ----------
-    x0, y0 : float
-        South-west outer corner of the grid (CRS units).
-    resolution : float
-        Cell size, > 0.
-    nx, ny : int
-        Cells along x and y.  ``ny`` must be a multiple of ``tile_cells``.
-    tile_cells : int
-        Tile (and chunk) edge in cells.  Tile ``(0, 0)`` is the south-west
-        tile; tiles at the east edge may be narrower.
-
-    Why ``ny`` is a whole number of tiles: the store is north-up, so its chunk
-    rows are counted from the north, while tiles are counted from the south.
-    They line up only if ``ny`` is a multiple of ``tile_cells``; otherwise
-    every tile would straddle two chunks and parallel writes would need locks.
-    Round ``ny`` up (pad the north edge with no-data rows) when building the grid.
-
-    Examples
-    --------
-    >>> g = GridSpec(x0=100.0, y0=200.0, resolution=10.0, nx=3, ny=2, tile_cells=2)
-    >>> g.x.tolist(), g.y.tolist()
-    ([105.0, 115.0, 125.0], [215.0, 205.0])
-    >>> g.geotransform
-    (100.0, 10.0, 0.0, 220.0, 0.0, -10.0)
-    >>> GridSpec.from_dict(g.to_dict()) == g
-    True
-    """
-
-    x0: float
-    y0: float
-    resolution: float
-    nx: int
-    ny: int
-    tile_cells: int
-
-    def __post_init__(self) -> None:
-        for name in ("x0", "y0", "resolution"):
-            value = getattr(self, name)
-            if not isinstance(value, numbers.Real) or not math.isfinite(value):
-                raise UsageError(f"GridSpec.{name} must be a finite number, got {value!r}")
-        if self.resolution <= 0:
-            raise UsageError(f"GridSpec.resolution must be > 0, got {self.resolution!r}")
-        for name in ("nx", "ny", "tile_cells"):
-            value = getattr(self, name)
-            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
-                raise UsageError(f"GridSpec.{name} must be an integer >= 1, got {value!r}")
-        if self.ny % self.tile_cells:
-            padded = -(-self.ny // self.tile_cells) * self.tile_cells
-            raise UsageError(
-                f"GridSpec.ny={self.ny} is not a multiple of tile_cells={self.tile_cells}: tiles counted "
-                f"from the south would straddle the north-up store's chunks; use ny={padded} "
-                "(pad the north edge)"
-            )
-
-    @property
-    def x(self) -> NDArray[np.float64]:
-        """Cell-centre x coordinates, ascending (west to east)."""
-        return self.x0 + (np.arange(self.nx) + 0.5) * self.resolution
-
-    @property
-    def y(self) -> NDArray[np.float64]:
-        """Cell-centre y coordinates, descending (north to south: row 0 is the northern-most)."""
-        return self.y_top - (np.arange(self.ny) + 0.5) * self.resolution
-
-    @property
-    def y_top(self) -> float:
-        """The northern outer edge of the grid."""
-        return self.y0 + self.ny * self.resolution
-
-    @property
-    def geotransform(self) -> tuple[float, float, float, float, float, float]:
-        """GDAL's affine transform of the north-up grid: ``(x0, res, 0, y_top, 0, -res)``."""
-        r = float(self.resolution)
-        return (float(self.x0), r, 0.0, float(self.y_top), 0.0, -r)
-
-    @property
-    def n_tile_rows(self) -> int:
-        return self.ny // self.tile_cells
-
-    @property
-    def n_tile_cols(self) -> int:
-        return -(-self.nx // self.tile_cells)
-
-    def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> GridSpec:
-        try:
-            return cls(**data)
-        except TypeError as err:
-            raise UsageError(f"GridSpec.from_dict: {err}") from None
-
-
-def _tile_window(grid: GridSpec, tile_row: int, tile_col: int) -> tuple[slice, slice]:
+def _tile_window(grid: TileGrid, tile_row: int, tile_col: int) -> tuple[slice, slice]:
     """North-up (rows, cols) of a tile's cells in the store: exactly one chunk."""
-    if not (0 <= tile_row < grid.n_tile_rows and 0 <= tile_col < grid.n_tile_cols):
+    if not (0 <= tile_row < grid.n_rows and 0 <= tile_col < grid.n_cols):
         raise UsageError(
             f"tile ({tile_row}, {tile_col}) is outside the grid's "
-            f"{grid.n_tile_rows} x {grid.n_tile_cols} tiles"
+            f"{grid.n_rows} x {grid.n_cols} tiles"
         )
     t = grid.tile_cells
-    top = (grid.n_tile_rows - 1 - tile_row) * t
+    top = (grid.n_rows - 1 - tile_row) * t
     left = tile_col * t
     return slice(top, top + t), slice(left, min(left + t, grid.nx))
 
@@ -278,7 +174,7 @@ def _tile_window(grid: GridSpec, tile_row: int, tile_col: int) -> tuple[slice, s
 
 def create_store(
     path: StorePath,
-    grid: GridSpec,
+    grid: TileGrid,
     crs_wkt: str | None,
     *,
     layers: Sequence[str] = ("elevation",),
@@ -294,7 +190,7 @@ def create_store(
     path : str or os.PathLike
         A local directory.  If it exists it must be an empty directory or a
         Zarr store (replaced only with ``overwrite=True``).
-    grid : GridSpec
+    grid : TileGrid
         The DEM grid; ``grid.tile_cells`` is the chunk edge.
     crs_wkt : str or None
         The CRS (any form pyproj reads; stored as WKT2).  None for data
@@ -320,7 +216,7 @@ def create_store(
     wanted = tuple(dict.fromkeys(Layer.parse(name) for name in layers))
     if zarr_format not in (2, 3):
         raise UsageError(f"zarr_format must be 2 or 3, got {zarr_format!r}")
-    root_attrs = _json_attrs(attrs, "attrs") | {"Conventions": CONVENTIONS, "grid": grid.to_dict()}
+    root_attrs = _json_attrs(attrs, "attrs") | {"Conventions": CONVENTIONS, "grid": grid.to_store_attr()}
     crs = _parse_crs(crs_wkt)
     grid_mapping = _grid_mapping_attrs(crs, grid)
     x_attrs, y_attrs, z_units = _axis_attrs(crs)
@@ -367,7 +263,7 @@ GROWING_ATTR = "growing"
 still has it was left half grown by a stopped run (and is made again)."""
 
 
-def grow_store(path: StorePath, before: GridSpec, after: GridSpec) -> None:
+def grow_store(path: StorePath, before: TileGrid, after: TileGrid) -> None:
     """Extend the store's grid to the north and east, keeping every chunk written.
 
     ``after`` has the origin, cells and tiles of ``before`` and at least its
@@ -388,10 +284,10 @@ def grow_store(path: StorePath, before: GridSpec, after: GridSpec) -> None:
         after.x0, after.y0, after.resolution, after.tile_cells
     )
     if not (same and after.nx >= before.nx and after.ny >= before.ny):
-        raise UsageError(f"grow_store: grid {after.to_dict()} does not extend {before.to_dict()} to the north and east")
+        raise UsageError(f"grow_store: grid {after.to_store_attr()} does not extend {before.to_store_attr()} to the north and east")
     root = _open_group(path, mode="r+")
-    root.attrs.update({GROWING_ATTR: {"from": before.to_dict(), "to": after.to_dict()}, "complete": False})
-    shift = after.n_tile_rows - before.n_tile_rows
+    root.attrs.update({GROWING_ATTR: {"from": before.to_store_attr(), "to": after.to_store_attr()}, "complete": False})
+    shift = after.n_rows - before.n_rows
     for layer in Layer:
         if layer.value not in root:
             continue
@@ -404,13 +300,13 @@ def grow_store(path: StorePath, before: GridSpec, after: GridSpec) -> None:
         _create_array(root, name, data=values, dims=(name,), attrs=_user_attrs(old), overwrite=True)
     mapping = root[GRID_MAPPING]
     mapping.attrs.update({"GeoTransform": " ".join(repr(v) for v in after.geotransform)})
-    _open_array(path, TILE_DONE).resize((after.n_tile_rows, after.n_tile_cols))  # rows from the south: none move
-    root.attrs.update({"grid": after.to_dict()})
+    _open_array(path, TILE_DONE).resize((after.n_rows, after.n_cols))  # rows from the south: none move
+    root.attrs.update({"grid": after.to_store_attr()})
     root.attrs.pop(GROWING_ATTR)
     _consolidate(path)
 
 
-def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: GridSpec, shift: int) -> None:
+def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: TileGrid, shift: int) -> None:
     """Rename the chunk files of a north-up layer ``shift`` chunk rows south,
     the southern-most first (no new name meets one still in use)."""
     where = os.fspath(path)
@@ -423,8 +319,8 @@ def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: GridSpec, shift:
         exists, move = os.path.exists, os.replace
     prefix = f"{base}/{array.path}"
     encode = array.metadata.encode_chunk_key
-    for i in reversed(range(grid.n_tile_rows)):
-        for j in range(grid.n_tile_cols):
+    for i in reversed(range(grid.n_rows)):
+        for j in range(grid.n_cols):
             old, new = f"{prefix}/{encode((i, j))}", f"{prefix}/{encode((i + shift, j))}"
             if not exists(old):  # never written: reads as no data in both places
                 continue
@@ -466,7 +362,7 @@ def read_attrs(path: StorePath) -> dict[str, Any] | None:
 
 
 def write_tile(
-    path: StorePath, grid: GridSpec, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike], *, run: str = ""
+    path: StorePath, grid: TileGrid, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike], *, run: str = ""
 ) -> None:
     """Write one tile's layers, given south-up, into their north-up chunk.
 
@@ -474,7 +370,7 @@ def write_tile(
     ----------
     path : str or os.PathLike
         A store made by :func:`create_store` with this ``grid``.
-    grid : GridSpec
+    grid : TileGrid
     tile_row, tile_col : int
         The tile, counted from the south-west tile ``(0, 0)``.
     layers : mapping of layer name to array
@@ -533,7 +429,7 @@ class MeshWriter:
     Examples
     --------
     >>> import tempfile, numpy as np
-    >>> grid = GridSpec(x0=0.0, y0=0.0, resolution=1.0, nx=2, ny=2, tile_cells=2)
+    >>> grid = TileGrid(x0=0.0, y0=0.0, resolution=1.0, nx=2, ny=2, tile_cells=2)
     >>> with tempfile.TemporaryDirectory() as tmp:
     ...     create_store(tmp + "/s.zarr", grid, "EPSG:2154", attrs={})
     ...     with MeshWriter(tmp + "/s.zarr", n_nodes=3, n_faces=1) as mesh:
@@ -1077,7 +973,7 @@ def _parse_crs(crs_wkt: str | None) -> pyproj.CRS | None:
         raise CrsError(f"cannot parse the CRS {str(crs_wkt)[:60]!r}: {err}") from None
 
 
-def _grid_mapping_attrs(crs: pyproj.CRS | None, grid: GridSpec) -> dict[str, Any]:
+def _grid_mapping_attrs(crs: pyproj.CRS | None, grid: TileGrid) -> dict[str, Any]:
     """The CF grid mapping variable's attributes, with what GDAL and rioxarray read."""
     attrs: dict[str, Any] = {}
     if crs is not None:

@@ -11,10 +11,12 @@ tile's spill files on disk, so memory stays bounded whatever the archive size.
 from __future__ import annotations
 
 import math
+import numbers
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,25 +27,51 @@ from .errors import UsageError
 from .scratch import Scratch
 
 __all__ = [
-    "TileGrid", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
+    "TileGrid", "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "drop_source_spill", "load_tile_points", "neighbour_tile_points", "points_in_box",
     "intersect_boxes", "hull_candidates", "grow_hull", "tile_key",
 ]
 
 
 @dataclass(frozen=True)
 class TileGrid:
-    """The DEM grid and its tiles.
+    """The DEM grid and its tiles: the one grid of a run, its store and its
+    provenance.
 
     Attributes
     ----------
     x0, y0 : float
-        South-west outer corner of cell (0, 0), a multiple of ``resolution``.
+        South-west outer corner of cell (0, 0), a multiple of ``resolution``
+        in a grid made by :meth:`covering` (CRS units).
     resolution : float
-        Cell size (CRS units).
+        Cell size (CRS units), > 0.
     tile_cells : int
-        Tile edge in cells.
+        Tile (and store chunk) edge in cells.  Tile ``(0, 0)`` is the
+        south-west tile; tiles at the east edge may be narrower.
     nx, ny : int
-        Cells in the grid.
+        Cells along x and y.  ``ny`` must be a multiple of ``tile_cells``.
+
+    Why ``ny`` is a whole number of tiles: the store is north-up, so its chunk
+    rows are counted from the north, while tiles are counted from the south.
+    They line up only if ``ny`` is a multiple of ``tile_cells``; otherwise
+    every tile would straddle two chunks and parallel writes would need locks.
+    :meth:`covering` rounds ``ny`` up (pads the north edge with no-data rows).
+
+    Two serialisations, with the same entries in two orders that stores have
+    always had, so that their bytes do not change: :meth:`to_dict` (the
+    provenance's ``grid``, in field order) and :meth:`to_store_attr` (the
+    store's ``grid`` attribute).  :meth:`from_dict` reads either.
+
+    Examples
+    --------
+    >>> g = TileGrid(x0=100.0, y0=200.0, resolution=10.0, nx=3, ny=2, tile_cells=2)
+    >>> g.x.tolist(), g.y.tolist()
+    ([105.0, 115.0, 125.0], [215.0, 205.0])
+    >>> g.geotransform
+    (100.0, 10.0, 0.0, 220.0, 0.0, -10.0)
+    >>> list(g.to_dict()), list(g.to_store_attr())
+    (['x0', 'y0', 'resolution', 'tile_cells', 'nx', 'ny'], ['x0', 'y0', 'resolution', 'nx', 'ny', 'tile_cells'])
+    >>> TileGrid.from_dict(g.to_store_attr()) == TileGrid.from_dict(g.to_dict()) == g
+    True
     """
 
     x0: float
@@ -52,6 +80,25 @@ class TileGrid:
     tile_cells: int
     nx: int
     ny: int
+
+    def __post_init__(self) -> None:
+        for name in ("x0", "y0", "resolution"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise UsageError(f"TileGrid.{name} must be a finite number, got {value!r}")
+        if self.resolution <= 0:
+            raise UsageError(f"TileGrid.resolution must be > 0, got {self.resolution!r}")
+        for name in ("nx", "ny", "tile_cells"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
+                raise UsageError(f"TileGrid.{name} must be an integer >= 1, got {value!r}")
+        if self.ny % self.tile_cells:
+            padded = -(-self.ny // self.tile_cells) * self.tile_cells
+            raise UsageError(
+                f"TileGrid.ny={self.ny} is not a multiple of tile_cells={self.tile_cells}: tiles counted "
+                f"from the south would straddle the north-up store's chunks; use ny={padded} "
+                "(pad the north edge)"
+            )
 
     @classmethod
     def covering(cls, bounds: tuple[float, float, float, float], resolution: float, tile_cells: int) -> TileGrid:
@@ -180,12 +227,137 @@ class TileGrid:
             moved.update((r, other.n_cols - 1) for r in range(other.n_rows))
         return moved
 
+    @property
+    def x(self) -> NDArray[np.float64]:
+        """Cell-centre x coordinates, ascending (west to east)."""
+        return self.x0 + (np.arange(self.nx) + 0.5) * self.resolution
+
+    @property
+    def y(self) -> NDArray[np.float64]:
+        """Cell-centre y coordinates, descending (north to south: the store's row 0 is the northern-most)."""
+        return self.y_top - (np.arange(self.ny) + 0.5) * self.resolution
+
+    @property
+    def y_top(self) -> float:
+        """The northern outer edge of the grid."""
+        return self.y0 + self.ny * self.resolution
+
+    @property
+    def geotransform(self) -> tuple[float, float, float, float, float, float]:
+        """GDAL's affine transform of the north-up grid: ``(x0, res, 0, y_top, 0, -res)``."""
+        r = float(self.resolution)
+        return (float(self.x0), r, 0.0, float(self.y_top), 0.0, -r)
+
     def to_dict(self) -> dict[str, float | int]:
+        """The provenance's ``grid``: the fields in their order (x0, y0, resolution, tile_cells, nx, ny)."""
         return asdict(self)
 
+    def to_store_attr(self) -> dict[str, float | int]:
+        """The store's ``grid`` attribute: the same entries in the store's
+        order (x0, y0, resolution, nx, ny, tile_cells), which every store
+        written so far has; :meth:`from_dict` reads it too."""
+        return {name: getattr(self, name) for name in _STORE_ORDER}
+
     @classmethod
-    def from_dict(cls, data: dict) -> TileGrid:
+    def from_dict(cls, data: Mapping[str, Any]) -> TileGrid:
+        """The grid of :meth:`to_dict` or :meth:`to_store_attr` (either order)."""
+        try:
+            return cls(**data)
+        except TypeError as err:
+            raise UsageError(f"TileGrid.from_dict: {err}") from None
+
+
+_STORE_ORDER = ("x0", "y0", "resolution", "nx", "ny", "tile_cells")
+"""The key order of the store's ``grid`` attribute (:meth:`TileGrid.to_store_attr`)."""
+
+
+@dataclass(frozen=True)
+class PointCounts:
+    """One input file's points by fate: read, left out by class or as
+    withheld, outside the bbox, kept."""
+
+    path: str
+    read: int = 0
+    filtered_class: int = 0
+    filtered_withheld: int = 0
+    outside_bbox: int = 0
+    kept: int = 0
+
+    def by_fate(self) -> dict[str, int]:
+        """The counts by name, in :data:`POINT_FATES` order."""
+        return {name: getattr(self, name) for name in POINT_FATES}
+
+
+POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
+"""The counts of :class:`PointCounts`, in order."""
+
+
+@dataclass(frozen=True)
+class RouteResult(PointCounts):
+    """What routing one input file leaves, and its route record in the work
+    folder: its points counted by fate, its spill files, its digest and the
+    convex hull of its kept points.
+
+    Three kinds: a routed file; a bad file skipped with ``skip_bad_files``
+    (``skipped`` says why; its spill files are dropped); and a window source
+    (``window``: a COPC file the tiles read by window, of which routing only
+    takes the hull and bounds; its counts come from the tiles, :meth:`counted`).
+    """
+
+    beyond_grid: int = 0
+    """Kept points outside the grid (a stale header)."""
+    bounds: tuple[float, float, float, float] | None = None
+    """The kept points' box; None when none was kept."""
+    parts: tuple[tuple[int, ...], ...] = ()
+    """The spill files written, for a resume to check they are still there."""
+    tile_points: tuple[tuple[int, int, int], ...] = ()
+    """(row, col, points) of every tile it spilled to: the tiles' work."""
+    sha256: str | None = None
+    seconds: float | None = None
+    skipped: str | None = None
+    window: bool = False
+    hull: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False, repr=False)
+
+    def counted(self, read: int, filtered_class: int, filtered_withheld: int, outside_bbox: int, kept: int) -> RouteResult:
+        """This result with the counts the tiles made of a window source."""
+        return replace(self, read=read, filtered_class=filtered_class, filtered_withheld=filtered_withheld,
+                       outside_bbox=outside_bbox, kept=kept)
+
+    def _bounds(self) -> dict[str, Any]:
+        return {} if self.bounds is None else {"bounds": list(self.bounds)}
+
+    def to_record(self) -> dict[str, Any]:
+        """The record's JSON payload (the hull is saved beside it): each kind
+        with the entries, in the order, that work folders have always held,
+        so that a work folder of an earlier version resumes."""
+        if self.skipped is not None:
+            return {"path": self.path, "skipped": self.skipped, **self.by_fate()}
+        if self.window:
+            return {"path": self.path, "window": True, "parts": [list(p) for p in self.parts], "sha256": self.sha256,
+                    **self._bounds()}
+        return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
+                "parts": [list(p) for p in self.parts], "tile_points": [list(t) for t in self.tile_points],
+                "sha256": self.sha256, "seconds": self.seconds}
+
+    @classmethod
+    def from_record(cls, payload: Mapping[str, Any]) -> RouteResult:
+        """The result of a record read by ``WorkDir.recorded("route", key, "hull")``."""
+        data = {k: v for k, v in payload.items() if k in _ROUTE_FIELDS}
+        if data.get("bounds") is not None:
+            data["bounds"] = tuple(data["bounds"])
+        data["parts"] = tuple(tuple(p) for p in data.get("parts", ()))
+        data["tile_points"] = tuple(tuple(t) for t in data.get("tile_points", ()))
         return cls(**data)
+
+    def to_report(self) -> dict[str, Any]:
+        """The file's entry in the run report (``RunReport.files``)."""
+        if self.window:
+            return {"path": self.path, "sha256": self.sha256, **self._bounds(), **self.by_fate()}
+        return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
+                "sha256": self.sha256, "seconds": self.seconds}
+
+
+_ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
 
 
 def tile_key(row: int, col: int) -> str:

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from .scratch import Scratch
 from .sources import PointFilter, file_digest, iter_copc_nodes
-from .tiling import TileGrid, grow_hull, load_tile_points, points_in_box, route_points, spill_by_source
+from .tiling import POINT_FATES, PointCounts, RouteResult, TileGrid, grow_hull, load_tile_points, points_in_box, route_points, spill_by_source
 
 __all__ = [
     "WindowSource", "WindowCounts", "hull_copies", "points_in_boxes", "survey_hull", "tile_points", "window_points",
@@ -53,21 +53,11 @@ class WindowSource:
 
 
 @dataclass(frozen=True)
-class WindowCounts:
+class WindowCounts(PointCounts):
     """What one tile counted of one window source: the points of the nodes it owns."""
 
-    path: str
-    read: int = 0
-    filtered_class: int = 0
-    filtered_withheld: int = 0
-    outside_bbox: int = 0
-    kept: int = 0
-
     def __add__(self, other: WindowCounts) -> WindowCounts:
-        return WindowCounts(self.path, *(getattr(self, f) + getattr(other, f) for f in _COUNTED))
-
-
-_COUNTED = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
+        return WindowCounts(self.path, *(getattr(self, f) + getattr(other, f) for f in POINT_FATES))
 
 
 def _margin(box: Box) -> float:
@@ -212,7 +202,7 @@ def hull_copies(source: WindowSource, xy: NDArray[np.float64]) -> NDArray[np.flo
     return np.concatenate([a for _, a in parts]) if parts else np.empty((0, 3))
 
 
-def survey_hull(source: WindowSource) -> dict:
+def survey_hull(source: WindowSource) -> RouteResult:
     """What a routing pass records of a file, for a window source: its kept
     points' convex hull (every copy of each hull point, for its z) and
     bounds, and its identity; no spill files.
@@ -233,11 +223,10 @@ def survey_hull(source: WindowSource) -> dict:
         if np.any(inside):
             state["hull"] = grow_hull(state["hull"], p.x[inside], p.y[inside], p.z[inside])
     hull = state["hull"]
-    out: dict = {"path": source.path, "window": True, "parts": [], "hull": hull, "sha256": file_digest(source.path)}
+    bounds = None
     if hull.shape[0]:
-        out["bounds"] = [float(hull[:, 0].min()), float(hull[:, 1].min()), float(hull[:, 0].max()),
-                         float(hull[:, 1].max())]
-    return out
+        bounds = (float(hull[:, 0].min()), float(hull[:, 1].min()), float(hull[:, 0].max()), float(hull[:, 1].max()))
+    return RouteResult(source.path, bounds=bounds, sha256=file_digest(source.path), window=True, hull=hull)
 
 
 def _inside_hull(hull: NDArray[np.float64], bounds: Box) -> bool:

@@ -163,38 +163,30 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     if not (new or changed or gone):
         status["tiles_pending"] = int(done.size - done.sum()) if not attrs.get("complete") else 0
         return status
-    status["tiles_pending"] = _pending_after_changes(cfg, attrs["provenance"], work, new + changed, gone, before)
+    status["tiles_pending"] = _pending_after_changes(cfg, work, done)
     return status
 
 
-def _pending_after_changes(config: RunConfig, provenance, work, touched: list[str], gone: list[str], before) -> int | str:
-    """Tiles the next run would mesh again, from the plan the run makes (its
-    headers, CRS plan and grid): every tile when the frame moved, else the
-    tiles the changed files touch (and, when the grid grows, its new tiles
-    and the old edge's)."""
-    from .changes import tiles_depending_on
-    from .plan import frame_change, frame_grew, frame_moved, plan_run
-    from .tiling import TileGrid
+def _pending_after_changes(config: RunConfig, work, done) -> int | str:
+    """Tiles the next run would compute again, decided by the run's own code:
+    its plan (headers, CRS plan, grid, :func:`~pipeline.plan.plan_run`), its
+    decision on the store (:func:`~pipeline.resume.decide`) and the tiles an
+    update meshes again (:func:`~pipeline.resume.plan_update`)."""
+    from .plan import frame_change, plan_run
+    from .resume import decide, plan_update
 
     try:
         plan = plan_run(config)
+        decision = decide(plan, incremental=True)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"
-    grid, frame = plan.grid, plan.provenance
-    moved = frame_moved(provenance, frame)
-    grows = moved and frame_grew(provenance, frame)
-    if moved and not grows:
-        return f"all ({frame_change(provenance, frame, done=False)})"
-    if not work.exists():
+    if decision.moved_from is not None:
+        return f"all ({frame_change(decision.moved_from, plan.provenance, done=False)})"
+    if decision.previous is None or not work.exists():
         return "all"
-    now = dict(zip(map(str, plan.paths), plan.file_bounds))
-    regions = [now[p] for p in touched if now.get(p)]
-    regions += [tuple(before[p]["bounds"]) for p in [*gone, *(p for p in touched if p not in now)]
-                if p in before and before[p].get("bounds")]
-    pending = tiles_depending_on(work, grid, regions)  # the grid's new tiles too
-    if grows:
-        pending |= grid.edge_tiles_moved_by(TileGrid.from_dict(provenance["grid"]))
-    return len(pending)
+    if decision.same_inputs:  # a file left out or only touched: the run resumes or has nothing to do
+        return 0 if decision.complete else int(done.size - done.sum())
+    return len(plan_update(plan, decision, work).tiles)
 
 
 def status_text(status: dict[str, Any]) -> str:

@@ -32,6 +32,7 @@ def test_defaults_and_round_trip(tmp_path):
         ({"tile_size": 2.5}, "multiple of the resolution"),
         ({"duplicates": "median"}, "duplicates='median' is not valid; expected one of 'lowest', 'highest', 'mean', 'first'"),
         ({"triangle_measure": "s4"}, "triangle_measure='s4' is not valid"),
+        ({"merge": "GREEDY"}, "merge='GREEDY' is not valid; expected one of 'greedy', 'optimal'"),  # exact text
         ({"classes": (300,)}, "classes must be integers 0-255"),
         ({"bbox": (1, 1, 0, 0)}, "min < max"),
         ({"layers": ("aspect",)}, "unknown layer"),

@@ -15,17 +15,18 @@ from pyproj import CRS
 
 from pipeline.errors import UsageError
 from pipeline.store import (
-    GridSpec,
     MeshWriter,
     StoreError,
     create_store,
     finalize_store,
     open_dem,
+    read_attrs,
     read_dem_window,
     read_mesh,
     read_tile_mesh,
     write_tile,
 )
+from pipeline.tiling import TileGrid
 
 CRS_WKT = CRS.from_epsg(2154).to_wkt()
 LAYERS = ("elevation", "slope", "face_kind", "point_count")
@@ -33,12 +34,12 @@ FORMATS = pytest.mark.parametrize("zarr_format", [3, 2])
 
 
 @pytest.fixture
-def grid() -> GridSpec:
+def grid() -> TileGrid:
     """2 tile rows x 3 tile columns of 8 cells; the east column is 4 cells wide."""
-    return GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
+    return TileGrid(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
 
 
-def south_up(grid: GridSpec) -> dict[str, np.ndarray]:
+def south_up(grid: TileGrid) -> dict[str, np.ndarray]:
     """Known layers over the whole grid, south-up, with a few no-data cells."""
     row, col = np.mgrid[0 : grid.ny, 0 : grid.nx]
     elevation = (100.0 * row + col).astype(np.float32)
@@ -52,28 +53,44 @@ def south_up(grid: GridSpec) -> dict[str, np.ndarray]:
     }
 
 
-def tile_of(layers: dict[str, np.ndarray], grid: GridSpec, row: int, col: int) -> dict[str, np.ndarray]:
+def tile_of(layers: dict[str, np.ndarray], grid: TileGrid, row: int, col: int) -> dict[str, np.ndarray]:
     t = grid.tile_cells
     return {name: a[row * t : (row + 1) * t, col * t : (col + 1) * t] for name, a in layers.items()}
 
 
-def new_store(path: Path, grid: GridSpec, zarr_format: int, layers=LAYERS) -> Path:
+def new_store(path: Path, grid: TileGrid, zarr_format: int, layers=LAYERS) -> Path:
     attrs = {"software": "test", "inputs": ["a.laz"]}
     create_store(path, grid, CRS_WKT, layers=layers, attrs=attrs, zarr_format=zarr_format)
     return path
 
 
 # --------------------------------------------------------------------------
-# GridSpec
+# The grid in the store
 # --------------------------------------------------------------------------
 
 
-def test_gridspec_coordinates_are_cell_centres_north_up(grid):
+def test_grid_coordinates_are_cell_centres_north_up(grid):
     assert_allclose(grid.x, 700_001.0 + 2.0 * np.arange(20))
     assert_allclose(grid.y, 6_600_031.0 - 2.0 * np.arange(16))
     assert grid.geotransform == (700_000.0, 2.0, 0.0, 6_600_032.0, 0.0, -2.0)
-    assert (grid.n_tile_rows, grid.n_tile_cols) == (2, 3)
-    assert GridSpec.from_dict(json.loads(json.dumps(grid.to_dict()))) == grid
+    assert (grid.n_rows, grid.n_cols) == (2, 3)
+    assert TileGrid.from_dict(json.loads(json.dumps(grid.to_dict()))) == grid
+
+
+@FORMATS
+def test_the_store_and_its_provenance_keep_their_grid_key_orders(tmp_path, grid, zarr_format):
+    # one grid type, two orders: those every store written so far has, so that its attributes keep their bytes
+    store_order = ["x0", "y0", "resolution", "nx", "ny", "tile_cells"]
+    provenance_order = ["x0", "y0", "resolution", "tile_cells", "nx", "ny"]
+    assert list(grid.to_store_attr()) == store_order and list(grid.to_dict()) == provenance_order
+    path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
+    assert list(read_attrs(path)["grid"]) == store_order
+    assert read_attrs(path)["grid"] == {"x0": 700000.0, "y0": 6600000.0, "resolution": 2.0, "nx": 20, "ny": 16,
+                                        "tile_cells": 8}
+    for data in (grid.to_store_attr(), grid.to_dict()):  # either order reads back
+        assert TileGrid.from_dict(json.loads(json.dumps(data))) == grid
+    with pytest.raises(UsageError, match="TileGrid.from_dict"):
+        TileGrid.from_dict({"x0": 0.0})
 
 
 @pytest.mark.parametrize(
@@ -85,9 +102,9 @@ def test_gridspec_coordinates_are_cell_centres_north_up(grid):
         ({"ny": 20}, "use ny=24"),
     ],
 )
-def test_gridspec_rejects_invalid_values(grid, change, message):
+def test_grid_rejects_invalid_values(grid, change, message):
     with pytest.raises(UsageError, match=message):
-        GridSpec(**(grid.to_dict() | change))
+        TileGrid(**(grid.to_dict() | change))
 
 
 # --------------------------------------------------------------------------
@@ -113,7 +130,7 @@ def test_a_tile_of_zeros_and_nan_is_stored_not_left_to_the_fill_value(tmp_path, 
 def test_tiles_written_concurrently_read_back_north_up(tmp_path, grid, zarr_format):
     path = new_store(tmp_path / "dem.zarr", grid, zarr_format)
     layers = south_up(grid)
-    tiles = [(r, c) for r in range(grid.n_tile_rows) for c in range(grid.n_tile_cols) if (r, c) != (1, 0)]
+    tiles = [(r, c) for r in range(grid.n_rows) for c in range(grid.n_cols) if (r, c) != (1, 0)]
     with ThreadPoolExecutor(max_workers=4) as pool:
         list(pool.map(lambda rc: write_tile(path, grid, *rc, tile_of(layers, grid, *rc)), tiles))
     for name, values in south_up(grid).items():
@@ -162,7 +179,7 @@ def test_georeferencing_attributes_for_cf_gdal_and_rioxarray(tmp_path, grid, zar
     assert ds["x"].attrs["units"] == ds["y"].attrs["units"] == "metre"
     assert ds.attrs["Conventions"] == "CF-1.8 UGRID-1.0"
     assert ds.attrs["software"] == "test" and ds.attrs["inputs"] == ["a.laz"]
-    assert GridSpec.from_dict(ds.attrs["grid"]) == grid
+    assert TileGrid.from_dict(ds.attrs["grid"]) == grid
     if zarr_format == 3:
         assert "consolidated_metadata" in json.loads((tmp_path / "dem.zarr" / "zarr.json").read_text())
     else:
@@ -428,12 +445,12 @@ def _grow_and_check(where: str, zarr_format: int) -> None:
     GeoTransform follow.  Shared with the object-storage run below."""
     from pipeline.store import grow_store, tiles_done, mark_tile_done
 
-    before = GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
-    after = GridSpec(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=28, ny=24, tile_cells=8)
+    before = TileGrid(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
+    after = TileGrid(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=28, ny=24, tile_cells=8)
     create_store(where, before, CRS_WKT, layers=("elevation", "face_kind"), attrs={"run": 1}, zarr_format=zarr_format)
     written = {}
-    for r in range(before.n_tile_rows):
-        for c in range(before.n_tile_cols):
+    for r in range(before.n_rows):
+        for c in range(before.n_cols):
             width = min(8, before.nx - 8 * c)
             values = np.full((8, width), 100.0 * r + c, dtype=np.float32)
             write_tile(where, before, r, c, {"elevation": values, "face_kind": np.full((8, width), r + 1, np.int8)})
@@ -469,7 +486,7 @@ def test_a_grown_grid_must_keep_its_origin(tmp_path, grid):
     from pipeline.store import grow_store
 
     create_store(tmp_path / "s.zarr", grid, CRS_WKT, attrs={})
-    moved = GridSpec(x0=grid.x0 - 16.0, y0=grid.y0, resolution=2.0, nx=28, ny=16, tile_cells=8)
+    moved = TileGrid(x0=grid.x0 - 16.0, y0=grid.y0, resolution=2.0, nx=28, ny=16, tile_cells=8)
     with pytest.raises(UsageError, match="does not extend"):
         grow_store(tmp_path / "s.zarr", grid, moved)
 

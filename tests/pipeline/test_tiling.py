@@ -1,3 +1,4 @@
+import json
 import math
 
 import numpy as np
@@ -5,7 +6,7 @@ import pytest
 
 from pipeline.errors import UsageError
 from pipeline.scratch import Scratch
-from pipeline.tiling import TileGrid, TileSpiller, check_cells, load_tile_points
+from pipeline.tiling import RouteResult, TileGrid, TileSpiller, check_cells, load_tile_points
 
 
 def test_grid_is_snapped_and_covers_the_bounds():
@@ -185,3 +186,40 @@ def test_loading_the_kernels_reads_and_writes_nothing(tmp_path, measures):
     load_kernels(TileJob(0, 0, scratch, grid, 5.0, (0.0, 0.0, 99.0, 99.0), "lowest", triangle, quad, merge, max_edge=3.0,
                          surface=surface))
     assert not (tmp_path / "work").exists()
+
+
+# --------------------------------------------------------------------------
+# Route results and their records
+# --------------------------------------------------------------------------
+
+ROUTED = RouteResult("a.laz", 10, 2, 1, 3, 4, 1, bounds=(0.5, 1.0, 2.5, 3.0), parts=((0, 0, 0), (0, 1, 0)),
+                     tile_points=((0, 0, 3), (0, 1, 1)), sha256="ab", seconds=0.25, hull=np.ones((3, 3)))
+SKIPPED = RouteResult("b.laz", skipped="b.laz: truncated")
+WINDOW = RouteResult("c.copc.laz", bounds=(0.0, 0.0, 1.0, 1.0), sha256="cd", window=True, hull=np.ones((4, 3)))
+
+
+@pytest.mark.parametrize(
+    ("result", "text"),
+    [  # the records work folders have always held, to the byte: an earlier version's work folder resumes
+        (ROUTED, '{"path": "a.laz", "read": 10, "filtered_class": 2, "filtered_withheld": 1, "outside_bbox": 3, '
+                 '"kept": 4, "beyond_grid": 1, "bounds": [0.5, 1.0, 2.5, 3.0], "parts": [[0, 0, 0], [0, 1, 0]], '
+                 '"tile_points": [[0, 0, 3], [0, 1, 1]], "sha256": "ab", "seconds": 0.25}'),
+        (SKIPPED, '{"path": "b.laz", "skipped": "b.laz: truncated", "read": 0, "filtered_class": 0, '
+                  '"filtered_withheld": 0, "outside_bbox": 0, "kept": 0}'),
+        (WINDOW, '{"path": "c.copc.laz", "window": true, "parts": [], "sha256": "cd", "bounds": [0.0, 0.0, 1.0, 1.0]}'),
+    ],
+)
+def test_route_records_keep_their_format_and_read_back(result, text):
+    assert json.dumps(result.to_record()) == text
+    again = RouteResult.from_record(json.loads(text) | {"hull": result.hull})
+    assert again == result and again.hull is result.hull
+
+
+def test_route_results_report_their_file_as_before():
+    assert list(ROUTED.to_report()) == ["path", "read", "filtered_class", "filtered_withheld", "outside_bbox", "kept",
+                                        "beyond_grid", "bounds", "sha256", "seconds"]
+    assert ROUTED.to_report()["bounds"] == [0.5, 1.0, 2.5, 3.0]
+    counted = WINDOW.counted(9, 1, 0, 2, 6)
+    assert counted.to_report() == {"path": "c.copc.laz", "sha256": "cd", "bounds": [0.0, 0.0, 1.0, 1.0], "read": 9,
+                                   "filtered_class": 1, "filtered_withheld": 0, "outside_bbox": 2, "kept": 6}
+    assert WINDOW.read == 0  # frozen: counting makes a new result

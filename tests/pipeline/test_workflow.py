@@ -93,6 +93,8 @@ def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
 
     report = run_workflow(workflow, progress=False)
     assert any("inputs changed" in note for note in report.notes), report.notes
+    # the status counted the tiles with the run's own decision
+    assert any(f"{status['tiles_pending']} of {total} tile(s) computed again" in n for n in report.notes), report.notes
     after = _chunk_times(workflow.config.output)
     untouched = [k for k in before if after.get(k) == before[k]]
     assert 0 < len(untouched) < total  # far tiles were not written again, near ones were

@@ -1,4 +1,4 @@
-"""Tests of pipeline.experiment: a small run, the table layout, the figures and the CLI."""
+"""Tests of experiments.combined_mesh: a small run, the table layout, the figures and the CLI."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from numpy.testing import assert_allclose
 
 from pipeline.cli import main
-from pipeline.errors import UsageError
-from pipeline.experiment import (
+from experiments import ExperimentError, ExperimentParameterError
+from experiments.combined_mesh import (
     ROWS,
     _convex,
     _GaussianBumps,
@@ -73,8 +73,9 @@ def test_run_is_deterministic_and_depends_on_the_seed(small_result):
     "kwargs", [{"points": 2}, {"trials": 0}, {"order": 0}, {"merge": "best"}, {"points": 10.5}]
 )
 def test_invalid_parameters_are_usage_errors(kwargs):
-    with pytest.raises(UsageError):
+    with pytest.raises(ExperimentParameterError):
         run_experiment(**{"points": 60, "trials": 1, **kwargs})
+    assert issubclass(ExperimentParameterError, ExperimentError) and issubclass(ExperimentParameterError, ValueError)
 
 
 def test_bump_count_stays_well_below_the_vertex_count():

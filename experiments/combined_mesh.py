@@ -66,9 +66,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from meshcore import MergeMethod, Mesh, build_mesh, face_quadrature, l2_errors, s1, s2, s3, s4, smooth_nodes
+from meshcore import (
+    MergeMethod, Mesh, build_mesh, face_quadrature, l2_errors, parse_option, s1, s2, s3, s4, smooth_nodes,
+)
 
-from .errors import UsageError
+from .errors import ExperimentOutputError, ExperimentParameterError
 
 __all__ = [
     "ROWS",
@@ -243,10 +245,8 @@ class ExperimentResult:
 def _check_parameters(points: object, trials: object, order: object, merge: object) -> None:
     for name, value, least in (("points", points, 3), ("trials", trials, 1), ("order", order, 1)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-            raise UsageError(f"{name} must be an integer >= {least}, got {value!r}")
-    valid = [m.value for m in MergeMethod]
-    if merge not in valid:
-        raise UsageError(f"merge={merge!r} is not valid; expected one of {', '.join(map(repr, valid))}")
+            raise ExperimentParameterError(f"{name} must be an integer >= {least}, got {value!r}")
+    parse_option(MergeMethod, merge, "merge", error=ExperimentParameterError, fold_case=False)
 
 
 def run_experiment(
@@ -536,7 +536,7 @@ def experiment_command(
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise UsageError(f"cannot create the output folder {out}: {exc}") from exc
+        raise ExperimentOutputError(f"cannot create the output folder {out}: {exc}") from exc
     result = run_experiment(points, trials, seed, order, merge)
     doubled = run_experiment(points, trials, seed, 2 * order, merge)
     print(_report(result, doubled))
