@@ -266,6 +266,31 @@ def test_nodes_are_clamped_to_their_neighbourhood_and_corners(rng):
     assert_array_equal(nodes[far][np.isfinite(nodes[far])] % 20.0, 0.0)
 
 
+def test_smooth_ground_keeps_its_crests_and_rough_ground_is_clamped(rng):
+    """A dome with no point near its top: with a smooth, noise-free variogram
+    nodes there rise above every point (the clamp would flatten the crest); with
+    an exponential one, or a noisy Matérn one, no node leaves the range of the
+    values around it."""
+    xy = rng.random((2000, 2)) * 100.0
+    xy = xy[np.hypot(xy[:, 0] - 50.0, xy[:, 1] - 50.0) > 4.0] + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    local = mesh.vertices - OFFSET - 50.0
+    z = 30.0 - 0.01 * (local[:, 0] ** 2 + local[:, 1] ** 2)
+    top = z.max()
+    smooth = smooth_nodes(mesh, z, Variogram(1e-6, 1.0, 40.0, "matern52"))
+    assert top + 0.5 * (30.0 - top) < np.nanmax(smooth) < 30.05  # most of the way up to the true top
+    for variogram in (Variogram(0.0, 1.0, 40.0, "exponential"), Variogram(0.01, 1.0, 40.0, "matern52")):
+        assert np.nanmax(smooth_nodes(mesh, z, variogram)) <= top
+    # the hull: the nodes of cells kriged from one side stay clamped, smooth or not
+    hoods = smooth_neighbourhoods(mesh, spacing=2.2)
+    edge = np.abs(hoods.positions[:, 0] - OFFSET[0] - 50.0) > 49.0
+    rows = np.full(hoods.positions.shape[0], np.nan)
+    used = hoods.take >= 0
+    rows[hoods.take[used]] = smooth_nodes(mesh, z, Variogram(1e-6, 1.0, 40.0, "matern52", 2.2),
+                                          neighbourhoods=hoods)[used]
+    assert np.all(rows[edge] >= z.min() - 1e-9)
+
+
 def test_collinear_neighbours_fall_back_to_the_linear_surface():
     """A thin strip of points on two lines: no plane fits most neighbourhoods, the nodes are the linear surface's."""
     x = np.linspace(0.0, 100.0, 60)
