@@ -21,7 +21,7 @@ from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
-from .patches import NODES_PER_FACE
+from .patches import NODES_PER_FACE, linear_nodes
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
@@ -46,6 +46,7 @@ __all__ = [
     "Variogram",
     "Surface",
     "NODES_PER_FACE",
+    "linear_nodes",
     "DEFAULT_NEIGHBOURS",
     "validate",
     "convex_hull",

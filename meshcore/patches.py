@@ -31,10 +31,11 @@ These are scalar kernels without checks; :mod:`meshcore.interpolate` and
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._jit import njit
 
-__all__ = ["NODES_PER_FACE"]
+__all__ = ["NODES_PER_FACE", "linear_nodes"]
 
 NODES_PER_FACE = 12
 """Columns of a face's row of node values (see the module docstring)."""
@@ -191,3 +192,49 @@ def quad_patch(
             zv += bu[i] * dv[j] * n
     gx, gy = bilinear_gradient(x0, y0, x1, y1, x2, y2, x3, y3, u, v, zu, zv)
     return value, gx, gy
+
+
+@njit
+def _linear_nodes_kernel(faces: np.ndarray, z: np.ndarray, out: np.ndarray) -> None:
+    for f in range(faces.shape[0]):
+        nc = 4 if faces[f, 3] >= 0 else 3
+        for k in range(nc):
+            a = z[faces[f, k]]
+            b = z[faces[f, (k + 1) % nc]]
+            # the same two products, summed, from either face of the edge
+            out[f, 2 * k] = _TWO_THIRDS * a + _THIRD * b
+            out[f, 2 * k + 1] = _THIRD * a + _TWO_THIRDS * b
+        z0 = z[faces[f, 0]]
+        z1 = z[faces[f, 1]]
+        z2 = z[faces[f, 2]]
+        if nc == 3:
+            out[f, 8] = (z0 + z1 + z2) * _THIRD
+        else:
+            z3 = z[faces[f, 3]]
+            for m in range(4):
+                u = _THIRD if m == 0 or m == 3 else _TWO_THIRDS
+                v = _THIRD if m < 2 else _TWO_THIRDS
+                out[f, 8 + m] = (1.0 - u) * (1.0 - v) * z0 + u * (1.0 - v) * z1 + u * v * z2 + (1.0 - u) * v * z3
+
+
+def linear_nodes(faces: NDArray[np.integer], z: NDArray[np.floating]) -> NDArray[np.float64]:
+    """The linear surface's values at every face's nodes, in the layout of the module docstring.
+
+    Flat triangles and bilinear quadrangles, from the corners' ``z``; unused
+    columns NaN.  Both faces of an edge give its nodes bit-identical values
+    (the same products, summed in either order), so the smooth surface's
+    nodes can be stored as small deviations from these (in single
+    precision) and restored identically on both sides of every edge.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> faces = np.array([[0, 1, 2, -1], [1, 3, 2, -1]])
+    >>> nodes = linear_nodes(faces, np.array([0.0, 3.0, 6.0, 9.0]))
+    >>> float(nodes[0, 2]), float(nodes[1, 5])  # edge 1-2 from each side: 1/3 of the way from z=3 to z=6
+    (4.0, 4.0)
+    """
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    out = np.full((f.shape[0], NODES_PER_FACE), np.nan)
+    _linear_nodes_kernel(f, np.ascontiguousarray(z, dtype=np.float64), out)
+    return out

@@ -257,9 +257,20 @@ def _nearest(
     lo = np.array([xy[:, 0].min(), xy[:, 1].min()])  # min(axis=0) is ten times slower here
     hi = np.array([xy[:, 0].max(), xy[:, 1].max()])
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
-    area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
-    cell = math.sqrt(2.0 * area / n) if span > 0.0 else 1.0
-    cell = max(cell, span * 1e-6, 1e-300)
+    # buckets of about two points where the queries are: a tile's points can
+    # reach far beyond its queries (points loaded to certify it), and buckets
+    # sized by the whole extent would hold many points each
+    qlo = np.array([queries[:, 0].min(), queries[:, 1].min()])
+    qhi = np.array([queries[:, 0].max(), queries[:, 1].max()])
+    qspan = float(max(qhi[0] - qlo[0], qhi[1] - qlo[1]))
+    near = np.count_nonzero((xy[:, 0] >= qlo[0]) & (xy[:, 0] <= qhi[0]) & (xy[:, 1] >= qlo[1]) & (xy[:, 1] <= qhi[1]))
+    if near >= max(k, 2) and qspan > 0.0:
+        area, count = float(max(qhi[0] - qlo[0], qspan * 1e-9) * max(qhi[1] - qlo[1], qspan * 1e-9)), near
+    else:
+        area, count = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9)), n
+    cell = math.sqrt(2.0 * area / count) if span > 0.0 else 1.0
+    # at most about four buckets a point over the whole extent
+    cell = max(cell, math.sqrt(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9) / (4.0 * n)), span * 1e-6, 1e-300)
     nbx = max(int((hi[0] - lo[0]) / cell) + 1, 1)
     nby = max(int((hi[1] - lo[1]) / cell) + 1, 1)
     ci = np.minimum(((xy[:, 0] - lo[0]) / cell).astype(np.int64), nbx - 1)
@@ -360,12 +371,12 @@ def _correlation_kernel(h: np.ndarray, inv_range: float, model: int, out: np.nda
 def _dual_system(
     xy: np.ndarray, z: np.ndarray, cx: float, cy: float, neighbours: np.ndarray, k: int,
     nugget_ratio: float, scale: float, model: int, xs: np.ndarray, ys: np.ndarray,
-    c: np.ndarray, g: np.ndarray, coef: np.ndarray, col: np.ndarray,
+    c: np.ndarray, g: np.ndarray, coef: np.ndarray, col: np.ndarray, pairs: np.ndarray,
 ) -> float:
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual form.
 
     Fills ``xs``, ``ys`` (the neighbours relative to the centre ``c``),
-    ``col`` is room for ``k`` numbers,
+    ``col`` and ``pairs`` are room for ``k`` and ``(3, k * k)`` numbers,
     ``coef[:k]`` (weights of the covariances) and ``coef[k:k+3]`` (the
     drift, in coordinates relative to ``c`` over the radius ``R``) so that
     the estimate at ``p`` is :func:`_dual_value`.  ``scale`` is the model's
@@ -390,8 +401,20 @@ def _dual_system(
     # column is scaled, then updates the columns right of it: the operations
     # and their order of a dot-product Cholesky, in loops that vectorise
     z0 = z[neighbours[0]]
+    # the lags of the pairs below the diagonal, then their covariances in
+    # one long loop (row by row, the short rows would not vectorise)
+    m = 0
     for i in range(k):
-        _covariances(xs, ys, i, xs[i], ys[i], scale, model, c[i])
+        for j in range(i):
+            pairs[0, m] = xs[j] - xs[i]
+            pairs[1, m] = ys[j] - ys[i]
+            m += 1
+    _covariances(pairs[0], pairs[1], m, 0.0, 0.0, scale, model, pairs[2])
+    m = 0
+    for i in range(k):
+        for j in range(i):
+            c[i, j] = pairs[2, m]
+            m += 1
         c[i, i] = 1.0 + nugget_ratio
         g[i, 0] = 1.0
         g[i, 1] = xs[i] * inv_r
@@ -559,6 +582,7 @@ def _nodes_kriged_kernel(
     xs = np.empty(k)
     ys = np.empty(k)
     row = np.empty(k)
+    pairs = np.empty((3, k * k))
     most = 0
     for s in range(centres.shape[0]):
         most = max(most, first[s + 1] - first[s])
@@ -582,7 +606,7 @@ def _nodes_kriged_kernel(
         cy = centres[s, 1]
         radius = math.nan
         if finite:
-            radius = _dual_system(xy, z, cx, cy, neighbours[s], count, nugget_ratio, scale, model, xs, ys, c, g, coef, row)
+            radius = _dual_system(xy, z, cx, cy, neighbours[s], count, nugget_ratio, scale, model, xs, ys, c, g, coef, row, pairs)
         kriged = math.isfinite(radius)
         clamp = kriged and (clamp_inside or _one_sided(xs, ys, count))
         if kriged:
@@ -677,7 +701,7 @@ def _first_end(vertices: np.ndarray, s: int, e: int) -> bool:
 
 
 @njit
-def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, visit: np.ndarray, weights: np.ndarray):
+def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray):
     """:func:`_layout`: every edge found once by bucketing its slots by their first end."""
     n_f = faces.shape[0]
     n_v = vertices.shape[0]
@@ -708,7 +732,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, visit: np.ndarray, w
             fill[a] += 1
     edge = np.full(start[n_v], -1, dtype=np.int64)
     n_e = 0
-    for v in visit:
+    for v in range(n_v):
         for i in range(start[v], start[v + 1]):
             if edge[i] < 0:
                 edge[i] = n_e
@@ -723,7 +747,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, visit: np.ndarray, w
     pattern = np.empty(n_nodes, dtype=np.uint8)
     take = np.full((n_f, 12), -1, dtype=np.int32)
     third = 1.0 / 3.0
-    for v in visit:
+    for v in range(n_v):
         for i in range(start[v], start[v + 1]):
             f = slot[i] // 4
             k = slot[i] % 4
@@ -768,18 +792,15 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, visit: np.ndarray, w
     return positions, take, corners, pattern
 
 
-def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64], cell: float):
+def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
     """The nodes of :class:`Neighbourhoods`: ``positions, take, corners, pattern``.
 
     An edge is listed once, its nodes placed from its end first in
     coordinate order, so that every face (in any tile) computes them from the
-    same numbers.  The edges are numbered from their vertices visited cell by
-    cell (:func:`_cells_kernel`'s order), so that the nodes of one cell lie
-    close together in memory whatever the order of the points.
+    same numbers.
     """
-    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-    visit, _, _ = _cells(vertices, cell)
-    return _layout_kernel(vertices, np.ascontiguousarray(faces, dtype=np.int64), visit, _PATTERN_WEIGHTS)
+    return _layout_kernel(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64),
+                          _PATTERN_WEIGHTS)
 
 
 @njit
@@ -957,7 +978,7 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     elif isinstance(spacing, bool) or not isinstance(spacing, (int, float)) or not (math.isfinite(spacing) and spacing > 0.0):
         raise InvalidInputError(f"spacing must be a finite number > 0, got {spacing!r}")
     cell = float(spacing) * CELL_PER_SPACING
-    positions, take, corners, pattern = _layout(vertices, faces, cell)
+    positions, take, corners, pattern = _layout(vertices, faces)
     order, first, centres = _cells(positions, cell)
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
     order = np.arange(order.size)
@@ -1069,6 +1090,7 @@ def _loo_errors_kernel(
     xs = np.empty(k)
     ys = np.empty(k)
     row = np.empty(k)
+    pairs = np.empty((3, k * k))
     origin = np.zeros(1)
     value = np.empty(1)
     block = np.empty((1, k))
@@ -1078,7 +1100,7 @@ def _loo_errors_kernel(
         count = _count(neighbours[s])
         px = xy[p, 0]
         py = xy[p, 1]
-        radius = _dual_system(xy, z, px, py, neighbours[s], count, nugget_ratio, scale, model, xs, ys, c, g, coef, row)
+        radius = _dual_system(xy, z, px, py, neighbours[s], count, nugget_ratio, scale, model, xs, ys, c, g, coef, row, pairs)
         if math.isfinite(radius):
             _dual_values(xs, ys, count, coef, radius, scale, model, origin, origin, 1, block, value)
             out[s] = value[0] - z[p]

@@ -31,7 +31,7 @@ def rng() -> np.random.Generator:
 
 def _nodes_of(mesh: Mesh, f) -> np.ndarray:
     """Node rows holding ``f`` at every node position (the layout's own positions)."""
-    positions, take, _, _ = _layout(mesh.vertices, mesh.faces, 1.0)
+    positions, take, _, _ = _layout(mesh.vertices, mesh.faces)
     values = f(positions[:, 0], positions[:, 1])
     rows = np.full(take.shape, np.nan)
     rows[take >= 0] = values[take[take >= 0]]
@@ -289,6 +289,27 @@ def test_smooth_ground_keeps_its_crests_and_rough_ground_is_clamped(rng):
     rows[hoods.take[used]] = smooth_nodes(mesh, z, Variogram(1e-6, 1.0, 40.0, "matern52", 2.2),
                                           neighbourhoods=hoods)[used]
     assert np.all(rows[edge] >= z.min() - 1e-9)
+
+
+def test_linear_nodes_are_the_plane_and_agree_on_both_sides_of_every_edge(rng):
+    """The linear surface's node values (the reference the pipeline stores the
+    smooth nodes against): a plane's values at the layout's node positions, the
+    same bits from both faces of an edge for any z."""
+    xy = rng.random((400, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    v = mesh.vertices - OFFSET
+    plane = meshcore.linear_nodes(mesh.faces, 3.0 * v[:, 0] - 2.0 * v[:, 1] + 7.0)
+    expected = _nodes_of(mesh, lambda x, y: 3.0 * (x - OFFSET[0]) - 2.0 * (y - OFFSET[1]) + 7.0)
+    assert_array_equal(np.isnan(plane), np.isnan(expected))
+    assert_allclose(plane, expected, rtol=0, atol=1e-8)  # the positions round at 6e5
+    rough = meshcore.linear_nodes(mesh.faces, rng.normal(0.0, 100.0, v.shape[0]))
+    _, take, _, _ = _layout(mesh.vertices, mesh.faces)
+    node = take.ravel()
+    value = rough.ravel()
+    order = np.argsort(node[node >= 0], kind="stable")
+    ids, vals = node[node >= 0][order], value[node >= 0][order]
+    shared = ids[1:] == ids[:-1]
+    assert shared.sum() > 500 and np.array_equal(vals[1:][shared], vals[:-1][shared])
 
 
 def test_collinear_neighbours_fall_back_to_the_linear_surface():
