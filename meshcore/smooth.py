@@ -909,8 +909,8 @@ def _clamps_inside(variogram: Variogram) -> bool:
     surface) with a nugget under :data:`_SMOOTH_GROUND_NUGGET` of its sill;
     nodes kriged from one side (the hull, voids) are always clamped.
     Measured (``bench/bench_accuracy.py``, RMSE change against the TIN): on
-    lidR's smooth test clamping only the one-sided nodes gives -94.9% against
-    -90.6%; on the real surveys, whose variograms keep every node clamped,
+    lidR's smooth test (its first 10 sets) clamping only the one-sided nodes
+    gives -94.9% against -90.6%; on the real surveys, whose variograms keep every node clamped,
     clamping only those would lose up to 0.6 points (ign_semis -7.0% ->
     -6.4%).
     """
