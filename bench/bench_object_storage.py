@@ -35,7 +35,7 @@ from bench_mesh import table  # noqa: E402
 from tests.pipeline.processes import stop_all  # noqa: E402
 from tests.pipeline.s3server import start_s3_server  # noqa: E402
 
-from pipeline.synthetic import SurveySpec, write_survey  # noqa: E402
+from pipeline.tools.synthetic import SurveySpec, write_survey  # noqa: E402
 
 TERRAIN = str(Path(sys.executable).parent / "terrain")
 
@@ -88,10 +88,13 @@ def copc_table(server, folder: Path, cache: Path, tile_size: float) -> None:
     import numpy as np
     import zarr
 
-    from pipeline import layout, sources, tiles, urls
+    from pipeline import urls
+    from pipeline.inputs import layout
+    from pipeline.inputs import sources
+    from pipeline.meshing import tiles
     from pipeline.config import RunConfig
-    from pipeline.runner import run
-    from pipeline.tiling import TileGrid
+    from pipeline.runs.runner import run
+    from pipeline.tiling.grid import TileGrid
     from tests.pipeline.copc_files import nodes_meeting, write_copc
 
     copc = cache / f"{folder.name}.copc.laz"

@@ -33,7 +33,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 
 def archive(cache: Path, points: int, files: int) -> Path:
@@ -63,9 +63,9 @@ _RUN = textwrap.dedent(
     resolution = float(sys.argv[5]) if len(sys.argv) > 5 else 1.0
     cfg = RunConfig(inputs=(sys.argv[1],), output=sys.argv[2], resolution=resolution, tile_size=tile, overwrite=True,
                     surface=surface)
-    import pipeline.runner
+    import pipeline.runs.runner
     stage_cpu = {}  # CPU and wall seconds of each stage's tasks, by their progress label
-    mapped = pipeline.runner.map_tasks
+    mapped = pipeline.runs.runner.map_tasks
 
     def timed(client, fn, items, progress, *args, **kwargs):
         c0, w0 = time.process_time(), time.perf_counter()
@@ -76,7 +76,7 @@ _RUN = textwrap.dedent(
             seen[0] += time.process_time() - c0
             seen[1] += time.perf_counter() - w0
 
-    pipeline.runner.map_tasks = timed
+    pipeline.runs.runner.map_tasks = timed
     t0 = time.perf_counter()
     c0 = resource.getrusage(resource.RUSAGE_SELF)
     report = run(cfg, progress=False)
@@ -95,7 +95,7 @@ def tiled_archive(cache: Path, points: int, files: int) -> Path:
     import laspy
     import numpy as np
 
-    from pipeline.synthetic import terrain_height
+    from pipeline.tools.synthetic import terrain_height
 
     folder = cache / f"tiles_{points}_{files}"
     done = folder / ".complete"
@@ -157,7 +157,8 @@ def seams(folder: Path, cache: Path, tile_size: float) -> None:
     import numpy as np
     import xarray as xr
 
-    from pipeline import RunConfig, run, store
+    from pipeline import RunConfig, run
+    from pipeline.store import zarr_store as store
 
     stores = {}
     for name, size in (("tiled", tile_size), ("untiled", 65536.0)):
@@ -188,7 +189,7 @@ def seams(folder: Path, cache: Path, tile_size: float) -> None:
 _CERTIFY = textwrap.dedent(
     """
     import json, sys, time
-    import pipeline.runner as runner
+    import pipeline.runs.runner as runner
     from pipeline import RunConfig, run
     mesh_tile, log = runner.mesh_tile, sys.argv[4]
 

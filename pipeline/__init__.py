@@ -15,15 +15,15 @@ from .errors import CrsError, InputFileError, PipelineError, UsageError
 
 if TYPE_CHECKING:
     from .api import Tile, TiledStore, open_store
-    from .runner import RunReport, run
+    from .runs.runner import RunReport, run
 
     open = open_store  # noqa: A001
 
 #: what is imported on first use: the command line starts without the
 #: kernels, Zarr and xarray, which ``terrain --help`` never needs
 _LAZY = {
-    "run": ("runner", "run"),
-    "RunReport": ("runner", "RunReport"),
+    "run": ("runs.runner", "run"),
+    "RunReport": ("runs.runner", "RunReport"),
     "open": ("api", "open_store"),  # pipeline.open(store) mirrors xarray.open_zarr
     "open_store": ("api", "open_store"),
     "TiledStore": ("api", "TiledStore"),

@@ -18,9 +18,9 @@ import numpy as np
 
 import meshcore
 
-from . import store
+from .store import zarr_store as store
 from .errors import UsageError
-from .tiling import TileGrid
+from .tiling.grid import TileGrid
 
 if TYPE_CHECKING:
     import xarray as xr

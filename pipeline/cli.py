@@ -251,10 +251,10 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
 
 def _demo(args: argparse.Namespace) -> int:
     from .config import RunConfig
-    from .preview import render_preview
-    from .runner import run
-    from .sources import read_info
-    from .synthetic import demo_spec, write_survey
+    from .tools.preview import render_preview
+    from .runs.runner import run
+    from .inputs.sources import read_info
+    from .tools.synthetic import demo_spec, write_survey
 
     out, points = args.out, args.points
     spec = demo_spec(points)
@@ -372,11 +372,11 @@ def _command(args: argparse.Namespace) -> int:
 
         return experiment_command(points=args.points, trials=args.trials, seed=args.seed, out=args.out, merge=args.merge)
     if args.command == "run":
-        from .runner import run
+        from .runs.runner import run
 
         return _report(args, run(_run_config(args), progress=_progress(args), log=LOGGER.info))
     if args.command == "workflow":
-        from .workflow import Workflow, run_workflow, status_text, workflow_status
+        from .runs.workflow import Workflow, run_workflow, status_text, workflow_status
 
         workflow = Workflow.load(args.job)
         if args.action == "status":
@@ -387,14 +387,14 @@ def _command(args: argparse.Namespace) -> int:
     if args.command == "demo":
         return _demo(args)
     if args.command == "preview":
-        from .preview import render_preview
+        from .tools.preview import render_preview
 
         window = None if args.window is None else tuple(_float_list(args.window, "--window", 4))
         LOGGER.info(f"wrote {render_preview(args.store, args.output, window=window)}")
         return EXIT_OK
     if args.command == "export":
-        from .catalog import write_stac_item
-        from .export import MAX_FILE_CELLS, export_geotiff
+        from .store.catalog import write_stac_item
+        from .store.export import MAX_FILE_CELLS, export_geotiff
 
         layers = None if args.layers is None else [name.strip() for name in args.layers.split(",") if name.strip()]
         written = export_geotiff(args.store, args.output, layers, max_file_cells=args.max_file_cells or MAX_FILE_CELLS)
@@ -405,8 +405,8 @@ def _command(args: argparse.Namespace) -> int:
         LOGGER.info(f"wrote {item_path} (STAC item)")
         return EXIT_OK
     if args.command == "info":
-        from .info import info_json, info_report
-        from .sources import discover_inputs
+        from .tools.info import info_json, info_report
+        from .inputs.sources import discover_inputs
 
         paths = discover_inputs(args.inputs)
         print(json.dumps(info_json(paths), indent=2, default=str) if args.json else info_report(paths))

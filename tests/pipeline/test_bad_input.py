@@ -11,11 +11,11 @@ import pyproj
 import pytest
 import xarray as xr
 
-from pipeline import store
+from pipeline.store import zarr_store as store
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 SPEC = SurveySpec(points=30_000, files=3, width=240.0, height=120.0, seed=12, duplicate_share=0.0)
 

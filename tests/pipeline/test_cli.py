@@ -10,9 +10,9 @@ import time
 
 import pytest
 
-import pipeline.runner as runner
+import pipeline.runs.runner as runner
 from pipeline.cli import main
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +66,8 @@ def test_a_failed_task_is_exit_1_with_one_line(survey, tmp_path, capsys, monkeyp
 # machine finishes the rest of the job.
 _SLOW_DEM = """
 import pathlib, sys, time
-from pipeline import cli, store
+from pipeline import cli
+from pipeline.store import zarr_store as store
 marker, real = pathlib.Path(sys.argv.pop(1)), store.write_tile
 def slow(*args, **kwargs):
     marker.touch()
@@ -106,7 +107,7 @@ def test_ctrl_c_is_exit_130_quiet_and_resumable(tmp_path):
 def test_a_full_disk_is_one_line_exit_1_and_resumable(survey, tmp_path, capsys, monkeypatch):
     import errno
 
-    from pipeline import store
+    from pipeline.store import zarr_store as store
 
     real = store.write_tile
     calls = []
@@ -171,7 +172,7 @@ def test_an_unreachable_scheduler_leaves_nothing_behind(survey, tmp_path, capsys
 def _seam_fault(job):
     """A tile that cannot be certified: only a bug does this."""
     from pipeline.errors import SeamError
-    from pipeline.tiles import mesh_tile
+    from pipeline.meshing.tiles import mesh_tile
 
     if (job.row, job.col) == (0, 1):
         raise SeamError(f"tile ({job.row}, {job.col}): its piece cannot be certified")
@@ -179,7 +180,7 @@ def _seam_fault(job):
 
 
 def test_a_tile_that_cannot_be_certified_fails_the_run_naming_it(survey, tmp_path, capsys, monkeypatch):
-    from pipeline import store
+    from pipeline.store import zarr_store as store
 
     monkeypatch.setattr(runner, "mesh_tile", _seam_fault)
     out = tmp_path / "seam.zarr"

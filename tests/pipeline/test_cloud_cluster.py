@@ -20,8 +20,8 @@ pytest.importorskip("s3fs")
 pytest.importorskip("moto")
 
 from pipeline.config import RunConfig  # noqa: E402
-from pipeline.runner import run  # noqa: E402
-from pipeline.synthetic import SurveySpec, write_survey  # noqa: E402
+from pipeline.runs.runner import run  # noqa: E402
+from pipeline.tools.synthetic import SurveySpec, write_survey  # noqa: E402
 
 from .processes import stop_all  # noqa: E402
 from .store_checks import assert_same_store  # noqa: E402

@@ -21,7 +21,7 @@ import pytest
 import xarray as xr
 import yaml
 
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 from .processes import stop_all
 

@@ -10,9 +10,9 @@ pytest.importorskip("copclib")
 
 from pipeline import urls  # noqa: E402
 from pipeline.config import RunConfig  # noqa: E402
-from pipeline.runner import run  # noqa: E402
-from pipeline.sources import PointFilter, iter_points  # noqa: E402
-from pipeline.synthetic import terrain_height  # noqa: E402
+from pipeline.runs.runner import run  # noqa: E402
+from pipeline.inputs.sources import PointFilter, iter_points  # noqa: E402
+from pipeline.tools.synthetic import terrain_height  # noqa: E402
 
 from .copc_files import nodes_meeting, plain_twin, write_copc  # noqa: E402
 from .store_checks import assert_same_store  # noqa: E402
@@ -78,8 +78,8 @@ def test_a_copc_on_s3_fetches_only_the_nodes_its_window_needs(survey, tmp_path, 
         for window in [(651100.0, 6861100.0, 651260.0, 6861260.0), (651300.0, 6861000.0, 651600.0, 6861200.0)]:
             opened.clear()
             with monkeypatch.context() as patch:  # every open of the inputs layer, headers included
-                patch.setattr("pipeline.sources.open_input", counted)
-                patch.setattr("pipeline.layout.open_input", counted)
+                patch.setattr("pipeline.inputs.sources.open_input", counted)
+                patch.setattr("pipeline.inputs.layout.open_input", counted)
                 chunks = list(iter_points("s3://copc/survey.copc.laz", keep_all, 200_000, window=window))
             fetched = sum(cache.total_requested_bytes for cache in opened)
             needed, points = nodes_meeting(copc, window)
@@ -129,7 +129,8 @@ def _counts(report) -> list[tuple]:
 def test_tiles_read_a_copc_by_window_with_no_routing_pass_and_make_the_plain_laz_store(
     survey, neighbour, tmp_path, monkeypatch
 ):
-    from pipeline import runner, tiles
+    from pipeline.runs import runner
+    from pipeline.meshing import tiles
 
     copc, twin = survey
     routed = []
@@ -160,9 +161,9 @@ def test_each_tile_fetches_about_the_nodes_it_needs_from_a_copc_on_s3(survey, ne
 
     import zarr
 
-    from pipeline import tiles
-    from pipeline.tiles import held_box
-    from pipeline.tiling import TileGrid
+    from pipeline.meshing import tiles
+    from pipeline.meshing.tiles import held_box
+    from pipeline.tiling.grid import TileGrid
 
     from .s3server import start_s3_server
 
@@ -198,7 +199,7 @@ def test_each_tile_fetches_about_the_nodes_it_needs_from_a_copc_on_s3(survey, ne
         fs = server.filesystem()
         fs.mkdir("copc")
         fs.put_file(str(copc), "copc/survey.copc.laz")
-        monkeypatch.setattr("pipeline.sources.open_input", counted)
+        monkeypatch.setattr("pipeline.inputs.sources.open_input", counted)
         monkeypatch.setattr(tiles, "tile_points", tile_points)
         config = RunConfig(inputs=("s3://copc/survey.copc.laz",), output=str(tmp_path / "s3.zarr"), resolution=1.0,
                            tile_size=200.0, workers=2,

@@ -1,4 +1,4 @@
-"""Tests of pipeline.crs: resolving source/target CRSs and reprojecting points."""
+"""Tests of pipeline.inputs.crs: resolving source/target CRSs and reprojecting points."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ import pyproj
 import pytest
 from numpy.testing import assert_allclose
 
-from pipeline import crs as crs_module
-from pipeline.crs import CrsPlan, Reprojector, resolve_crs
+from pipeline.inputs import crs as crs_module
+from pipeline.inputs.crs import CrsPlan, Reprojector, resolve_crs
 from pipeline.errors import CrsError, UsageError
-from pipeline.sources import SourceInfo, read_info
+from pipeline.inputs.header import SourceInfo
+from pipeline.inputs.sources import read_info
 
 from .test_sources import sample, write_las
 
@@ -313,7 +314,7 @@ def test_slope_and_height_units_survive_a_change_of_units(tmp_path: Path) -> Non
     import xarray as xr
 
     from pipeline.config import RunConfig
-    from pipeline.runner import run
+    from pipeline.runs.runner import run
 
     path = _feet_plane(tmp_path / "plane_ft.las", grade=0.1)
     expected = np.degrees(np.arctan(0.1))

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from pipeline import store
+from pipeline.store import zarr_store as store
 from pipeline.config import RunConfig
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 from .processes import stop_all
 

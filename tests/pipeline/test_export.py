@@ -15,8 +15,8 @@ import zarr
 
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 rasterio = pytest.importorskip("rasterio")
 

@@ -19,8 +19,8 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.errors import InputFileError
-from pipeline.sources import iter_points, read_info
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.inputs.sources import iter_points, read_info
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 from .test_sources import write_las
 
@@ -141,7 +141,7 @@ def test_mutated_files_read_or_fail_cleanly(tmp_path):
     assert not failures, failures[:10]
     assert outcomes["refused"] > CASES // 4 and outcomes["read"] > 0
     # lying headers, chunk tables and layer sizes do not make the readers
-    # allocate what they claim (pipeline.layout checks them against the file's
+    # allocate what they claim (pipeline.inputs.layout checks them against the file's
     # size first; chunks are capped in bytes): 3,000 cases grow the peak by ~15 MiB
     assert grown < 256 * 2**20
 

@@ -19,7 +19,7 @@ import laspy
 import lazrs
 import pytest
 
-from pipeline import store
+from pipeline.store import zarr_store as store
 
 from .test_sources import patch, write_las
 

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from pipeline import store
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.store import zarr_store as store
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 from .store_checks import assert_same_store
 

@@ -8,8 +8,8 @@ from matplotlib.image import imread
 
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def _dataset(crs: str, units: str | None):
     ],
 )
 def test_preview_reads_the_units_of_the_store(crs, units, expected):
-    from pipeline.preview import _units
+    from pipeline.tools.preview import _units
 
     xy, z, scale = _units(_dataset(crs, units))
     assert (xy, z) == expected[:2]
@@ -81,7 +81,7 @@ def test_preview_reads_the_units_of_the_store(crs, units, expected):
 
 
 def test_relief_in_feet_over_metres_is_shaded_as_the_same_relief_in_metres():
-    from pipeline.preview import _hillshade
+    from pipeline.tools.preview import _hillshade
 
     y, x = np.mgrid[0:60, 0:80].astype(np.float64)
     metres = 100.0 + 10.0 * np.sin(x / 9.0) * np.cos(y / 7.0)

@@ -10,11 +10,11 @@ import pytest
 import xarray as xr
 
 import meshcore
-from pipeline import store
+from pipeline.store import zarr_store as store
 from pipeline.cli import main
 from pipeline.config import RunConfig
 from pipeline.errors import CrsError, PipelineError
-from pipeline.runner import run
+from pipeline.runs.runner import run
 
 from .store_checks import face_set
 

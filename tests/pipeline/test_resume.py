@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import pipeline.runner as run_module
-from pipeline import store
+import pipeline.runs.runner as run_module
+from pipeline.store import zarr_store as store
 from pipeline.config import RunConfig
 from pipeline.errors import UsageError
-from pipeline.synthetic import SurveySpec, write_survey
+from pipeline.tools.synthetic import SurveySpec, write_survey
 
 from .store_checks import assert_same_store
 
@@ -93,7 +93,7 @@ def test_a_failed_run_resumes_where_it_stopped(survey, reference, tmp_path, monk
 
 
 def test_one_store_spelt_two_ways_has_one_work_folder(tmp_path):
-    from pipeline.checkpoint import work_dir_for
+    from pipeline.tiling.checkpoint import work_dir_for
 
     for scratch in (None, str(tmp_path / "scratch")):
         spelt = work_dir_for(str(tmp_path / "jobs" / ".." / "out" / "a.zarr"), scratch)
@@ -101,7 +101,7 @@ def test_one_store_spelt_two_ways_has_one_work_folder(tmp_path):
 
 
 def test_where_the_work_folder_of_a_store_on_object_storage_goes(tmp_path, monkeypatch):
-    from pipeline.checkpoint import work_dir_for
+    from pipeline.tiling.checkpoint import work_dir_for
 
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     import tempfile
@@ -213,7 +213,7 @@ def test_runs_killed_at_random_moments_resume_to_the_same_store(survey, referenc
 
 
 def test_a_second_run_on_a_store_in_use_stops_at_once(survey, tmp_path):
-    from pipeline.checkpoint import output_lock
+    from pipeline.tiling.checkpoint import output_lock
 
     out = tmp_path / "busy.zarr"
     with output_lock(str(out)):  # as another process's run holds it
@@ -237,7 +237,7 @@ def test_a_work_folder_left_after_the_store_was_complete_is_removed(survey, refe
 def test_a_full_disk_under_the_work_files_is_one_line_and_resumes(survey, reference, tmp_path, monkeypatch):
     import errno
 
-    from pipeline import tiling
+    from pipeline.tiling import grid as tiling
     from pipeline.errors import OutputWriteError
 
     out = tmp_path / "full.zarr"
@@ -265,7 +265,7 @@ def test_a_short_write_of_a_work_file_on_a_full_disk_is_a_full_disk(survey, refe
 
     import numpy as np
 
-    from pipeline import scratch
+    from pipeline.tiling import scratch
     from pipeline.errors import OutputWriteError
 
     out = tmp_path / "short.zarr"

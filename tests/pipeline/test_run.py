@@ -9,11 +9,11 @@ import pytest
 import xarray as xr
 
 import meshcore
-from pipeline import store
+from pipeline.store import zarr_store as store
 from pipeline.cli import main
 from pipeline.config import RunConfig
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, terrain_height, write_survey
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, terrain_height, write_survey
 
 from .store_checks import face_set
 
@@ -169,7 +169,7 @@ def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_pat
 def test_cli_demo_and_zarr_format_2(tmp_path):
     from matplotlib.image import imread
 
-    from pipeline.synthetic import demo_spec
+    from pipeline.tools.synthetic import demo_spec
 
     assert main(["demo", "--out", str(tmp_path), "--points", "40000"]) == 0
     ds = xr.open_zarr(tmp_path / "dem.zarr")
@@ -327,7 +327,7 @@ def test_a_local_run_maps_its_tasks_over_threads_and_stops_at_the_first_failure(
     cancelled, and closing the pool ends its threads."""
     import threading
 
-    from pipeline.cluster import LocalThreads, Progress, close, connect, map_tasks
+    from pipeline.runs.cluster import LocalThreads, Progress, close, connect, map_tasks
 
     pool, extra = connect(RunConfig(inputs=("x.las",), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=2))
     assert isinstance(pool, LocalThreads) and pool.threads == 2 and extra is None
@@ -362,7 +362,8 @@ def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_pi
     tiles.  Each tile's file is read once for the whole search (it was read
     again for every tile and every round), and the stitched mesh is still the
     untiled one."""
-    from pipeline import tiles, tiling
+    from pipeline.meshing import tiles
+    from pipeline.tiling import grid as tiling
 
     rng = np.random.default_rng(4)
     centres = rng.uniform(0, 120, (6, 2))

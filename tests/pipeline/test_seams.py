@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 import meshcore
-from pipeline import store
+from pipeline.store import zarr_store as store
 from pipeline.config import RunConfig
-from pipeline.runner import run
+from pipeline.runs.runner import run
 
 from .store_checks import face_set
 

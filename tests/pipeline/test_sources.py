@@ -1,4 +1,4 @@
-"""Tests of pipeline.sources: discovery, header info, class counts, streamed points, bad files."""
+"""Tests of pipeline.inputs.sources: discovery, header info, class counts, streamed points, bad files."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from laspy.vlrs.known import WktCoordinateSystemVlr
 from numpy.testing import assert_allclose, assert_array_equal
 
 from pipeline.errors import InputFileError, PipelineError, UsageError
-from pipeline.sources import (
+from pipeline.inputs.sources import (
     PointChunk,
     PointFilter,
     SourceInfo,
@@ -402,7 +402,7 @@ def test_header_count_larger_than_data(
 
 def test_header_count_smaller_than_data_is_a_note_in_the_run_report(tmp_path: Path) -> None:
     from pipeline.config import RunConfig
-    from pipeline.runner import run
+    from pipeline.runs.runner import run
 
     w = write_las(tmp_path / "long.las", point_format=6, version="1.4", n=1000, crs="EPSG:2154", classes=(2,))
     patch(w.path, _POINT_COUNT_14, "<Q", 700)
@@ -615,13 +615,13 @@ def test_real_sample_single_point() -> None:
     assert_allclose([chunks[0].x[0], chunks[0].y[0], chunks[0].z[0]], info.bounds[:3])
 
 
-# --------------------------------------------------------------------------- terrain info (pipeline.info)
+# --------------------------------------------------------------------------- terrain info (pipeline.tools.info)
 
 
 def test_info_report_and_json(tmp_path: Path) -> None:
     import json
 
-    from pipeline.info import info_json, info_report
+    from pipeline.tools.info import info_json, info_report
 
     w = write_las(tmp_path / "a.laz", point_format=6, version="1.4", crs="EPSG:2154", classes=(2, 2, 6),
                   extra_dims=(("height", "f4"),), n=30)
@@ -673,7 +673,7 @@ def test_one_coordinate_is_one_float_whatever_the_files_offset_and_scale(tmp_pat
 
 def test_a_point_in_two_files_of_other_offsets_is_one_vertex(tmp_path: Path) -> None:
     from pipeline.config import RunConfig
-    from pipeline.runner import run
+    from pipeline.runs.runner import run
 
     folder = tmp_path / "pair"
     folder.mkdir()

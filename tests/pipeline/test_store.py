@@ -1,4 +1,4 @@
-"""Tests of pipeline.store: the DEM layers, the UGRID mesh group, and the store's errors."""
+"""Tests of pipeline.store.zarr_store: the DEM layers, the UGRID mesh group, and the store's errors."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from pyproj import CRS
 
 from pipeline.errors import UsageError
-from pipeline.store import (
+from pipeline.store.zarr_store import (
     MeshWriter,
     StoreError,
     create_store,
@@ -26,7 +26,7 @@ from pipeline.store import (
     read_tile_mesh,
     write_tile,
 )
-from pipeline.tiling import TileGrid
+from pipeline.tiling.grid import TileGrid
 
 CRS_WKT = CRS.from_epsg(2154).to_wkt()
 LAYERS = ("elevation", "slope", "face_kind", "point_count")
@@ -269,7 +269,7 @@ def test_existing_store_needs_overwrite(tmp_path, grid, zarr_format):
 
 
 def test_a_replaced_store_is_deleted_beside_the_new_one(tmp_path, grid):
-    from pipeline.store import finish_removals
+    from pipeline.store.zarr_store import finish_removals
 
     path = new_store(tmp_path / "dem.zarr", grid, 3)
     (path / "elevation" / "c").mkdir(parents=True, exist_ok=True)
@@ -443,7 +443,7 @@ def _grow_and_check(where: str, zarr_format: int) -> None:
     (and 4 more cells in the old east column): every tile written reads back
     where it was, the new cells are no data, and the coordinates and
     GeoTransform follow.  Shared with the object-storage run below."""
-    from pipeline.store import grow_store, tiles_done, mark_tile_done
+    from pipeline.store.zarr_store import grow_store, tiles_done, mark_tile_done
 
     before = TileGrid(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=20, ny=16, tile_cells=8)
     after = TileGrid(x0=700_000.0, y0=6_600_000.0, resolution=2.0, nx=28, ny=24, tile_cells=8)
@@ -483,7 +483,7 @@ def test_a_store_grows_north_and_east_keeping_its_chunk_files(tmp_path, zarr_for
 
 
 def test_a_grown_grid_must_keep_its_origin(tmp_path, grid):
-    from pipeline.store import grow_store
+    from pipeline.store.zarr_store import grow_store
 
     create_store(tmp_path / "s.zarr", grid, CRS_WKT, attrs={})
     moved = TileGrid(x0=grid.x0 - 16.0, y0=grid.y0, resolution=2.0, nx=28, ny=16, tile_cells=8)

@@ -6,8 +6,8 @@ import laspy
 import numpy as np
 import pytest
 
-from pipeline import synthetic
-from pipeline.synthetic import SurveySpec, terrain_height, write_survey
+from pipeline.tools import synthetic
+from pipeline.tools.synthetic import SurveySpec, terrain_height, write_survey
 
 
 @pytest.mark.parametrize("point_format, version", [(1, "1.2"), (6, "1.4")])

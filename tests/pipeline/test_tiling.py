@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from pipeline.errors import UsageError
-from pipeline.scratch import Scratch
-from pipeline.tiling import RouteResult, TileGrid, TileSpiller, check_cells, load_tile_points
+from pipeline.tiling.scratch import Scratch
+from pipeline.tiling.grid import RouteResult, TileGrid, TileSpiller, check_cells, load_tile_points
 
 
 def test_grid_is_snapped_and_covers_the_bounds():
@@ -86,7 +86,7 @@ def test_one_tile_never_outgrows_the_grid():
 
 
 def test_uncovered_parts_are_exactly_the_box_minus_the_held_boxes(rng):
-    from pipeline.tiles import _uncovered
+    from pipeline.meshing.tiles import _uncovered
 
     def inside(p, b, strict=False):
         if strict:
@@ -123,7 +123,7 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     """The box of points to load for a circle: it holds every point of (disk ∩
     hull ∩ extent), and for the sliver circles along a slanted survey edge it is
     a thin strip, not the disk's whole span over the extent."""
-    from pipeline.tiles import _disk_box_in, _disk_boxes_in_hull
+    from pipeline.meshing.tiles import _disk_box_in, _disk_boxes_in_hull
 
     a = math.radians(20.0)
     rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
@@ -157,7 +157,7 @@ def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
     """Routing grows the survey's hull one chunk at a time from each chunk's
     own hull: the same points, in the same order (repeated and collinear
     points included), as the hull of everything at once."""
-    from pipeline.tiling import grow_hull, hull_candidates
+    from pipeline.tiling.grid import grow_hull, hull_candidates
 
     rng = np.random.default_rng(seed)
     chunks = []
@@ -178,7 +178,7 @@ def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
     "measures", [("delaunay", None, "greedy", "linear"), ("s3", "s4", "optimal", "smooth"), ("s1", "s2", "greedy", "linear")]
 )
 def test_loading_the_kernels_reads_and_writes_nothing(tmp_path, measures):
-    from pipeline.tiles import TileJob, load_kernels
+    from pipeline.meshing.tiles import TileJob, load_kernels
 
     scratch = Scratch(str(tmp_path / "work"))
     grid = TileGrid.covering((0.0, 0.0, 99.0, 99.0), 1.0, 50)

@@ -12,9 +12,9 @@ import pytest
 from pipeline.cli import main
 from pipeline.config import RunConfig
 from pipeline.errors import UsageError
-from pipeline.runner import run
-from pipeline.synthetic import SurveySpec, write_survey
-from pipeline.workflow import Workflow, run_workflow, workflow_status
+from pipeline.runs.runner import run
+from pipeline.tools.synthetic import SurveySpec, write_survey
+from pipeline.runs.workflow import Workflow, run_workflow, workflow_status
 
 from .store_checks import assert_same_store
 
@@ -342,7 +342,7 @@ def test_without_an_extent_growth_south_or_west_says_why_every_tile_is_pending(t
 def test_a_store_left_half_grown_is_made_again(tmp_path):
     """A run stopped while it renamed chunks leaves a store whose chunks are
     half moved: the next run makes it again instead of trusting it."""
-    from pipeline import store
+    from pipeline.store import zarr_store as store
 
     archive, workflow = _first_run(tmp_path, 240.0, 160.0, 12_000)
     _patch(archive, "north", (60.0, 160.0), seed=7, size=80.0)

@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import urls
-from .config import RunConfig
-from .errors import InputFileError, PipelineError, UsageError
-from .tiling import TileGrid, check_cells
+from .. import urls
+from ..config import RunConfig
+from ..errors import InputFileError, PipelineError, UsageError
+from ..tiling.grid import TileGrid, check_cells
 
 if TYPE_CHECKING:
-    from .crs import CrsPlan
-    from .sources import SourceInfo
+    from ..inputs.crs import CrsPlan
+    from ..inputs.header import SourceInfo
 
 __all__ = [
     "RunPlan", "plan_run", "read_headers", "job_frame", "job_frame_record", "frame_moved", "frame_grew",
@@ -82,7 +82,7 @@ class RunPlan:
 
 def plan_run(config: RunConfig) -> RunPlan:
     """The plan of a run of ``config`` over its inputs as they are now."""
-    from .crs import resolve_crs
+    from ..inputs.crs import resolve_crs
 
     paths, infos, skipped = read_headers(config)
     crs = resolve_crs(infos, config.in_crs, config.out_crs)
@@ -109,7 +109,7 @@ def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, An
     """The inputs' paths and header information (bounds measured from the
     points where the header's are unusable), and with ``skip_bad_files`` the
     files left out and why."""
-    from .sources import discover_inputs, read_info, with_measured_bounds
+    from ..inputs.sources import discover_inputs, read_info, with_measured_bounds
 
     paths, infos, skipped = [], [], []
     for p in discover_inputs(config.inputs):
@@ -181,7 +181,7 @@ def frame_grew(before: dict[str, Any], now: dict[str, Any]) -> bool:
     """Whether the frame ``now`` keeps the tiles of ``before`` and only grows
     its grid to the north or east (or leaves it as it was while the data
     extent moved inside it): the same origin, cells, tiles, buffer and heights.
-    The tiles written then stay (:func:`pipeline.store.grow_store`)."""
+    The tiles written then stay (:func:`pipeline.store.zarr_store.grow_store`)."""
     if "grid" not in before or before.get("buffer") != now.get("buffer"):
         return False
     if "heights" in before and before["heights"] != now.get("heights"):
@@ -201,7 +201,7 @@ def frame_change(before: dict[str, Any], now: dict[str, Any], done: bool = True)
 
 def _file_bounds(info, source_wkt: str, target_wkt: str) -> tuple[float, float, float, float] | None:
     """A file's header bounds in the target CRS (None for an empty file)."""
-    from .crs import transform_bounds
+    from ..inputs.crs import transform_bounds
 
     if info.point_count == 0:
         return None

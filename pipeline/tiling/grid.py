@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from .errors import UsageError
+from ..errors import UsageError
 from .scratch import Scratch
 
 __all__ = [
@@ -366,7 +366,7 @@ def tile_key(row: int, col: int) -> str:
 
 
 def tile_dir(row: int, col: int) -> str:
-    """A tile's folder in the work folder (a :class:`~pipeline.scratch.Scratch` key)."""
+    """A tile's folder in the work folder (a :class:`~pipeline.tiling.scratch.Scratch` key)."""
     return f"tiles/{tile_key(row, col)}"
 
 

@@ -28,11 +28,11 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from .config import Layer
-from .errors import StoreError, UsageError
-from .urls import is_url
-from .store import layer_names, nodata_value, read_attrs, read_layer
-from .tiling import TileGrid
+from ..config import Layer
+from ..errors import StoreError, UsageError
+from ..urls import is_url
+from .zarr_store import layer_names, nodata_value, read_attrs, read_layer
+from ..tiling.grid import TileGrid
 
 __all__ = ["ExportedLayer", "export_geotiff", "MAX_FILE_CELLS"]
 

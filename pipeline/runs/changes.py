@@ -1,6 +1,6 @@
 """What changed since a store's last run, and which tiles that touches.
 
-An incremental run (``pipeline.workflow``) compares the inputs with those the
+An incremental run (``pipeline.runs.workflow``) compares the inputs with those the
 store was made from: the spilled points of files that changed or went away are
 dropped, the others renumbered to their place in the new input list, and every
 tile whose piece held points in a changed region (its recorded held boxes), or
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .checkpoint import WorkDir
-from .tiles import held_box, hull_near, reached_tiles
-from .tiling import TileGrid, drop_source_spill, intersect_boxes, source_spill, tile_key
+from ..tiling.checkpoint import WorkDir
+from ..meshing.tiles import held_box, hull_near, reached_tiles
+from ..tiling.grid import TileGrid, drop_source_spill, intersect_boxes, source_spill, tile_key
 
 __all__ = [
     "changed_inputs", "forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles",
@@ -28,7 +28,7 @@ def same_input(old: dict[str, Any], item: dict[str, Any], routed: dict[str, Any]
     """Whether input ``item`` (path, size, mtime) is the file ``old`` of the
     last run: the same size and time stamp, or a file only touched (the same
     size and SHA-256 as its routing record ``routed``, when there is one)."""
-    from .sources import file_digest
+    from ..inputs.sources import file_digest
 
     if (old["size"], old["mtime"], old.get("etag")) == (item["size"], item["mtime"], item.get("etag")):
         return True
@@ -126,7 +126,7 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
 def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[int, int]]) -> None:
     """Mesh these tiles again, and write the DEM of them and of the tiles their
     faces reached (whose DEM reads those faces) and the whole mesh again."""
-    from . import store
+    from ..store import zarr_store as store
 
     dem = set()
     for r, c in tiles:

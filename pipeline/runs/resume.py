@@ -2,7 +2,7 @@
 both of a run's ledgers.
 
 A run's finished work is recorded in two places: the work folder's records
-(:class:`~pipeline.checkpoint.WorkDir`: routed files, meshed tiles, written
+(:class:`~pipeline.tiling.checkpoint.WorkDir`: routed files, meshed tiles, written
 mesh blocks) and the store's ``status/tile_done`` (DEM tiles written).
 :func:`decide` compares the plan of this run with the store's provenance;
 :func:`prepare` then makes the store and the work folder agree with the
@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .changes import changed_inputs, forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
-from .checkpoint import WorkDir
-from .config import RunConfig
-from .errors import PipelineError, UsageError
+from ..tiling.checkpoint import WorkDir
+from ..config import RunConfig
+from ..errors import PipelineError, UsageError
 from .plan import RunPlan, frame_change, frame_grew, frame_moved
-from .tiles import piece_intact
-from .tiling import TileGrid, spill_intact, tile_key
+from ..meshing.tiles import piece_intact
+from ..tiling.grid import TileGrid, spill_intact, tile_key
 
 __all__ = ["Resume", "Update", "decide", "plan_update", "prepare"]
 
@@ -41,7 +41,7 @@ class Resume:
     notes: tuple[str, ...] = field(default=())
     moved_from: dict[str, Any] | None = None
     """The store's provenance when this run moves its frame (not a growth
-    north or east): every tile is computed again, for :func:`~pipeline.plan.frame_change`'s reason."""
+    north or east): every tile is computed again, for :func:`~pipeline.runs.plan.frame_change`'s reason."""
 
     @property
     def complete(self) -> bool:
@@ -55,7 +55,7 @@ def decide(plan: RunPlan, incremental: bool) -> Resume:
     Raises UsageError for a store of another job (other parameters, other
     inputs unless ``incremental``, another grid) unless ``overwrite``.
     """
-    from . import store
+    from ..store import zarr_store as store
 
     config, provenance = plan.config, plan.provenance
     previous = existing_job(config, provenance, allow_new_inputs=incremental)
@@ -109,8 +109,8 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
     """Make the store and the work folder agree with ``resume``: create the
     store, or grow it, or forget the units that changed inputs touch, or
     keep everything (a resume); then forget the units whose files are lost."""
-    from . import store
-    from .crs import cf_units
+    from ..store import zarr_store as store
+    from ..inputs.crs import cf_units
 
     config, grid, provenance, previous = plan.config, plan.grid, plan.provenance, resume.previous
     if resume.grown_from is not None and resume.grown_from != grid:
@@ -188,7 +188,7 @@ def existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs
     resume or skip), or None to start afresh.  An existing store of another job
     (or, unless ``allow_new_inputs``, of other inputs) is an error unless
     ``config.overwrite``."""
-    from . import store
+    from ..store import zarr_store as store
 
     if config.overwrite:
         return None

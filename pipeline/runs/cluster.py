@@ -2,11 +2,11 @@
 tasks mapped over it with a progress bar.
 
 Tasks cross to workers as small picklable jobs (paths, URLs and a
-:class:`~pipeline.scratch.Scratch` root, never open files).  Workers of a
+:class:`~pipeline.tiling.scratch.Scratch` root, never open files).  Workers of a
 scheduler may share no disk with this machine: they read inputs, the work
 folder and the store by URL, with the credentials of their own environment,
 or those of the job file's ``storage_options``, which :func:`connect` hands to
-every worker (:class:`pipeline.worker_setup.StorageOptions`), over the scheduler's connection (TLS
+every worker (:class:`pipeline.runs.worker_setup.StorageOptions`), over the scheduler's connection (TLS
 on a cluster that spans machines).
 
 Without a scheduler the tasks run on a pool of this process's threads
@@ -26,9 +26,9 @@ from collections.abc import Callable
 from concurrent.futures import Future, as_completed
 from typing import Any
 
-from . import urls
-from .config import RunConfig
-from .errors import PipelineError
+from .. import urls
+from ..config import RunConfig
+from ..errors import PipelineError
 
 __all__ = ["Progress", "LocalThreads", "close", "connect", "map_tasks"]
 

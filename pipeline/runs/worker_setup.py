@@ -6,7 +6,7 @@ from typing import Any
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from . import urls
+from .. import urls
 
 __all__ = ["StorageOptions"]
 

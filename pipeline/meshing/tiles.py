@@ -31,10 +31,10 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from .errors import SeamError
-from .scratch import Scratch
-from .windows import WindowSource, points_in_boxes, tile_points
-from .tiling import TileGrid, intersect_boxes, neighbour_tile_points, points_in_box, tile_dir
+from ..errors import SeamError
+from ..tiling.scratch import Scratch
+from ..tiling.windows import WindowSource, points_in_boxes, tile_points
+from ..tiling.grid import TileGrid, intersect_boxes, neighbour_tile_points, points_in_box, tile_dir
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
@@ -71,7 +71,7 @@ class TileJob:
     """"smooth": the piece also holds its faces' patch nodes, kriged with ``variogram``."""
     variogram: meshcore.Variogram | None = None
     windows: tuple[WindowSource, ...] = ()
-    """COPC inputs this tile reads by window (:mod:`pipeline.windows`), not from spill files."""
+    """COPC inputs this tile reads by window (:mod:`pipeline.tiling.windows`), not from spill files."""
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""``pipeline.runner``: LAS/LAZ archives -> tiles on Dask -> one seamless DEM and mesh in Zarr.
+"""``pipeline.runs.runner``: LAS/LAZ archives -> tiles on Dask -> one seamless DEM and mesh in Zarr.
 
 Stages (each timed in the run report):
 
@@ -7,14 +7,14 @@ Stages (each timed in the run report):
    reproject, and append every point to the spill files of the tiles whose
    core plus buffer holds it;
 3. *mesh*: one task per tile: its piece of the combined mesh (certified
-   against its neighbours, see :mod:`pipeline.tiles`);
+   against its neighbours, see :mod:`pipeline.meshing.tiles`);
 4. *dem*: one task per tile: the DEM chunk from the stitched faces over it,
    written straight into its own Zarr chunk (no locks);
 5. *write mesh*: one task per tile renumbers its piece's faces to global node
    ids, then one task per block of whole chunks writes the nodes and faces
-   into the store's UGRID group (the tasks: :mod:`pipeline.assemble`).
+   into the store's UGRID group (the tasks: :mod:`pipeline.store.assemble`).
 
-Every finished unit is recorded (:mod:`pipeline.checkpoint`), so a stopped run
+Every finished unit is recorded (:mod:`pipeline.tiling.checkpoint`), so a stopped run
 resumes, and :func:`execute` can update a store after its inputs changed.
 """
 
@@ -33,21 +33,21 @@ from typing import Any
 
 import numpy as np
 
-from .config import RunConfig
+from ..config import RunConfig
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
-from .checkpoint import WorkDir, output_lock, work_dir_for
-from .errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
-from .assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
-from .surface import run_variogram
-from .catalog import write_stac_item
-from .scratch import Scratch
-from .windows import WindowSource, hull_copies, survey_hull
-from . import urls
-from .tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
+from ..tiling.checkpoint import WorkDir, output_lock, work_dir_for
+from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
+from ..store.assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
+from ..meshing.surface import run_variogram
+from ..store.catalog import write_stac_item
+from ..tiling.scratch import Scratch
+from ..tiling.windows import WindowSource, hull_copies, survey_hull
+from .. import urls
+from ..meshing.tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
-from .tiling import RouteResult, TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
+from ..tiling.grid import RouteResult, TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -145,8 +145,8 @@ def route_source(job: _RouteJob) -> RouteResult:
 
 
 def _route(job: _RouteJob) -> RouteResult:
-    from .crs import Reprojector
-    from .sources import PointFilter, file_digest, iter_points
+    from ..inputs.crs import Reprojector
+    from ..inputs.sources import PointFilter, file_digest, iter_points
 
     t0 = time.perf_counter()
     drop_source_spill(job.scratch, job.index)  # left by a stopped run: routed again from the start
@@ -207,7 +207,7 @@ def run(config: RunConfig, *, progress: bool | None = None, log: Callable[[str],
 
     A job that was stopped (killed, interrupted, failed) resumes when run
     again with the same parameters and inputs: finished files, tiles and mesh
-    blocks are skipped (see :mod:`pipeline.checkpoint`).  A store made with
+    blocks are skipped (see :mod:`pipeline.tiling.checkpoint`).  A store made with
     other parameters or inputs is an error unless ``config.overwrite``.
     """
     return execute(config, progress=progress, log=log)
@@ -222,7 +222,7 @@ def execute(
 ) -> RunReport:
     """:func:`run`, or with ``incremental`` an update of the store after its
     inputs changed: the work folder is kept after the run, and only the tiles
-    whose points (or hull) changed are computed again (see :mod:`pipeline.workflow`).
+    whose points (or hull) changed are computed again (see :mod:`pipeline.runs.workflow`).
 
     Raises
     ------
@@ -260,7 +260,7 @@ def execute(
 
 def _finish_removals() -> None:
     """Wait for the deletion of the store this run replaced (it runs beside the run)."""
-    from . import store
+    from ..store import zarr_store as store
 
     store.finish_removals()
 
@@ -272,7 +272,7 @@ def _execute(
     log: Callable[[str], None] | None,
     incremental: bool,
 ) -> RunReport:
-    from . import store
+    from ..store import zarr_store as store
 
     # absolute: tasks on a cluster's workers run in other folders
     config = replace(config, output=str(urls.location(config.output)))
@@ -517,7 +517,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     The same tasks number the pieces' nodes for the mesh writer (they read
     the pieces too, and need nothing of the DEM): the cores go from one to the
     other without waiting at the end of the DEM for its last tile."""
-    from . import store
+    from ..store import zarr_store as store
 
     config, grid = plan.config, plan.grid
     reached = {key: reached_tiles(grid, s.reach, *key) for key, s in meshed.summaries.items()}
@@ -569,7 +569,7 @@ def _window_sources(config: RunConfig, paths, infos, plan) -> tuple[WindowSource
     files (a routing pass finds a broken one before any tile uses it) or
     samples a variogram (which needs the number of points kept beforehand).
     """
-    from .crs import Reprojector
+    from ..inputs.crs import Reprojector
 
     if config.skip_bad_files or config.surface != "linear":
         return ()
@@ -612,7 +612,7 @@ def _hull_points(
     Every tile meshes with these, so its own convex hull is the global one and
     every region of its window is covered by its triangles.
     """
-    from .tiles import vertex_z
+    from ..meshing.tiles import vertex_z
 
     hull = hull_candidates(candidates)
     if hull.shape[0] == 0:
@@ -643,7 +643,7 @@ def _write_mesh(
     """Write the nodes and faces into the store's mesh group in blocks of
     whole chunks on the workers, renumbering the faces' corners to the global
     node ids the DEM stage saved (blocks written before a stop are kept)."""
-    from . import store
+    from ..store import zarr_store as store
 
     order = tuple(grid.tiles())
     sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}

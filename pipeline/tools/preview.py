@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .crs import cf_metres, unit_metres
-from .errors import UsageError
+from ..inputs.crs import cf_metres, unit_metres
+from ..errors import UsageError
 
 __all__ = ["render_preview", "MAX_MESH_FACES"]
 
@@ -91,7 +91,7 @@ def _units(ds) -> tuple[str, str, float]:
 
 def _window_faces(store_path: str, window: tuple[float, float, float, float]):
     """The mesh's faces meeting the window, as corner coordinates, and their kinds."""
-    from . import api
+    from .. import api
 
     tiles = api.open_store(store_path)
     polys, quads = [], []
@@ -143,7 +143,7 @@ def render_preview(
     from matplotlib.patches import Patch
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
-    from .store import StoreError, open_dem, read_attrs
+    from ..store.zarr_store import StoreError, open_dem, read_attrs
 
     if read_attrs(store_path) is None:
         raise StoreError(f"{store_path}: not a Zarr store")

@@ -1,7 +1,7 @@
 """The work folder of a job, and the records that let a killed job resume.
 
 A run keeps its intermediate files (spilled points, meshed pieces) in a work
-folder beside the store (a :class:`~pipeline.scratch.Scratch`, on this disk or
+folder beside the store (a :class:`~pipeline.tiling.scratch.Scratch`, on this disk or
 on object storage) and records each finished unit of work there: a routed
 input file, a meshed tile, a written block of the mesh.  A record is written
 only after the unit's files are complete, and appears whole, so a job killed
@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UsageError
+from ..errors import UsageError
 from .scratch import Scratch
-from .urls import is_url
+from ..urls import is_url
 
 __all__ = ["WorkDir", "work_dir_for", "output_lock"]
 

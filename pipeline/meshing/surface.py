@@ -20,9 +20,9 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from .checkpoint import WorkDir
+from ..tiling.checkpoint import WorkDir
 from .tiles import vertex_z
-from .tiling import TileGrid, load_tile_points
+from ..tiling.grid import TileGrid, load_tile_points
 
 __all__ = ["run_variogram", "SAMPLE_TILES", "SAMPLE_POINTS"]
 

@@ -5,7 +5,7 @@ the grid's footprint in longitude/latitude, the projection extension's
 ``proj:code`` (or ``proj:wkt2``), ``proj:bbox``, ``proj:shape`` and
 ``proj:transform``, the run's provenance under ``terrain:provenance``, and
 one asset per file: the Zarr store, and the GeoTIFFs that
-:func:`~pipeline.export.export_geotiff` wrote.  Hrefs are relative to the
+:func:`~pipeline.store.export.export_geotiff` wrote.  Hrefs are relative to the
 item, so the folder can be moved or uploaded as it is.
 """
 
@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 import pyproj
 
-from .errors import OutputWriteError, one_line
-from .store import read_attrs
-from .tiling import TileGrid
-from .urls import Location, filesystem, location
+from ..errors import OutputWriteError, one_line
+from .zarr_store import read_attrs
+from ..tiling.grid import TileGrid
+from ..urls import Location, filesystem, location
 
 __all__ = ["STAC_VERSION", "PROJECTION_EXTENSION", "stac_item", "stac_item_path", "write_stac_item"]
 

@@ -18,11 +18,11 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from . import store
-from .errors import PipelineError
-from .scratch import Scratch
-from .tiles import TileJob, TileSummary, load_piece, save_piece
-from .tiling import TileGrid
+from . import zarr_store as store
+from ..errors import PipelineError
+from ..tiling.scratch import Scratch
+from ..meshing.tiles import TileJob, TileSummary, load_piece, save_piece
+from ..tiling.grid import TileGrid
 
 __all__ = ["mesh_offsets", "global_node_ids", "MeshBlock", "write_mesh_block"]
 

@@ -20,9 +20,10 @@ from typing import Any
 
 import pyproj
 
-from .crs import crs_label
-from .errors import InputFileError
-from .sources import SourceInfo, class_counts, discover_inputs, read_info
+from ..inputs.crs import crs_label
+from ..errors import InputFileError
+from ..inputs.header import SourceInfo
+from ..inputs.sources import class_counts, discover_inputs, read_info
 
 __all__ = ["class_name", "info_json", "info_report"]
 
@@ -72,7 +73,7 @@ def info_json(inputs: Inputs, *, keep_going: bool = False) -> list[dict[str, Any
     Parameters
     ----------
     inputs
-        Files, directories or glob patterns (see :func:`pipeline.sources.discover_inputs`).
+        Files, directories or glob patterns (see :func:`pipeline.inputs.sources.discover_inputs`).
     keep_going
         When True, a file that cannot be read gives ``{"path": ..., "error": message}``
         and the other files are still reported; when False its

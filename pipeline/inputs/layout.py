@@ -25,8 +25,8 @@ from typing import BinaryIO
 
 import lazrs
 
-from .errors import InputFileError, StorageUnreachableError, os_error_reason
-from .urls import Location, describe_os_error, is_url, open_input, translated
+from ..errors import InputFileError, StorageUnreachableError, os_error_reason
+from ..urls import Location, describe_os_error, is_url, open_input, translated
 
 __all__ = ["MAX_CHUNK_BYTES", "check_header", "check_point_data"]
 

@@ -39,10 +39,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from .config import RunConfig
-from . import urls
-from .errors import InputFileError, PipelineError, UsageError
-from .urls import is_url
+from ..config import RunConfig
+from .. import urls
+from ..errors import InputFileError, PipelineError, UsageError
+from ..urls import is_url
 
 __all__ = ["Workflow", "run_workflow", "workflow_status"]
 
@@ -117,10 +117,10 @@ def run_workflow(workflow: Workflow, *, progress: bool | None = None, log: Calla
 
 def workflow_status(workflow: Workflow) -> dict[str, Any]:
     """Last run, files known, and what the next run would do."""
-    from . import store
+    from ..store import zarr_store as store
     from .changes import same_input
-    from .checkpoint import WorkDir, work_dir_for
-    from .sources import discover_inputs
+    from ..tiling.checkpoint import WorkDir, work_dir_for
+    from ..inputs.sources import discover_inputs
 
     cfg = workflow.config
     status: dict[str, Any] = {"workflow": workflow.name, "job_file": str(workflow.path), "output": cfg.output}
@@ -169,9 +169,9 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
 
 def _pending_after_changes(config: RunConfig, work, done) -> int | str:
     """Tiles the next run would compute again, decided by the run's own code:
-    its plan (headers, CRS plan, grid, :func:`~pipeline.plan.plan_run`), its
-    decision on the store (:func:`~pipeline.resume.decide`) and the tiles an
-    update meshes again (:func:`~pipeline.resume.plan_update`)."""
+    its plan (headers, CRS plan, grid, :func:`~pipeline.runs.plan.plan_run`), its
+    decision on the store (:func:`~pipeline.runs.resume.decide`) and the tiles an
+    update meshes again (:func:`~pipeline.runs.resume.plan_update`)."""
     from .plan import frame_change, plan_run
     from .resume import decide, plan_update
 

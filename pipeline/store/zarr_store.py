@@ -33,7 +33,7 @@ The raster layers are north-up (row 0 is the northern-most row), chunked in
 ``tile_cells x tile_cells`` tiles, so each tile of the pipeline writes exactly
 one chunk of each layer and tiles can be written in parallel without locks.
 The grid's tiles are counted from the south-west, so the store requires ``ny``
-to be a multiple of ``tile_cells`` (see :class:`~pipeline.tiling.TileGrid`): only then do the
+to be a multiple of ``tile_cells`` (see :class:`~pipeline.tiling.grid.TileGrid`): only then do the
 tiles' rows fall on the north-up chunk boundaries.
 
 Both Zarr formats are written: 3 (the default, dimensions in
@@ -80,10 +80,10 @@ import zarr.errors
 from zarr.codecs import BloscCodec
 from numpy.typing import ArrayLike, NDArray
 
-from .config import Layer
-from .errors import CrsError, StoreError, UsageError
-from .tiling import TileGrid
-from .urls import describe_os_error, filesystem, is_url, options_for
+from ..config import Layer
+from ..errors import CrsError, StoreError, UsageError
+from ..tiling.grid import TileGrid
+from ..urls import describe_os_error, filesystem, is_url, options_for
 
 if TYPE_CHECKING:
     import xarray as xr

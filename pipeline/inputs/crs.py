@@ -39,11 +39,11 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError
 
-from .errors import CrsError, UsageError, one_line
-from .urls import Location, as_location
+from ..errors import CrsError, UsageError, one_line
+from ..urls import Location, as_location
 
 if TYPE_CHECKING:
-    from .sources import SourceInfo
+    from .header import SourceInfo
 
 __all__ = ["CrsPlan", "Reprojector", "crs_label", "resolve_crs", "same_crs", "transform_bounds"]
 
@@ -400,7 +400,7 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
     Parameters
     ----------
     infos
-        Header information of the input files (:func:`pipeline.sources.read_info`).
+        Header information of the input files (:func:`pipeline.inputs.sources.read_info`).
     in_crs
         CRS of the inputs whose CRS is missing or broken (anything
         ``pyproj.CRS.from_user_input`` accepts).  A file's valid CRS is kept,

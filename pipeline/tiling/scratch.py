@@ -25,7 +25,7 @@ from typing import Any, BinaryIO
 import numpy as np
 from numpy.typing import NDArray
 
-from . import urls
+from .. import urls
 
 __all__ = ["Scratch", "load_array"]
 
