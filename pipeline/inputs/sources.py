@@ -447,6 +447,18 @@ def _all_vlrs(header: laspy.LasHeader) -> list[Any]:
     return [*header.vlrs, *(header.evlrs or [])]
 
 
+def _decoded(records: list, record_id: int, kind: type, what: str, problems: list[str]):
+    """The ``records`` with ``record_id`` that laspy decoded as ``kind``, in
+    order; each one it could not decode is noted in ``problems``."""
+    for rec in records:
+        if rec.record_id != record_id:
+            continue
+        if not isinstance(rec, kind):
+            problems.append(f"{what} present but could not be decoded")
+            continue
+        yield rec
+
+
 def _parse_crs(header: laspy.LasHeader) -> tuple[str | None, str | None, str | None, list[str]]:
     """Return (WKT2, problem, z unit, notes) from the WKT and GeoTIFF records.
 
@@ -459,12 +471,7 @@ def _parse_crs(header: laspy.LasHeader) -> tuple[str | None, str | None, str | N
     notes: list[str] = []
 
     wkt_crs: pyproj.CRS | None = None
-    for rec in records:
-        if rec.record_id != _WKT_RECORD_ID:
-            continue
-        if not isinstance(rec, WktCoordinateSystemVlr):
-            problems.append("WKT record present but could not be decoded")
-            continue
+    for rec in _decoded(records, _WKT_RECORD_ID, WktCoordinateSystemVlr, "WKT record", problems):
         text = (rec.string or "").strip().strip("\x00").strip()
         if not text:
             problems.append("WKT record present but empty")
@@ -478,12 +485,7 @@ def _parse_crs(header: laspy.LasHeader) -> tuple[str | None, str | None, str | N
 
     geo_crs: pyproj.CRS | None = None
     z_unit: str | None = None
-    for rec in records:
-        if rec.record_id != _GEOKEY_RECORD_ID:
-            continue
-        if not isinstance(rec, GeoKeyDirectoryVlr):
-            problems.append("GeoTIFF key directory present but could not be decoded")
-            continue
+    for rec in _decoded(records, _GEOKEY_RECORD_ID, GeoKeyDirectoryVlr, "GeoTIFF key directory", problems):
         geo_crs, z_unit, problem, geo_notes = _crs_from_geokeys(rec)
         notes.extend(geo_notes)
         if problem:
