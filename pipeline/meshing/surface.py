@@ -22,7 +22,8 @@ import meshcore
 
 from ..tiling.checkpoint import WorkDir
 from .tiles import vertex_z
-from ..tiling.grid import TileGrid, load_tile_points
+from ..tiling.grid import TileGrid
+from ..tiling.routing import load_tile_points
 
 __all__ = ["run_variogram", "SAMPLE_TILES", "SAMPLE_POINTS"]
 

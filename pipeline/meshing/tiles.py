@@ -34,7 +34,8 @@ import meshcore
 from ..errors import SeamError
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
-from ..tiling.grid import TileGrid, intersect_boxes, neighbour_tile_points, points_in_box, tile_dir
+from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
+from ..tiling.routing import neighbour_tile_points, points_in_box
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",

@@ -16,7 +16,8 @@ import numpy as np
 
 from ..tiling.checkpoint import WorkDir
 from ..meshing.tiles import held_box, hull_near, reached_tiles
-from ..tiling.grid import TileGrid, drop_source_spill, intersect_boxes, source_spill, tile_key
+from ..tiling.grid import TileGrid, intersect_boxes, tile_key
+from ..tiling.routing import drop_source_spill, source_spill
 
 __all__ = [
     "changed_inputs", "forget_changed_inputs", "same_input", "tiles_depending_on", "tiles_whose_hull_moved", "forget_tiles",

@@ -22,7 +22,8 @@ from ..config import RunConfig
 from ..errors import PipelineError, UsageError
 from .plan import RunPlan, frame_change, frame_grew, frame_moved
 from ..meshing.tiles import piece_intact
-from ..tiling.grid import TileGrid, spill_intact, tile_key
+from ..tiling.grid import TileGrid, tile_key
+from ..tiling.routing import spill_intact
 
 __all__ = ["Resume", "Update", "decide", "plan_update", "prepare"]
 

@@ -47,7 +47,8 @@ from ..meshing.tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_t
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
-from ..tiling.grid import RouteResult, TileGrid, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source, tile_key
+from ..tiling.grid import TileGrid, tile_key
+from ..tiling.routing import RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 

@@ -3,7 +3,7 @@
 A COPC file in the run's CRS is never streamed into spill files: each tile
 task reads the octree nodes that meet the box its points come from (its
 window grown by the buffer, within the bbox), and takes from them exactly the
-points routing would have given it (:func:`pipeline.tiling.grid.route_points`).
+points routing would have given it (:func:`pipeline.tiling.routing.route_points`).
 The tile tasks need no shared work folder for these files, and each fetches
 only the bytes of the nodes it needs (ranged requests over HTTP and S3).
 
@@ -27,7 +27,8 @@ from numpy.typing import NDArray
 
 from .scratch import Scratch
 from ..inputs.sources import PointFilter, file_digest, iter_copc_nodes
-from .grid import POINT_FATES, PointCounts, RouteResult, TileGrid, grow_hull, load_tile_points, points_in_box, route_points, spill_by_source
+from .grid import TileGrid
+from .routing import POINT_FATES, PointCounts, RouteResult, grow_hull, load_tile_points, points_in_box, route_points, spill_by_source
 
 __all__ = [
     "WindowSource", "WindowCounts", "hull_copies", "points_in_boxes", "survey_hull", "tile_points", "window_points",

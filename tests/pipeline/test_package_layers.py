@@ -178,3 +178,20 @@ def test_every_subpackage_is_installed():
     listed = tomllib.loads((ROOT.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
     subpackages = {name for name, path in MODULES.items() if path.name == "__init__.py"}
     assert sorted(subpackages - set(listed)) == []
+
+
+def test_the_store_and_its_grid_load_without_the_kernels():
+    """Store commands (export, STAC, reading a store) start without numba:
+    the grid type needs no compiled kernel until it bins points."""
+    import subprocess
+
+    probe = (
+        "import sys\n"
+        "from pipeline.store import zarr_store, export, catalog\n"
+        "from pipeline.tiling.grid import TileGrid\n"
+        "print('numba' in sys.modules, 'meshcore' in sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          cwd=Path(pipeline.__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["False", "False"]

@@ -237,7 +237,7 @@ def test_a_work_folder_left_after_the_store_was_complete_is_removed(survey, refe
 def test_a_full_disk_under_the_work_files_is_one_line_and_resumes(survey, reference, tmp_path, monkeypatch):
     import errno
 
-    from pipeline.tiling import grid as tiling
+    from pipeline.tiling import routing as tiling
     from pipeline.errors import OutputWriteError
 
     out = tmp_path / "full.zarr"

@@ -363,7 +363,7 @@ def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_pi
     again for every tile and every round), and the stitched mesh is still the
     untiled one."""
     from pipeline.meshing import tiles
-    from pipeline.tiling import grid as tiling
+    from pipeline.tiling import routing as tiling
 
     rng = np.random.default_rng(4)
     centres = rng.uniform(0, 120, (6, 2))

@@ -6,7 +6,8 @@ import pytest
 
 from pipeline.errors import UsageError
 from pipeline.tiling.scratch import Scratch
-from pipeline.tiling.grid import RouteResult, TileGrid, TileSpiller, check_cells, load_tile_points
+from pipeline.tiling.grid import TileGrid, check_cells
+from pipeline.tiling.routing import RouteResult, TileSpiller, load_tile_points
 
 
 def test_grid_is_snapped_and_covers_the_bounds():
@@ -157,7 +158,7 @@ def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
     """Routing grows the survey's hull one chunk at a time from each chunk's
     own hull: the same points, in the same order (repeated and collinear
     points included), as the hull of everything at once."""
-    from pipeline.tiling.grid import grow_hull, hull_candidates
+    from pipeline.tiling.routing import grow_hull, hull_candidates
 
     rng = np.random.default_rng(seed)
     chunks = []
