@@ -257,20 +257,9 @@ def _nearest(
     lo = np.array([xy[:, 0].min(), xy[:, 1].min()])  # min(axis=0) is ten times slower here
     hi = np.array([xy[:, 0].max(), xy[:, 1].max()])
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
-    # buckets of about two points where the queries are: a tile's points can
-    # reach far beyond its queries (points loaded to certify it), and buckets
-    # sized by the whole extent would hold many points each
-    qlo = np.array([queries[:, 0].min(), queries[:, 1].min()])
-    qhi = np.array([queries[:, 0].max(), queries[:, 1].max()])
-    qspan = float(max(qhi[0] - qlo[0], qhi[1] - qlo[1]))
-    near = np.count_nonzero((xy[:, 0] >= qlo[0]) & (xy[:, 0] <= qhi[0]) & (xy[:, 1] >= qlo[1]) & (xy[:, 1] <= qhi[1]))
-    if near >= max(k, 2) and qspan > 0.0:
-        area, count = float(max(qhi[0] - qlo[0], qspan * 1e-9) * max(qhi[1] - qlo[1], qspan * 1e-9)), near
-    else:
-        area, count = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9)), n
-    cell = math.sqrt(2.0 * area / count) if span > 0.0 else 1.0
-    # at most about four buckets a point over the whole extent
-    cell = max(cell, math.sqrt(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9) / (4.0 * n)), span * 1e-6, 1e-300)
+    area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
+    cell = math.sqrt(2.0 * area / n) if span > 0.0 else 1.0
+    cell = max(cell, span * 1e-6, 1e-300)
     nbx = max(int((hi[0] - lo[0]) / cell) + 1, 1)
     nby = max(int((hi[1] - lo[1]) / cell) + 1, 1)
     ci = np.minimum(((xy[:, 0] - lo[0]) / cell).astype(np.int64), nbx - 1)
@@ -376,10 +365,10 @@ def _dual_system(
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual form.
 
     Fills ``xs``, ``ys`` (the neighbours relative to the centre ``c``),
-    ``col`` and ``pairs`` are room for ``k`` and ``(3, k * k)`` numbers,
     ``coef[:k]`` (weights of the covariances) and ``coef[k:k+3]`` (the
     drift, in coordinates relative to ``c`` over the radius ``R``) so that
-    the estimate at ``p`` is :func:`_dual_value`.  ``scale`` is the model's
+    the estimates at other points are :func:`_dual_values`; ``col`` and
+    ``pairs`` are room for ``k`` and ``(3, k * k)`` numbers.  ``scale`` is the model's
     lag scale over the range.  Returns ``R``, or NaN when the system is
     singular (fewer than three points, collinear neighbours).  The
     covariance matrix is factored by Cholesky; the drift comes from the Schur
@@ -560,14 +549,14 @@ def _count(neighbours: np.ndarray) -> int:
 
 @njit
 def _nodes_kriged_kernel(
-    xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray, order: np.ndarray,
+    xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
     positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, pattern_weights: np.ndarray,
     nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, out: np.ndarray,
 ) -> None:
     """Krig the nodes of every system (a cell) and clamp them.
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
-    ``order[first[s]] .. order[first[s + 1] - 1]``.  A node is clamped to the
+    ``first[s] .. first[s + 1] - 1``.  A node is clamped to the
     range of its ``corners``' values widened to its neighbours' values: every
     node when ``clamp_inside``, else only those of systems whose neighbours
     lie to one side of the centre (:func:`_one_sided`); a
@@ -612,12 +601,10 @@ def _nodes_kriged_kernel(
         if kriged:
             m = first[s + 1] - first[s]
             for t in range(m):
-                n = order[first[s] + t]
-                qx[t] = positions[n, 0] - cx
-                qy[t] = positions[n, 1] - cy
+                qx[t] = positions[first[s] + t, 0] - cx
+                qy[t] = positions[first[s] + t, 1] - cy
             _dual_values(xs, ys, count, coef, radius, scale, model, qx, qy, m, block, values)
-        for t in range(first[s], first[s + 1]):
-            n = order[t]
+        for n in range(first[s], first[s + 1]):
             if kriged:
                 low = lo
                 high = hi
@@ -626,7 +613,8 @@ def _nodes_kriged_kernel(
                     if v >= 0 and math.isfinite(z[v]):
                         low = min(low, z[v])
                         high = max(high, z[v])
-                out[n] = min(max(values[t - first[s]], low), high) if clamp else values[t - first[s]]
+                value = values[n - first[s]]
+                out[n] = min(max(value, low), high) if clamp else value
             else:
                 linear = 0.0
                 for j in range(4):
@@ -649,8 +637,7 @@ class Neighbourhoods(NamedTuple):
     centres : (m, 2) the cells' centres
     index : (m, k) their nearest vertices, nearest first (``-1`` pads)
     radius : (m,) the distance from each centre to its last neighbour
-    first : (m + 1,) cell ``s`` holds the nodes ``order[first[s]] .. order[first[s+1]-1]``
-    order : (n,) the nodes cell by cell
+    first : (m + 1,) cell ``s`` holds the nodes ``first[s] .. first[s+1]-1``
     positions : (n, 2) the nodes
     take : (n_f, 12) int32, the node in each slot of a face's row (``-1``: unused)
     corners : (n, 4) int32, the vertices whose values bound each node's clamp (``-1`` pads)
@@ -663,7 +650,6 @@ class Neighbourhoods(NamedTuple):
     index: NDArray[np.int64]
     radius: NDArray[np.float64]
     first: NDArray[np.int64]
-    order: NDArray[np.int64]
     positions: NDArray[np.float64]
     take: NDArray[np.int64]
     corners: NDArray[np.int32]
@@ -981,10 +967,9 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     positions, take, corners, pattern = _layout(vertices, faces)
     order, first, centres = _cells(positions, cell)
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
-    order = np.arange(order.size)
     index, d2 = _nearest(vertices, centres, k)
     radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
-    return Neighbourhoods(np.ascontiguousarray(centres), index, radius, first, order, positions, take, corners, pattern, cell)
+    return Neighbourhoods(np.ascontiguousarray(centres), index, radius, first, positions, take, corners, pattern, cell)
 
 
 def smooth_nodes(
@@ -1054,7 +1039,7 @@ def smooth_nodes(
                                 f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
     _nodes_kriged_kernel(
-        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.order, hoods.positions, hoods.corners, hoods.pattern, _PATTERN_WEIGHTS,
+        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, hoods.pattern, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
         _clamps_inside(variogram), values,
     )

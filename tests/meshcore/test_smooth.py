@@ -379,7 +379,7 @@ def test_nodes_are_kriged_in_cells_of_the_spacing(rng):
     assert hoods.cell == cell
     assert_allclose(hoods.centres / cell - 0.5, np.round(hoods.centres / cell - 0.5), atol=1e-9)
     owner = np.repeat(np.arange(hoods.centres.shape[0]), np.diff(hoods.first))
-    assert np.all(np.abs(hoods.positions[hoods.order] - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
+    assert np.all(np.abs(hoods.positions - hoods.centres[owner]) <= 0.5 * cell * (1 + 1e-12))
     assert len(np.unique(owner)) == hoods.centres.shape[0]  # no empty cell
     # a system for nearly every cell of the hull (100 m x 100 m)
     assert 0.8 * (100.0 / cell) ** 2 < hoods.centres.shape[0] <= (100.0 / cell + 1) ** 2
