@@ -21,6 +21,7 @@ from pathlib import Path
 import numba
 import numpy as np
 from numba.core import caching, cgutils, types
+from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
 __all__ = ["njit", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels"]
@@ -136,7 +137,38 @@ if _ArrayFunctionsFinder.name not in sys.modules and not any(
 ):
     sys.meta_path.insert(0, _ArrayFunctionsFinder())
 
-njit = numba.njit(cache=True, nogil=True, error_model="numpy")
+class _Dispatcher(CPUDispatcher):
+    """A kernel that another kernel calls is compiled for its arguments'
+    types, not for their constant values.
+
+    numba types a constant argument of a call between kernels as a literal
+    (``Literal[int](0)``), compiles the callee for it, and again for
+    ``int64`` where a variable is passed: the Delaunay helpers alone were
+    compiled twice or three times over, a quarter of the cold start.  No
+    kernel here dispatches on a constant's value.
+    """
+
+    def get_call_template(self, args, kws):
+        return super().get_call_template(
+            tuple(types.unliteral(a) for a in args), {k: types.unliteral(v) for k, v in kws.items()}
+        )
+
+
+def _compiler(**options):
+    """A decorator compiling with meshcore's settings (see the module's docstring) and ``options``."""
+    targetoptions = {"nopython": True, "nogil": True, "error_model": "numpy", **options}
+
+    def compile_(function):
+        if numba.config.DISABLE_JIT:
+            return function
+        dispatcher = _Dispatcher(py_func=function, locals={}, targetoptions=targetoptions)
+        dispatcher.enable_caching()
+        return dispatcher
+
+    return compile_
+
+
+njit = _compiler()
 
 
 def kernel(function):
@@ -155,7 +187,7 @@ def kernel(function):
 #: array it is given, two atomic operations each per call, which the compiler
 #: cannot remove from a helper with loops and calls: a third of the Delaunay
 #: sweep's time went there.
-njit_borrowing = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+njit_borrowing = _compiler(_nrt=False)
 
 
 @intrinsic(prefer_literal=True)

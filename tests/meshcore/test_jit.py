@@ -1,0 +1,51 @@
+"""Kernels compile once per argument types, and sort keys keep the floats' order."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from meshcore._jit import njit
+from meshcore._order import order_ties_by, sortable_keys
+
+
+@njit
+def _add(a, k):
+    return a + k
+
+
+@njit
+def _add_a_constant(a):
+    return _add(a, 1)
+
+
+@njit
+def _add_a_variable(a, k):
+    return _add(a, k)
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_a_helper_called_with_a_constant_and_with_a_variable_is_compiled_once():
+    assert _add_a_constant(2) == 3 and _add_a_variable(2, 5) == 7
+    assert _add.signatures == [(numba.int64, numba.int64)]
+
+
+def test_sortable_keys_order_and_equality_are_the_floats():
+    rng = np.random.default_rng(5)
+    values = np.concatenate([rng.normal(size=200) * 10.0 ** rng.integers(-300, 300, 200),
+                             [0.0, -0.0, 0.0, np.inf, -np.inf, 5e-324, -5e-324, 1.0, 1.0]])
+    keys = sortable_keys(values)
+    assert keys.dtype == np.uint64
+    np.testing.assert_array_equal(keys[:, None] < keys[None, :], values[:, None] < values[None, :])
+    np.testing.assert_array_equal(keys[:, None] == keys[None, :], values[:, None] == values[None, :])
+
+
+def test_order_ties_by_sorts_each_run_of_equal_keys_by_its_ties():
+    rng = np.random.default_rng(8)
+    key = np.sort(rng.integers(0, 5, 300)).astype(np.uint64)  # long runs: the merge sort
+    tie = sortable_keys(rng.normal(size=300))
+    order = np.arange(300)
+    expected = np.lexsort((tie, key))
+    order_ties_by(order, key.copy(), tie.copy())
+    np.testing.assert_array_equal(order, expected)
