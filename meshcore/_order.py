@@ -10,14 +10,15 @@ from ._jit import njit
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
-__all__ = ["order_ties_by", "morton_keys", "geometric_order", "lexicographic_order"]
+__all__ = ["order_ties_by", "sortable_keys", "morton_keys", "geometric_order", "lexicographic_order"]
 
 
 @njit
 def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
     """Within runs of equal ``key``, reorder ``order`` (and ``tie``) by increasing ``tie``.
 
-    ``key`` and ``tie`` are given in ``order``'s order (``key[order]``,
+    Both are unsigned 64-bit integers (floats: :func:`sortable_keys`), so
+    that the kernel is compiled once.  ``key`` and ``tie`` are given in ``order``'s order (``key[order]``,
     ``tie[order]``): contiguous, so the sorts of the runs stay in cache.
     ``key`` must be sorted; ``tie`` is reordered along with ``order``.  Short
     runs (the usual case for float keys of geometric data) are
@@ -32,8 +33,11 @@ def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
             m += 1
         if m - k > 32:
             perm = np.argsort(tie[k:m], kind="mergesort")
-            order[k:m] = order[k:m][perm]
-            tie[k:m] = tie[k:m][perm]
+            run_order = order[k:m].copy()
+            run_tie = tie[k:m].copy()
+            for i in range(m - k):  # element by element: see delaunay._merge_sort_run
+                order[k + i] = run_order[perm[i]]
+                tie[k + i] = run_tie[perm[i]]
             k = m
             continue
         for i in range(k + 1, m):
@@ -64,10 +68,17 @@ def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
         raise InvalidInputError(f"xy must have shape (n, 2), got {arr.shape}")
     x = np.ascontiguousarray(arr[:, 0])
     y = np.ascontiguousarray(arr[:, 1])
-    key = _lexicographic_keys(x, y)
+    key, y_key = _lexicographic_keys(x, y)
     order = np.argsort(key)
-    order_ties_by(order, key[order], y[order])
+    order_ties_by(order, key[order], y_key[order])
     return order
+
+
+def sortable_keys(values: NDArray[np.float64]) -> NDArray[np.uint64]:
+    """Integers in the order of the (non-NaN) floats ``values``, equal where they are
+    equal (-0.0 taken as +0.0): the keys :func:`order_ties_by` takes."""
+    bits = (np.asarray(values, dtype=np.float64) + 0.0).view(np.uint64)
+    return np.where(bits >> np.uint64(63), ~bits, bits | (np.uint64(1) << np.uint64(63)))
 
 
 @njit
@@ -83,7 +94,8 @@ def _bit_length(v: np.uint64) -> int:
 @njit
 def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """64-bit keys in lexicographic order of the points, ties only between
-    points of equal x whose y agree in their leading bits.
+    points of equal x whose y agree in their leading bits; and y's own keys
+    (:func:`sortable_keys`), which break those ties.
 
     x and y become order-preserving integers (-0.0 taken as +0.0, which the
     float order does not tell apart); a key is the offset of x from the
@@ -100,7 +112,7 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         uy[i] = _sortable(np.float64(y[i] + 0.0).view(np.uint64))
     key = np.empty(n, dtype=np.uint64)
     if n == 0:
-        return key
+        return key, uy
     x_lo = ux.min()
     y_lo = uy.min()
     x_bits = _bit_length(ux.max() - x_lo)
@@ -111,7 +123,7 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         high = (ux[i] - x_lo) << np.uint64(room) if room < 64 else np.uint64(0)
         low = (uy[i] - y_lo) >> np.uint64(drop) if room > 0 else np.uint64(0)
         key[i] = high | low
-    return key
+    return key, uy
 
 
 @njit

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._jit import njit
-from ._order import order_ties_by
+from ._order import order_ties_by, sortable_keys
 from .delaunay import Triangulation, _next, _prev
 from .flip import flippable, triangle_score, triangle_scores
 from .quality import s2_kernel, s4_cubed_kernel
@@ -81,8 +81,9 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
                 capacity *= 2
                 grown_edges = np.empty(capacity, dtype=np.int32)
                 grown_gains = np.empty(capacity)
-                grown_edges[:n] = edges[:n]
-                grown_gains[:n] = gains[:n]
+                for i in range(n):  # element by element: see delaunay._merge_sort_run
+                    grown_edges[i] = edges[i]
+                    grown_gains[i] = gains[i]
                 edges = grown_edges
                 gains = grown_gains
             edges[n] = e
@@ -107,9 +108,9 @@ def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
 
 def _order_by_gain(gains: np.ndarray) -> np.ndarray:
     """Indices by decreasing gain; equal gains keep increasing index (half-edge) order."""
-    key = -gains
+    key = sortable_keys(-gains)
     order = np.argsort(key)
-    order_ties_by(order, key[order], order.astype(np.float64))  # ties by index
+    order_ties_by(order, key[order], order.astype(np.uint64))  # ties by index
     return order
 
 
