@@ -187,7 +187,9 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
             continue
         if n == out.shape[0]:
             grown = np.empty((2 * n, 3))
-            grown[:n] = out
+            for i in range(n):  # element by element: see delaunay._merge_sort_run
+                for j in range(3):
+                    grown[i, j] = out[i, j]
             out = grown
         out[n, 0] = ux
         out[n, 1] = uy

@@ -155,7 +155,10 @@ def _merge_sort_run(ids: np.ndarray, lo: int, hi: int, dist, x, y) -> None:
                 k += 1
         src, buf = buf, src
         width *= 2
-    ids[lo:hi] = src
+    # element by element: a slice assignment compiles numba's shape-mismatch
+    # error, with its string formatting, into the kernel (a second of the cold start)
+    for i in range(n):
+        ids[lo + i] = src[i]
 
 
 @njit
@@ -292,7 +295,8 @@ def _flip(tri: np.ndarray, he: np.ndarray, e: int) -> None:
 def _push(stack: np.ndarray, n: int, value: int) -> np.ndarray:
     if n == stack.shape[0]:
         grown = np.empty(2 * stack.shape[0], dtype=stack.dtype)
-        grown[:n] = stack
+        for i in range(n):  # element by element: see _merge_sort_run
+            grown[i] = stack[i]
         stack = grown
     stack[n] = value
     return stack
@@ -659,8 +663,9 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
     if n_deferred > 0:
         grown_tri = np.empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
         grown_he = np.empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
-        grown_tri[:m] = tri[:m]
-        grown_he[:m] = he[:m]
+        for i in range(m):
+            grown_tri[i] = tri[i]
+            grown_he[i] = he[i]
         tri = grown_tri
         he = grown_he
         seed = 12345
