@@ -657,7 +657,7 @@ def save_piece(scratch: Scratch, row: int, col: int, name: str, **arrays: NDArra
 
 
 def load_piece(scratch: Scratch, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
-    """Arrays saved by :func:`save_piece`, memory-mapped when local (read only)."""
+    """Arrays saved by :func:`save_piece`, memory-mapped when local (copy-on-write)."""
     return load_pieces(scratch, [(row, col, name)], keys)[0]
 
 

@@ -55,10 +55,14 @@ def _short_write(exc: OSError, path: Path, size: int) -> OSError:
 
 def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
     """``np.load`` of a local ``.npy`` file, safe in threads; memory-mapped
-    (read only) with ``mmap`` when the file is larger than 1 MiB."""
+    with ``mmap`` when the file is larger than 1 MiB.
+
+    The map is copy-on-write: the file is never changed, and the array is
+    writable like a loaded one, so kernels are compiled for one array type
+    (a read-only array is another, compiled again)."""
     if mmap and os.path.getsize(path) > _MAP_ABOVE:
         with _NPY_HEADER_LOCK:
-            return np.load(path, mmap_mode="r")
+            return np.load(path, mmap_mode="c")
     with open(path, "rb") as handle:
         return _read_npy(handle, str(path), file=True)
 
@@ -154,7 +158,7 @@ class Scratch:
             os.replace(tmp, target)
 
     def load(self, key: str, mmap: bool = False) -> np.ndarray:
-        """One array (``mmap``: a local file larger than 1 MiB is mapped, read only)."""
+        """One array (``mmap``: a local file larger than 1 MiB is mapped, copy-on-write)."""
         return self.load_many([key], mmap)[0]
 
     def load_many(self, keys: list[str], mmap: bool = False) -> list[np.ndarray]:
