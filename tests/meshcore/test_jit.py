@@ -6,23 +6,33 @@ import numba
 import numpy as np
 import pytest
 
-from meshcore._jit import njit
+from meshcore import _jit
 from meshcore._order import order_ties_by, sortable_keys
 
 
-@njit
+def _kernel(function):
+    """Compiled as meshcore's kernels are, but not cached (a kernel loaded
+    from the cache would not compile the helpers it calls)."""
+    return _jit._Dispatcher(py_func=function, locals={}, targetoptions={"nopython": True})
+
+
 def _add(a, k):
     return a + k
 
 
-@njit
+_add = _kernel(_add)
+
+
 def _add_a_constant(a):
     return _add(a, 1)
 
 
-@njit
 def _add_a_variable(a, k):
     return _add(a, k)
+
+
+_add_a_constant = _kernel(_add_a_constant)
+_add_a_variable = _kernel(_add_a_variable)
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
