@@ -8,6 +8,7 @@ ENV PYTHONUNBUFFERED=1 \
 WORKDIR /opt/terrain
 COPY pyproject.toml README.md ./
 COPY meshcore ./meshcore
+COPY experiments ./experiments
 COPY pipeline ./pipeline
 COPY workflows ./workflows
 # the demo job runs every kernel of a run (routing, hull, mesh, DEM): about

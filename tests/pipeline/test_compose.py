@@ -55,6 +55,12 @@ def test_compose_defines_a_scalable_cluster_and_a_runner(compose):
     dockerfile = (REPO / "Dockerfile").read_text()
     assert "pip install \".[cluster,cloud]\"" in dockerfile and "COPY workflows" in dockerfile  # bokeh, s3fs
     assert "terrain demo" in dockerfile  # every kernel of a run compiled into the image
+    # every package the install names is copied into the image (pip fails on a missing one)
+    import tomllib
+
+    packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    for top in {name.split(".")[0] for name in packages}:
+        assert f"COPY {top} ./{top}" in dockerfile, top
 
 
 def test_the_s3_profile_is_a_cluster_that_shares_no_disk(compose):
