@@ -49,6 +49,17 @@ mesh stage 0.50 s instead of 0.60 s, ``bench/bench_peer.py whitebox``)."""
 
 MIN_POINTS_PER_TILE = 100_000
 
+MAX_AUTO_TILE_CELLS = 4096
+"""The largest tile edge the automatic size takes, in cells.  A tile is one
+chunk of every layer, held and written whole (64 MiB of float32 at this
+size), even where the grid is narrower than the tile: sparse points over a
+long strip, or a header whose bounds reach far beyond its points, would
+otherwise give chunks of gigabytes."""
+
+LARGEST_TILE_CELLS = 23_170
+"""The largest tile edge at all: a chunk of float32 cells must stay under the
+2 GiB (2**31 bytes) a compression codec takes."""
+
 SMOOTH_POINTS_PER_TILE = 125_000
 """The same for ``surface="smooth"``: kriging its nodes costs several times
 meshing, so smaller tiles let every core krige (a survey of 500k points is
@@ -229,6 +240,12 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
     spacing = 1.0 / math.sqrt(density)
     if config.tile_size is not None:
         tile_cells = int(round(config.tile_size / config.resolution))
+        if tile_cells > LARGEST_TILE_CELLS:
+            raise UsageError(
+                f"tile_size {config.tile_size:g} at resolution {config.resolution:g} gives tiles of {tile_cells:,} x "
+                f"{tile_cells:,} cells, chunks over the 2 GiB a layer's chunk can hold; give a tile_size of at most "
+                f"{LARGEST_TILE_CELLS * config.resolution:g}"
+            )
     else:
         per_tile = POINTS_PER_TILE if config.surface == "linear" else SMOOTH_POINTS_PER_TILE
         per_tile = min(per_tile, max(n_points // MIN_AUTO_TILES, MIN_POINTS_PER_TILE))
@@ -238,7 +255,7 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         # 304 m that holds 60% of the points beside three small ones
         cells = [max(1.0, (bounds[2] - bounds[0]) / config.resolution), max(1.0, (bounds[3] - bounds[1]) / config.resolution)]
         even = max(math.ceil(side / max(1, math.ceil(side / target))) for side in cells)
-        tile_cells = max(16, -(-even // 16) * 16)
+        tile_cells = min(max(16, -(-even // 16) * 16), MAX_AUTO_TILE_CELLS)
     buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
     return tile_cells, float(buffer)
 

@@ -81,3 +81,36 @@ def test_a_nan_scale_is_one_readable_line(tmp_path, capsys):
     assert _run(path, tmp_path / "o.zarr") == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err == f"terrain: error: {path}: unusable scale factors (nan, 0.01, 0.01): its coordinates cannot be decoded"
+
+
+def _lying_min_y(path, value: float) -> None:
+    """Overwrite the header's minimum y (a double at byte 203 of every LAS/LAZ header)."""
+    import struct
+
+    with open(path, "r+b") as handle:
+        handle.seek(203)
+        handle.write(struct.pack("<d", value))
+
+
+def test_a_header_spanning_far_beyond_its_points_gets_tiles_of_bounded_chunks(tmp_path, capsys):
+    # a fuzzed header once said min y = -1 for points near y = 6.86e6: the
+    # grid spans 3.4 million rows, and tiles sized from the density were
+    # 41,344 cells wide, chunks of 6.8 GB that no codec writes
+    from pipeline.runs.plan import LARGEST_TILE_CELLS, MAX_AUTO_TILE_CELLS, plan_run
+    from pipeline.config import RunConfig
+    from pipeline.errors import UsageError
+    from pipeline.tools.synthetic import SurveySpec, write_survey
+
+    paths = write_survey(tmp_path / "survey", SurveySpec(points=12_000, files=2, width=120.0, height=80.0, seed=3))
+    _lying_min_y(paths[0], -1.0)
+    config = RunConfig(inputs=(str(tmp_path / "survey"),), output=str(tmp_path / "o.zarr"), resolution=2.0)
+    plan = plan_run(config)
+    assert plan.grid.ny > 3_000_000 and plan.grid.tile_cells == MAX_AUTO_TILE_CELLS
+    # a tile size asked for: refused when a chunk could not be written, in the words of each interface
+    too_big = (LARGEST_TILE_CELLS + 16) * 2.0
+    with pytest.raises(UsageError, match="tile_size .* at most"):
+        plan_run(RunConfig(inputs=config.inputs, output=config.output, resolution=2.0, tile_size=too_big))
+    assert main(["run", str(tmp_path / "survey"), "-o", str(tmp_path / "o.zarr"), "--resolution", "2",
+                 "--tile-size", str(too_big), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--tile-size" in err and not (tmp_path / "o.zarr").exists()
