@@ -31,11 +31,25 @@ from .validate import convex_hull, validate
 
 __version__ = "0.1.0"
 
+
+def kernels_compiled() -> bool:
+    """Whether this machine's kernel cache holds meshcore's mesh kernels, as
+    compiled from these sources (by any job since the install or upgrade).
+
+    When not, the first :func:`build_mesh` compiles them: about 20 s, which a
+    caller may spend in another process while it does other work.
+    """
+    from ._jit import compiled_on_disk
+    from .delaunay import _sweep_kernel
+
+    return compiled_on_disk(_sweep_kernel)
+
 __all__ = [
     "Mesh",
     "build_mesh",
     "lexicographic_order",
     "kernel",
+    "kernels_compiled",
     "interpolate",
     "gradient",
     "rasterize",

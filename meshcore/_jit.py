@@ -24,7 +24,7 @@ from numba.core import caching, cgutils, types
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
-__all__ = ["njit", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels"]
+__all__ = ["njit", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels", "compiled_on_disk"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -248,6 +248,19 @@ def drop_stale_kernels(folders: list[Path] | None = None) -> None:
             stamp.write_text(digest)
         except OSError:  # a read-only install: its files were all written together
             pass
+
+
+def compiled_on_disk(kernel) -> bool:
+    """Whether the cache holds ``kernel`` (a dispatcher of this package)
+    compiled from these sources for this machine, for any argument types.
+    ``True`` when that cannot be told (JIT disabled, no cache)."""
+    cache = getattr(kernel, "_cache", None)
+    try:
+        index = cache._cache_file._load_index()  # empty when missing, or compiled from other sources
+        magic = kernel.targetctx.codegen().magic_tuple()
+    except Exception:  # noqa: BLE001 - numba's internals moved: do not guess
+        return True
+    return any(key[1] == magic for key in index)
 
 
 def sources_digest() -> str:

@@ -59,3 +59,16 @@ def test_order_ties_by_sorts_each_run_of_equal_keys_by_its_ties():
     expected = np.lexsort((tie, key))
     order_ties_by(order, key.copy(), tie.copy())
     np.testing.assert_array_equal(order, expected)
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))  # an empty cache of our own
+
+    def _twice(a):
+        return 2 * a
+
+    kernel = _jit.njit(_twice)
+    assert not _jit.compiled_on_disk(kernel)
+    assert kernel(4) == 8
+    assert _jit.compiled_on_disk(kernel) and any(tmp_path.rglob("*.nbi"))
