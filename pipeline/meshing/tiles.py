@@ -39,7 +39,7 @@ from ..tiling.routing import neighbour_tile_points, points_in_box
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
-    "reached_tiles",
+    "reached_tiles", "load_kernels", "load_mesh_kernels", "load_surface_kernels",
 ]
 
 @dataclass(frozen=True)
@@ -782,17 +782,32 @@ def load_kernels(job: TileJob) -> None:
     tile, with the job's measures: a thread that the route stage leaves idle
     loads them from the compiled cache meanwhile (0.1 s of a one-file job), so
     the first tiles start at once.  Reads and writes nothing."""
+    load_mesh_kernels(job.triangle_measure, job.quad_measure, job.merge, job.duplicates, job.surface)
+    load_surface_kernels(job.max_edge, job.surface)
+
+
+def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: str, duplicates: str, surface: str) -> None:
+    """The mesh kernels of :func:`load_kernels`: a tile's mesh (and its smooth nodes)."""
     k = np.arange(64, dtype=np.float64)
     xy = np.column_stack([k % 8 + 0.01 * (k * 7 % 5), k // 8 + 0.01 * (k * 3 % 7)])
-    mesh = meshcore.build_mesh(
-        xy, job.triangle_measure, job.quad_measure, job.merge, window=(1.0, 1.0, 6.0, 6.0), known=(-1.0, -1.0, 9.0, 9.0)
-    )
-    z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0] * 0.1 + np.sin(xy[:, 1]), job.duplicates)
-    meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=job.max_edge)
-    meshcore.lexicographic_order(xy)
-    if job.surface == "smooth":
+    mesh = meshcore.build_mesh(xy, triangle_measure, quad_measure, merge, window=(1.0, 1.0, 6.0, 6.0), known=(-1.0, -1.0, 9.0, 9.0))
+    z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0] * 0.1 + np.sin(xy[:, 1]), duplicates)
+    if surface == "smooth":
         variogram = meshcore.fit_variogram(xy, z[mesh.input_to_vertex], neighbours=meshcore.DEFAULT_NEIGHBOURS)
         hoods = meshcore.smooth_neighbourhoods(mesh, spacing=variogram.spacing)
-        nodes = meshcore.smooth_nodes(mesh, z, variogram, neighbourhoods=hoods)
-        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=job.max_edge, surface="smooth", nodes=nodes)
-        meshcore.gradient(mesh, z, xy[:8, 0], xy[:8, 1], surface="smooth", nodes=nodes)
+        meshcore.smooth_nodes(mesh, z, variogram, neighbourhoods=hoods)
+
+
+def load_surface_kernels(max_edge: float | None, surface: str) -> None:
+    """The DEM kernels of :func:`load_kernels`, on a mesh of three faces made
+    here (so that they compile without the mesh kernels)."""
+    vertices = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 4.0], [4.0, 4.0], [8.0, 5.0], [2.0, 8.0]])
+    faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
+    mesh = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
+    z = vertices[:, 0] * 0.1 + np.sin(vertices[:, 1])
+    meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
+    meshcore.lexicographic_order(vertices)
+    if surface == "smooth":
+        nodes = meshcore.linear_nodes(mesh.faces, z)
+        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge, surface="smooth", nodes=nodes)
+        meshcore.gradient(mesh, z, vertices[:3, 0], vertices[:3, 1], surface="smooth", nodes=nodes)

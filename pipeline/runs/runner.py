@@ -43,7 +43,8 @@ from ..store.catalog import write_stac_item
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, hull_copies, survey_hull
 from .. import urls
-from ..meshing.tiles import TileJob, TileSummary, dem_tile, load_kernels, mesh_tile, reached_tiles
+from ..meshing.tiles import TileJob, TileSummary, dem_tile, load_kernels, load_surface_kernels, mesh_tile, reached_tiles
+from .compiling import KernelCompile, compile_aside
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
@@ -295,15 +296,21 @@ def _execute(
         return _already_complete(config, decision, work, report, say)
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
     client, cluster = connect(config)
+    compiling = KernelCompile(None)
     if isinstance(client, LocalThreads):
         # the tiles' kernels are loaded (from the compiled cache) by a thread
         # that the store's creation and the inputs leave idle: 0.1-0.2 s of a
-        # one-file job that its first tiles waited for
-        client.submit(load_kernels, _kernel_job(plan, work.scratch))
+        # one-file job that its first tiles waited for.  Not compiled yet (the
+        # first run on this machine): the mesh kernels are compiled in another
+        # process meanwhile, the DEM's in that thread
+        job = _kernel_job(plan, work.scratch)
+        compiling = compile_aside(job)
+        client.submit(load_kernels if compiling.process is None else _load_surface_kernels, job)
     try:
         resume.prepare(plan, decision, work, incremental, report.notes, say)
         report.stages["scan"] = time.perf_counter() - t0
     except BaseException:
+        compiling.stop()
         with contextlib.suppress(Exception):  # the first error is the one to report
             close(client, cluster)
         raise
@@ -319,6 +326,7 @@ def _execute(
             variogram, provenance["smooth_surface"] = run_variogram(work, grid, config.duplicates, report.points_kept)
             report.stages["variogram"] = time.perf_counter() - t0
         t0 = time.perf_counter()
+        compiling.wait()
         meshed = _mesh_stage(plan, work, client, routed, variogram, show, report)
         report.stages["mesh"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -329,6 +337,7 @@ def _execute(
         _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
         report.stages["write mesh"] = time.perf_counter() - t0
     finally:
+        compiling.stop()
         close(client, cluster)
 
     report.stages["total"] = time.perf_counter() - t_start
@@ -429,6 +438,10 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
     return Routed(done, windows, hull)
+
+
+def _load_surface_kernels(job: TileJob) -> None:
+    load_surface_kernels(job.max_edge, job.surface)
 
 
 def _kernel_job(plan: RunPlan, scratch: Scratch) -> TileJob:
