@@ -12,8 +12,11 @@ that changed forgotten, or nothing (a resume).
 
 from __future__ import annotations
 
+import functools
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from .changes import changed_inputs, forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
@@ -25,7 +28,7 @@ from ..meshing.tiles import piece_intact
 from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
-__all__ = ["Resume", "Update", "decide", "plan_update", "prepare"]
+__all__ = ["Resume", "Update", "decide", "plan_update", "prepare", "work_reusable"]
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,35 @@ def plan_update(plan: RunPlan, resume: Resume, work: WorkDir) -> Update:
     return Update(keep, tuple(regions), frozenset(tiles))
 
 
+@functools.cache
+def sources_digest() -> str:
+    """SHA-256 of the sources that make a work folder's units (meshcore's and the pipeline's)."""
+    import meshcore
+
+    packages = (Path(meshcore.__file__).parent, Path(__file__).resolve().parents[1])
+    digest = hashlib.sha256()
+    for package in packages:
+        for path in sorted(package.rglob("*.py")):
+            digest.update(path.relative_to(package.parent).as_posix().encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
+def work_reusable(work: WorkDir) -> bool:
+    """Whether the work folder holds units made by these very sources.
+
+    Another version meshes, krigs and numbers its tiles in its own way: its
+    pieces beside this version's would not make one conforming mesh (nor
+    give the smooth surface's shared edges the same nodes)."""
+    record = work.exists() and work.recorded("software", "sources")
+    return bool(record) and record.get("digest") == sources_digest()
+
+
+def _start_work(work: WorkDir) -> None:
+    """An empty work folder, stamped with the sources that will fill it."""
+    work.reset()
+    work.record("software", "sources", {"digest": sources_digest()})
+
+
 def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, notes: list[str],
             say: Callable[[str], None]) -> None:
     """Make the store and the work folder agree with ``resume``: create the
@@ -127,12 +159,16 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
             overwrite=config.overwrite or incremental,
             height_units=cf_units(plan.crs.height_unit),
         )
-        work.reset()
+        _start_work(work)
     elif not work.exists():
         # the intermediate files are gone: every stage runs again
         store.reset_tiles_done(config.output)
-        work.reset()
+        _start_work(work)
         notes.append("the work folder was missing: every tile was computed again")
+    elif not work_reusable(work):
+        store.reset_tiles_done(config.output)
+        _start_work(work)
+        notes.append("the work folder was written by another version of the software: every tile was computed again")
     elif not resume.same_inputs:
         update = plan_update(plan, resume, work)
         forget_changed_inputs(work, len(previous["provenance"]["inputs"]), update.keep)

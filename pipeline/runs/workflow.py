@@ -119,6 +119,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     """Last run, files known, and what the next run would do."""
     from ..store import zarr_store as store
     from .changes import same_input
+    from .resume import work_reusable
     from ..tiling.checkpoint import WorkDir, work_dir_for
     from ..inputs.sources import discover_inputs
 
@@ -161,7 +162,10 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     done = store.tiles_done(cfg.output)
     status["tiles_total"] = int(done.size)
     if not (new or changed or gone):
-        status["tiles_pending"] = int(done.size - done.sum()) if not attrs.get("complete") else 0
+        if attrs.get("complete"):
+            status["tiles_pending"] = 0
+        else:  # the run resumes, unless it must start over (work folder lost, or made by another version)
+            status["tiles_pending"] = int(done.size - done.sum()) if work_reusable(work) else "all"
         return status
     status["tiles_pending"] = _pending_after_changes(cfg, work, done)
     return status
@@ -173,7 +177,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
     decision on the store (:func:`~pipeline.runs.resume.decide`) and the tiles an
     update meshes again (:func:`~pipeline.runs.resume.plan_update`)."""
     from .plan import frame_change, plan_run
-    from .resume import decide, plan_update
+    from .resume import decide, plan_update, work_reusable
 
     try:
         plan = plan_run(config)
@@ -182,7 +186,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
         return f"unknown: the next run would stop: {exc}"
     if decision.moved_from is not None:
         return f"all ({frame_change(decision.moved_from, plan.provenance, done=False)})"
-    if decision.previous is None or not work.exists():
+    if decision.previous is None or not work_reusable(work):
         return "all"
     if decision.same_inputs:  # a file left out or only touched: the run resumes or has nothing to do
         return 0 if decision.complete else int(done.size - done.sum())

@@ -362,3 +362,25 @@ def test_a_store_left_half_grown_is_made_again(tmp_path):
     report = run_workflow(workflow, progress=False)
     assert "an earlier run stopped while it grew the grid: every tile was computed again" in report.notes
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_an_upgrade_between_runs_computes_every_tile_again(job, tmp_path, monkeypatch):
+    # tiles meshed by another version beside this version's would not make one
+    # conforming mesh: the work folder is stamped with the sources that wrote it
+    from pipeline.runs import resume
+
+    workflow = Workflow.load(job)
+    run_workflow(workflow, progress=False)
+    time.sleep(0.01)
+    _patch(tmp_path / "archive", "patch_a", (20.0, 20.0), seed=23)
+    assert workflow_status(workflow)["tiles_pending"] not in (0, "all")  # the same version: a few tiles
+    monkeypatch.setattr(resume, "sources_digest", lambda: "another version")
+    assert workflow_status(workflow)["tiles_pending"] == "all"
+    report = run_workflow(workflow, progress=False)
+    assert any("another version of the software: every tile" in note for note in report.notes), report.notes
+    assert not any("inputs changed" in note for note in report.notes)
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
+    # and the next run, by the same version, keeps the work
+    _patch(tmp_path / "archive", "patch_a", (20.0, 20.0), seed=24)
+    report = run_workflow(workflow, progress=False)
+    assert any("inputs changed" in note for note in report.notes), report.notes
