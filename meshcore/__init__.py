@@ -21,7 +21,7 @@ from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
-from .patches import NODES_PER_FACE, linear_nodes
+from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
@@ -61,6 +61,8 @@ __all__ = [
     "Surface",
     "NODES_PER_FACE",
     "linear_nodes",
+    "node_deviations",
+    "nodes_from_deviations",
     "DEFAULT_NEIGHBOURS",
     "validate",
     "convex_hull",

@@ -34,8 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._jit import njit
+from .errors import InvalidInputError
 
-__all__ = ["NODES_PER_FACE", "linear_nodes"]
+__all__ = ["NODES_PER_FACE", "linear_nodes", "node_deviations", "nodes_from_deviations"]
 
 NODES_PER_FACE = 12
 """Columns of a face's row of node values (see the module docstring)."""
@@ -195,26 +196,51 @@ def quad_patch(
 
 
 @njit
+def _face_linear_nodes(faces: np.ndarray, z: np.ndarray, f: int, row: np.ndarray) -> None:
+    """The linear surface's values at face ``f``'s nodes, into ``row`` (its unused columns untouched)."""
+    nc = 4 if faces[f, 3] >= 0 else 3
+    for k in range(nc):
+        a = z[faces[f, k]]
+        b = z[faces[f, (k + 1) % nc]]
+        # the same two products, summed, from either face of the edge
+        row[2 * k] = _TWO_THIRDS * a + _THIRD * b
+        row[2 * k + 1] = _THIRD * a + _TWO_THIRDS * b
+    z0 = z[faces[f, 0]]
+    z1 = z[faces[f, 1]]
+    z2 = z[faces[f, 2]]
+    if nc == 3:
+        row[8] = (z0 + z1 + z2) * _THIRD
+    else:
+        z3 = z[faces[f, 3]]
+        for m in range(4):
+            u = _THIRD if m == 0 or m == 3 else _TWO_THIRDS
+            v = _THIRD if m < 2 else _TWO_THIRDS
+            row[8 + m] = (1.0 - u) * (1.0 - v) * z0 + u * (1.0 - v) * z1 + u * v * z2 + (1.0 - u) * v * z3
+
+
+@njit
 def _linear_nodes_kernel(faces: np.ndarray, z: np.ndarray, out: np.ndarray) -> None:
     for f in range(faces.shape[0]):
-        nc = 4 if faces[f, 3] >= 0 else 3
-        for k in range(nc):
-            a = z[faces[f, k]]
-            b = z[faces[f, (k + 1) % nc]]
-            # the same two products, summed, from either face of the edge
-            out[f, 2 * k] = _TWO_THIRDS * a + _THIRD * b
-            out[f, 2 * k + 1] = _THIRD * a + _TWO_THIRDS * b
-        z0 = z[faces[f, 0]]
-        z1 = z[faces[f, 1]]
-        z2 = z[faces[f, 2]]
-        if nc == 3:
-            out[f, 8] = (z0 + z1 + z2) * _THIRD
-        else:
-            z3 = z[faces[f, 3]]
-            for m in range(4):
-                u = _THIRD if m == 0 or m == 3 else _TWO_THIRDS
-                v = _THIRD if m < 2 else _TWO_THIRDS
-                out[f, 8 + m] = (1.0 - u) * (1.0 - v) * z0 + u * (1.0 - v) * z1 + u * v * z2 + (1.0 - u) * v * z3
+        _face_linear_nodes(faces, z, f, out[f])
+
+
+@njit
+def _deviations_kernel(faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, out: np.ndarray) -> None:
+    row = np.empty(NODES_PER_FACE)
+    for f in range(faces.shape[0]):
+        for j in range(NODES_PER_FACE):
+            row[j] = np.nan
+        _face_linear_nodes(faces, z, f, row)
+        for j in range(NODES_PER_FACE):
+            out[f, j] = np.float32(nodes[f, j] - row[j])
+
+
+@njit
+def _restore_kernel(faces: np.ndarray, z: np.ndarray, deviations: np.ndarray, out: np.ndarray) -> None:
+    for f in range(faces.shape[0]):
+        _face_linear_nodes(faces, z, f, out[f])
+        for j in range(NODES_PER_FACE):
+            out[f, j] += np.float64(deviations[f, j])
 
 
 def linear_nodes(faces: NDArray[np.integer], z: NDArray[np.floating]) -> NDArray[np.float64]:
@@ -237,4 +263,38 @@ def linear_nodes(faces: NDArray[np.integer], z: NDArray[np.floating]) -> NDArray
     f = np.ascontiguousarray(faces, dtype=np.int64)
     out = np.full((f.shape[0], NODES_PER_FACE), np.nan)
     _linear_nodes_kernel(f, np.ascontiguousarray(z, dtype=np.float64), out)
+    return out
+
+
+def node_deviations(faces: NDArray[np.integer], z: NDArray[np.floating], nodes: NDArray[np.floating]) -> NDArray[np.float32]:
+    """``nodes`` (a smooth surface's, ``(n_f, 12)``) as single-precision
+    deviations from :func:`linear_nodes`: half the bytes, and
+    :func:`nodes_from_deviations` restores them bit-identically on both sides
+    of every edge, to a few nanometres per metre of deviation.
+
+    >>> import numpy as np
+    >>> faces, z = np.array([[0, 1, 2, -1]]), np.array([0.0, 3.0, 6.0])
+    >>> nodes = linear_nodes(faces, z) + 0.25
+    >>> bool(np.array_equal(nodes_from_deviations(faces, z, node_deviations(faces, z, nodes)), nodes, equal_nan=True))
+    True
+    """
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    values = np.ascontiguousarray(nodes, dtype=np.float64)
+    if values.shape != (f.shape[0], NODES_PER_FACE):
+        raise InvalidInputError(f"nodes must have shape ({f.shape[0]}, {NODES_PER_FACE}), got {values.shape}")
+    out = np.empty((f.shape[0], NODES_PER_FACE), dtype=np.float32)
+    _deviations_kernel(f, np.ascontiguousarray(z, dtype=np.float64), values, out)
+    return out
+
+
+def nodes_from_deviations(
+    faces: NDArray[np.integer], z: NDArray[np.floating], deviations: NDArray[np.float32]
+) -> NDArray[np.float64]:
+    """The nodes that :func:`node_deviations` gave ``deviations`` for (``linear_nodes + deviations``)."""
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    values = np.ascontiguousarray(deviations, dtype=np.float32)
+    if values.shape != (f.shape[0], NODES_PER_FACE):
+        raise InvalidInputError(f"deviations must have shape ({f.shape[0]}, {NODES_PER_FACE}), got {values.shape}")
+    out = np.full((f.shape[0], NODES_PER_FACE), np.nan)
+    _restore_kernel(f, np.ascontiguousarray(z, dtype=np.float64), values, out)
     return out

@@ -721,12 +721,12 @@ def _pack_nodes(faces: NDArray[np.int64], z: NDArray[np.float64], nodes: NDArray
     :func:`_unpack_nodes` restores them bit-identically on both sides of every
     edge (both faces compute the same linear values), to a few nanometres per
     metre of deviation."""
-    return (nodes - meshcore.linear_nodes(faces, z)).astype(np.float32)
+    return meshcore.node_deviations(faces, z, nodes)
 
 
 def _unpack_nodes(faces: NDArray[np.int64], z: NDArray[np.float64], packed: NDArray[np.float32]) -> NDArray[np.float64]:
     """The nodes :func:`_pack_nodes` saved, for ``faces`` with corners' ``z``."""
-    return meshcore.linear_nodes(faces, z) + packed
+    return meshcore.nodes_from_deviations(faces, z, packed)
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:

@@ -312,6 +312,22 @@ def test_linear_nodes_are_the_plane_and_agree_on_both_sides_of_every_edge(rng):
     assert shared.sum() > 500 and np.array_equal(vals[1:][shared], vals[:-1][shared])
 
 
+def test_node_deviations_are_single_precision_and_restore_the_same_bits_on_both_sides(rng):
+    xy = rng.random((400, 2)) * 100.0 + OFFSET
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    z = rng.normal(300.0, 20.0, mesh.vertices.shape[0])
+    linear = meshcore.linear_nodes(mesh.faces, z)
+    nodes = linear + rng.normal(0.0, 0.5, linear.shape)  # NaN where a face has no such node
+    packed = meshcore.node_deviations(mesh.faces, z, nodes)
+    assert packed.dtype == np.float32
+    assert np.array_equal(packed, (nodes - linear).astype(np.float32), equal_nan=True)
+    restored = meshcore.nodes_from_deviations(mesh.faces, z, packed)
+    assert np.array_equal(restored, linear + packed, equal_nan=True)
+    assert_allclose(restored, nodes, rtol=0, atol=1e-6)
+    with pytest.raises(meshcore.InvalidInputError, match="shape"):
+        meshcore.node_deviations(mesh.faces, z, nodes[:, :9])
+
+
 def test_collinear_neighbours_fall_back_to_the_linear_surface():
     """A thin strip of points on two lines: no plane fits most neighbourhoods, the nodes are the linear surface's."""
     x = np.linspace(0.0, 100.0, 60)
