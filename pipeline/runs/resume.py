@@ -127,8 +127,8 @@ def work_reusable(work: WorkDir) -> bool:
     Another version meshes, krigs and numbers its tiles in its own way: its
     pieces beside this version's would not make one conforming mesh (nor
     give the smooth surface's shared edges the same nodes)."""
-    record = work.exists() and work.recorded("software", "sources")
-    return bool(record) and record.get("digest") == sources_digest()
+    record = work.recorded("software", "sources")  # None in a folder without records
+    return record is not None and record.get("digest") == sources_digest()
 
 
 def _start_work(work: WorkDir) -> None:
@@ -160,15 +160,12 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
             height_units=cf_units(plan.crs.height_unit),
         )
         _start_work(work)
-    elif not work.exists():
-        # the intermediate files are gone: every stage runs again
-        store.reset_tiles_done(config.output)
-        _start_work(work)
-        notes.append("the work folder was missing: every tile was computed again")
     elif not work_reusable(work):
+        # the intermediate files are gone, or another version wrote them: every stage runs again
+        why = "was written by another version of the software" if work.exists() else "was missing"
         store.reset_tiles_done(config.output)
         _start_work(work)
-        notes.append("the work folder was written by another version of the software: every tile was computed again")
+        notes.append(f"the work folder {why}: every tile was computed again")
     elif not resume.same_inputs:
         update = plan_update(plan, resume, work)
         forget_changed_inputs(work, len(previous["provenance"]["inputs"]), update.keep)
