@@ -552,7 +552,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # the patches' nodes: from the neighbourhoods held, the same in every tile
     nodes = {}
     if smooth:
-        nodes["nodes"] = _pack_nodes(mesh.faces, z, meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods))
+        # saved as single-precision deviations from the linear surface (half the bytes), restored
+        # bit-identically on both sides of every edge by _local_mesh
+        nodes["nodes"] = meshcore.node_deviations(mesh.faces, z, meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods))
     save_piece(
         job.scratch, job.row, job.col, "piece",
         vertices=vertices,
@@ -712,21 +714,7 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     v = np.concatenate(verts)
     mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), np.concatenate(faces), np.arange(v.shape[0]))
     z = np.ascontiguousarray(v[:, 2])
-    return mesh, z, np.concatenate(kinds), _unpack_nodes(mesh.faces, z, np.concatenate(nodes)) if smooth else None
-
-
-def _pack_nodes(faces: NDArray[np.int64], z: NDArray[np.float64], nodes: NDArray[np.float64]) -> NDArray[np.float32]:
-    """A piece's smooth-surface nodes as saved: single-precision deviations
-    from the linear surface's values at the same nodes (half the bytes).
-    :func:`_unpack_nodes` restores them bit-identically on both sides of every
-    edge (both faces compute the same linear values), to a few nanometres per
-    metre of deviation."""
-    return meshcore.node_deviations(faces, z, nodes)
-
-
-def _unpack_nodes(faces: NDArray[np.int64], z: NDArray[np.float64], packed: NDArray[np.float32]) -> NDArray[np.float64]:
-    """The nodes :func:`_pack_nodes` saved, for ``faces`` with corners' ``z``."""
-    return meshcore.nodes_from_deviations(faces, z, packed)
+    return mesh, z, np.concatenate(kinds), meshcore.nodes_from_deviations(mesh.faces, z, np.concatenate(nodes)) if smooth else None
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
