@@ -26,7 +26,20 @@ from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
-from .smooth import DEFAULT_NEIGHBOURS, Neighbourhoods, Variogram, fit_variogram, smooth_neighbourhoods, smooth_nodes
+from .refine import Refinement, refine_long_faces
+from .smooth import (
+    DEFAULT_NEIGHBOURS,
+    AddedPoints,
+    Neighbourhoods,
+    SmoothPlan,
+    SmoothSurface,
+    Variogram,
+    fit_variogram,
+    smooth_neighbourhoods,
+    smooth_nodes,
+    smooth_plan,
+    smooth_surface,
+)
 from .validate import convex_hull, validate
 
 __version__ = "0.1.0"
@@ -54,6 +67,13 @@ __all__ = [
     "gradient",
     "rasterize",
     "smooth_nodes",
+    "smooth_plan",
+    "smooth_surface",
+    "SmoothPlan",
+    "SmoothSurface",
+    "AddedPoints",
+    "refine_long_faces",
+    "Refinement",
     "fit_variogram",
     "smooth_neighbourhoods",
     "Neighbourhoods",

@@ -57,7 +57,7 @@ from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface, parse_option
 from .patches import NODES_PER_FACE, bilinear_gradient, quad_patch, triangle_patch
-from .smooth import Variogram, smooth_nodes
+from .smooth import SmoothSurface, Variogram, smooth_surface
 
 __all__ = ["interpolate", "gradient"]
 
@@ -540,32 +540,64 @@ def _locate(
     return face
 
 
-def surface_nodes(
+class SurfaceArrays(NamedTuple):
+    """What the evaluation kernels take for a surface: its faces, values and nodes."""
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    z: NDArray[np.float64]
+    nodes: NDArray[np.float64]
+    """No rows for the linear surface."""
+    parent: NDArray[np.int64] | None
+    """The mesh's face of each face (a refined smooth surface), or None: the mesh's own faces."""
+
+
+def surface_arrays(
     mesh: Mesh,
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
     z: NDArray[np.float64],
-    surface: str | Surface,
+    surface: str | Surface | SmoothSurface,
     nodes: ArrayLike | None,
     variogram: Variogram | None,
-) -> NDArray[np.float64]:
-    """The node rows a kernel takes: none for the linear surface, else given or computed.
+) -> SurfaceArrays:
+    """The arrays a kernel evaluates for ``surface`` over ``mesh``: its own faces
+    (linear, or smooth with ``nodes`` given), or a smooth surface's refined ones
+    (given, or computed by :func:`meshcore.smooth_surface`).
 
-    ``z`` is already checked (:func:`meshcore.mesh.vertex_values`).
+    ``vertices, faces, z`` are ``mesh``'s, already checked.
     """
+    if isinstance(surface, SmoothSurface):
+        if nodes is not None or variogram is not None:
+            raise InvalidInputError("a computed smooth surface carries its nodes and variogram: give neither")
+        n_v = vertices.shape[0]
+        ok = (
+            surface.parent.shape == (surface.mesh.faces.shape[0],)
+            and surface.nodes.shape == (surface.mesh.faces.shape[0], NODES_PER_FACE)
+            and surface.z.shape == (surface.mesh.vertices.shape[0],)
+            and surface.z.shape[0] >= n_v
+            and (surface.parent.size == 0 or 0 <= surface.parent.min() <= surface.parent.max() < faces.shape[0])
+        )
+        if not ok or not np.array_equal(surface.z[:n_v], z, equal_nan=True):
+            raise InvalidInputError("surface was computed for another mesh or other values")
+        return SurfaceArrays(*mesh_arrays(surface.mesh), surface.z, np.ascontiguousarray(surface.nodes, dtype=np.float64),
+                             surface.parent)
     kind = parse_option(Surface, surface, "surface")
-    n_f = np.shape(mesh.faces)[0]
+    n_f = faces.shape[0]
     if kind is Surface.LINEAR:
         if nodes is not None:
             raise InvalidInputError("nodes are the smooth surface's: give them with surface='smooth'")
-        return np.empty((0, NODES_PER_FACE))
+        return SurfaceArrays(vertices, faces, z, np.empty((0, NODES_PER_FACE)), None)
     if nodes is None:
-        return smooth_nodes(mesh, z, variogram)
+        smooth = smooth_surface(mesh, z, variogram)
+        return SurfaceArrays(*mesh_arrays(smooth.mesh), smooth.z, smooth.nodes, smooth.parent)
     arr = np.asarray(nodes)
     if arr.dtype.kind not in "fiu" or arr.shape != (n_f, NODES_PER_FACE):
         raise InvalidInputError(
             f"nodes must be a real array of shape (n_faces, {NODES_PER_FACE}) = ({n_f}, {NODES_PER_FACE}), "
             f"got {arr.dtype} {arr.shape}"
         )
-    return np.ascontiguousarray(arr, dtype=np.float64)
+    return SurfaceArrays(vertices, faces, z, np.ascontiguousarray(arr, dtype=np.float64), None)
 
 
 def interpolate(
@@ -573,7 +605,7 @@ def interpolate(
     z: ArrayLike,
     x: ArrayLike,
     y: ArrayLike,
-    surface: str | Surface = "linear",
+    surface: str | Surface | SmoothSurface = "linear",
     nodes: ArrayLike | None = None,
     variogram: Variogram | None = None,
 ) -> NDArray[np.float64]:
@@ -590,14 +622,16 @@ def interpolate(
         One value per vertex, finite or NaN (NaN spreads to the faces using it).
     x, y : arrays of one shape, or scalars
         The query points.
-    surface : {"linear", "smooth"}
+    surface : {"linear", "smooth"} or SmoothSurface
         The paper's linear/bilinear faces, or cubic patches through the same
-        vertices (:mod:`meshcore.patches`, :mod:`meshcore.smooth`).
+        vertices (:mod:`meshcore.patches`, :mod:`meshcore.smooth`): computed
+        by :func:`meshcore.smooth_surface` (its long faces cut first), or as
+        computed already for this mesh and ``z``.
     nodes : (n_f, 12) array, optional
-        The smooth surface's node values (:func:`meshcore.smooth_nodes`);
-        computed when omitted.
+        With ``surface="smooth"``: node values of patches on the mesh's own
+        faces (:func:`meshcore.smooth_nodes`, none cut).
     variogram : Variogram, optional
-        For computed nodes: the kriging model (fitted to the vertices when omitted).
+        For a computed smooth surface: the kriging model (fitted to the vertices when omitted).
 
     Returns
     -------
@@ -621,10 +655,10 @@ def interpolate(
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
-    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
-    face = _locate(vertices, faces, px, py)
+    arrays = surface_arrays(mesh, vertices, faces, zv, surface, nodes, variogram)
+    face = _locate(arrays.vertices, arrays.faces, px, py)
     out = np.empty(px.shape[0])
-    _evaluate_kernel(vertices, faces, zv, rows, px, py, face, out)
+    _evaluate_kernel(arrays.vertices, arrays.faces, arrays.z, arrays.nodes, px, py, face, out)
     return out.reshape(shape)
 
 
@@ -633,7 +667,7 @@ def gradient(
     z: ArrayLike,
     x: ArrayLike,
     y: ArrayLike,
-    surface: str | Surface = "linear",
+    surface: str | Surface | SmoothSurface = "linear",
     nodes: ArrayLike | None = None,
     variogram: Variogram | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -662,9 +696,9 @@ def gradient(
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
     px, py, shape = _query_points(x, y)
-    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
-    face = _locate(vertices, faces, px, py)
+    arrays = surface_arrays(mesh, vertices, faces, zv, surface, nodes, variogram)
+    face = _locate(arrays.vertices, arrays.faces, px, py)
     gx = np.empty(px.shape[0])
     gy = np.empty(px.shape[0])
-    _gradient_kernel(vertices, faces, zv, rows, px, py, face, gx, gy)
+    _gradient_kernel(arrays.vertices, arrays.faces, arrays.z, arrays.nodes, px, py, face, gx, gy)
     return gx.reshape(shape), gy.reshape(shape)

@@ -36,12 +36,12 @@ from .interpolate import (
     _quad_value_and_gradient,
     _triangle_contains,
     _triangle_value_and_gradient,
-    surface_nodes,
+    surface_arrays,
 )
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface
 from .patches import quad_patch, triangle_patch
-from .smooth import Variogram
+from .smooth import SmoothSurface, Variogram
 
 __all__ = ["rasterize"]
 
@@ -203,7 +203,7 @@ def rasterize(
     nx: int,
     ny: int,
     max_edge: float | None = None,
-    surface: str | Surface = "linear",
+    surface: str | Surface | SmoothSurface = "linear",
     nodes: ArrayLike | None = None,
     variogram: Variogram | None = None,
 ) -> NDArray[np.float64]:
@@ -266,7 +266,33 @@ def rasterize(
         ):
             raise InvalidInputError(f"max_edge must be None or a number > 0, got {max_edge!r}")
         max_edge2 = float(max_edge) ** 2
-    rows = surface_nodes(mesh, zv, surface, nodes, variogram)
+    arrays = surface_arrays(mesh, vertices, faces, zv, surface, nodes, variogram)
+    faces_drawn, rows = arrays.faces, arrays.nodes
+    if arrays.parent is not None and max_edge2 < math.inf:
+        # a refined surface's faces are kept or left out with the mesh's face they lie in
+        keep = _within_max_edge(vertices, faces, max_edge2)[arrays.parent]
+        faces_drawn, rows, max_edge2 = faces_drawn[keep], rows[keep], math.inf
     out = np.full((ny, nx), np.nan)
-    _rasterize_kernel(vertices, faces, zv, rows, x0, y0, resolution, max_edge2, out)
+    _rasterize_kernel(arrays.vertices, faces_drawn, arrays.z, rows, x0, y0, resolution, max_edge2, out)
+    return out
+
+
+@njit
+def _within_max_edge(vertices: np.ndarray, faces: np.ndarray, max_edge2: float) -> np.ndarray:
+    """Whether each face's longest edge passes :func:`_rasterize_kernel`'s test (the same arithmetic)."""
+    out = np.empty(faces.shape[0], dtype=np.bool_)
+    for f in range(faces.shape[0]):
+        a = faces[f, 0]
+        b = faces[f, 1]
+        c = faces[f, 2]
+        d = faces[f, 3] if faces[f, 3] >= 0 else a
+        ax, ay = vertices[a, 0], vertices[a, 1]
+        bx, by = vertices[b, 0], vertices[b, 1]
+        cx, cy = vertices[c, 0], vertices[c, 1]
+        dx, dy = vertices[d, 0], vertices[d, 1]
+        longest = max(
+            max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
+            max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
+        )
+        out[f] = not longest > max_edge2
     return out

@@ -10,9 +10,13 @@ spill files) and rebuilds, until none is left ("certified").  Flips and merges
 happen only between triangles of the same piece, so they never cross a seam.
 
 With ``surface="smooth"`` the neighbourhood of every kriging system of the
-piece (one per edge, one per face) is one more disk the tile must hold, loaded like an escaping circle, so
-neighbouring tiles krig the nodes of their shared edges from the same points
-and get the same values; the nodes are saved with the piece.
+piece (one per cell of nodes, and of the points added on its long edges) is
+one more disk the tile must hold, loaded like an escaping circle, so
+neighbouring tiles split their shared long edges alike and krig the nodes of
+their shared edges from the same points, with the same values.  The piece
+saves its faces' nodes, and for the faces cut (:func:`meshcore.smooth_plan`)
+their triangles, nodes and added points beside: the mesh written is the
+combined mesh, the DEM is drawn from the smooth surface.
 
 A tile's result is saved to the scratch folder: its vertices (the ones it owns
 first, sorted by coordinates, for the global node numbering; then the other
@@ -469,7 +473,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         )
 
     mesh, meshed = build(points), points  # ``meshed``: the points of the last build
-    hoods = None  # the smooth surface's kriging systems over ``mesh``
+    plan = None  # the smooth surface's long faces and kriging systems over ``mesh``
     ext = job.extent
     while True:
         # circles not yet vouched for; their points are loaded from near to
@@ -482,9 +486,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         escapes = mesh.window_escapes
         if smooth:  # the smoother's neighbourhoods must be held too
-            if hoods is None:
-                hoods = meshcore.smooth_neighbourhoods(mesh, spacing=job.variogram.spacing)
-            escapes = np.concatenate([escapes, _open_disks(hoods.disks, held[0])])
+            if plan is None:
+                plan = meshcore.smooth_plan(mesh, job.variogram)
+            escapes = np.concatenate([escapes, _open_disks(plan.disks, held[0])])
         for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
@@ -519,7 +523,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
         if gap or np.any(d2 <= c[None, :, 2] ** 2):
             # a loaded point lies in a circle, or may close the gap: build again
-            mesh, meshed, hoods = build(points), points, None
+            mesh, meshed, plan = build(points), points, None
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
@@ -552,9 +556,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # the patches' nodes: from the neighbourhoods held, the same in every tile
     nodes = {}
     if smooth:
-        # saved as single-precision deviations from the linear surface (half the bytes), restored
-        # bit-identically on both sides of every edge by _local_mesh
-        nodes["nodes"] = meshcore.node_deviations(mesh.faces, z, meshcore.smooth_nodes(mesh, z, job.variogram, neighbourhoods=hoods))
+        nodes = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap)
     save_piece(
         job.scratch, job.row, job.col, "piece",
         vertices=vertices,
@@ -563,9 +565,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         **nodes,
     )
     reaching = _reaching_out(vertices, faces, bx)
-    border_v, border_f = _compact(vertices, np.compress(reaching, faces, axis=0))
-    border_nodes = {k: np.compress(reaching, v, axis=0) for k, v in nodes.items()}
-    save_piece(job.scratch, job.row, job.col, "border", vertices=border_v, faces=border_f, **border_nodes)
+    border = _select_faces({"vertices": vertices, "faces": faces, **nodes}, reaching)
+    border_v = border["vertices"]
+    save_piece(job.scratch, job.row, job.col, "border", **border)
     return TileSummary(
         row=job.row,
         col=job.col,
@@ -626,12 +628,65 @@ def _corner_outside(outside, faces):
     return out
 
 
-def _compact(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
-    """The vertices that ``faces`` use (kept in index order) and the faces
-    renumbered to them; a missing fourth corner (-1) stays -1."""
+def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str, NDArray]:
+    """The faces ``keep`` of a piece's arrays (:data:`PIECE_ARRAYS`, and the smooth
+    surface's of :func:`_piece_surface`), with the vertices they use (kept in
+    index order) and the faces renumbered to them; a missing fourth corner
+    (-1) stays -1.  The cut faces' triangles follow their faces; every added
+    point is kept."""
+    faces = np.compress(keep, part["faces"], axis=0)
     used, inverse = np.unique(faces, return_inverse=True)  # -1 first when present
     has_gap = used.size > 0 and used[0] < 0
-    return np.take(vertices, used[int(has_gap):], axis=0), inverse.reshape(faces.shape) - int(has_gap)
+    used = used[int(has_gap):]
+    out = {"vertices": np.take(part["vertices"], used, axis=0), "faces": inverse.reshape(faces.shape) - int(has_gap)}
+    if "nodes" in part:
+        out["nodes"] = np.compress(keep, part["nodes"], axis=0)
+    if "cut_parent" in part:
+        n_v = part["vertices"].shape[0]
+        mine = keep[part["cut_parent"]]
+        corners = np.compress(mine, part["cut_faces"], axis=0).astype(np.int64)
+        old = corners < n_v  # a corner of the face cut (so among ``used``), else an added point
+        corners[old] = np.searchsorted(used, corners[old])
+        corners[~old] += used.size - n_v
+        out["cut_faces"] = corners.astype(np.int32)
+        out["cut_parent"] = (np.cumsum(keep, dtype=np.int64) - 1)[np.compress(mine, part["cut_parent"])].astype(np.int32)
+        out["cut_nodes"] = np.compress(mine, part["cut_nodes"], axis=0)
+        out["added"] = np.asarray(part["added"])
+    return out
+
+
+def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z: NDArray[np.float64],
+                   remap: NDArray[np.int32]) -> dict[str, NDArray]:
+    """A tile's smooth surface as its piece saves it, beside the faces ``faces``
+    (over vertices with values ``z``, renumbered to the piece's by ``remap``).
+
+    ``nodes``: each face's nodes (NaN for a face cut); ``cut_faces``,
+    ``cut_parent``, ``cut_nodes``: the triangles of the faces cut, their
+    corners numbered past the piece's vertices for the points ``added``
+    (x, y, z).  The nodes are single-precision deviations from the linear
+    surface (half the bytes), restored bit-identically on both sides of every
+    edge by :func:`_local_mesh`.
+    """
+    n_f, n_v = faces.shape[0], z.shape[0]
+    parent = surface.parent
+    if surface.mesh.faces.shape[0] == n_f:  # nothing cut (a face cut gives two triangles or more)
+        n_kept, rows = n_f, surface.nodes
+    else:
+        n_kept = int(np.count_nonzero(np.bincount(parent, minlength=n_f) == 1))  # the faces kept come first
+        rows = np.full((n_f, meshcore.NODES_PER_FACE), np.nan)
+        rows[parent[:n_kept]] = surface.nodes[:n_kept]
+    cut = surface.mesh.faces[n_kept:]
+    corners = cut[:, :3].astype(np.int64)
+    old = corners < n_v
+    corners[old] = remap[corners[old]]
+    corners[~old] += int(np.count_nonzero(remap[:n_v] >= 0)) - n_v
+    return {
+        "nodes": meshcore.node_deviations(faces, z, rows),
+        "cut_faces": corners.astype(np.int32),
+        "cut_parent": parent[n_kept:].astype(np.int32),
+        "cut_nodes": meshcore.node_deviations(cut, surface.z, surface.nodes[n_kept:]),
+        "added": np.column_stack([surface.mesh.vertices[n_v:], surface.z[n_v:]]),
+    }
 
 
 #: the arrays :func:`mesh_tile` saves, by piece name
@@ -671,50 +726,83 @@ def load_pieces(scratch: Scratch, pieces: list[tuple[int, int, str]], keys) -> l
     return [{k: next(arrays) for k in keys} for _ in pieces]
 
 
-def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], NDArray[np.float64] | None]:
+def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], meshcore.SmoothSurface | None]:
     """The faces of this tile and its neighbours that overlap the tile's cells,
-    as one mesh, with z, the faces' kinds and (smooth surface) their nodes."""
+    as one mesh, with z, the faces' kinds and (smooth surface) the surface over them."""
     g = job.grid
     box = g.box(job.row, job.col)
     smooth = job.surface == "smooth"
-    verts, faces, kinds, nodes = [], [], [], []
-    offset = 0
+    parts = []
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
-    keys = ("vertices", "faces", "nodes") if smooth else ("vertices", "faces")
+    keys = ("vertices", "faces", *SURFACE_ARRAYS) if smooth else ("vertices", "faces")
     tiles = [(job.row, job.col), *neighbours]
     pieces = load_pieces(job.scratch, [(r, c, "piece" if k == 0 else "border") for k, (r, c) in enumerate(tiles)], keys)
     for (r, c), piece in zip(tiles, pieces):
-        own = (r, c) == (job.row, job.col)
-        v = piece["vertices"]
         f = piece["faces"]
-        n = piece.get("nodes")
         if f.shape[0] == 0:
             continue
-        if not own:
+        if (r, c) != (job.row, job.col):
+            v = piece["vertices"]
             corner = np.maximum(f, 0)
             fx = np.where(f >= 0, np.take(v[:, 0], corner), np.nan)
             fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
             hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
             hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
-            v, f = _compact(v, np.compress(hit, f, axis=0))
-            n = None if n is None else np.compress(hit, n, axis=0)
-        verts.append(v)
-        if n is not None:
-            nodes.append(np.asarray(n))
-        faces.append(np.where(f >= 0, f + offset, -1) if offset else f)
-        kinds.append((f[:, 3] >= 0).astype(np.int8) + 1)
-        offset += v.shape[0]
-    if not faces:
+            piece = _select_faces(piece, hit)
+        parts.append(piece)
+    if not parts:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
-        return empty, np.empty(0), np.empty(0, dtype=np.int8), np.empty((0, meshcore.NODES_PER_FACE)) if smooth else None
+        z = np.empty(0)
+        return empty, z, np.empty(0, dtype=np.int8), _smooth_surface(empty, z, parts) if smooth else None
     # a corner shared with a neighbour's face appears once per piece, with the
     # same coordinates and z: interpolation needs no merged vertex table
-    v = np.concatenate(verts)
-    mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), np.concatenate(faces), np.arange(v.shape[0]))
+    offsets = np.cumsum([0] + [p["vertices"].shape[0] for p in parts])
+    v = np.concatenate([p["vertices"] for p in parts])
+    faces = np.concatenate([np.where(p["faces"] >= 0, p["faces"] + o, -1) if o else p["faces"] for p, o in zip(parts, offsets)])
+    kinds = np.concatenate([(p["faces"][:, 3] >= 0).astype(np.int8) + 1 for p in parts])
+    mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), faces, np.arange(v.shape[0]))
     z = np.ascontiguousarray(v[:, 2])
-    return mesh, z, np.concatenate(kinds), meshcore.nodes_from_deviations(mesh.faces, z, np.concatenate(nodes)) if smooth else None
+    return mesh, z, kinds, _smooth_surface(mesh, z, parts) if smooth else None
+
+
+#: the smooth surface's arrays of a piece (:func:`_piece_surface`)
+SURFACE_ARRAYS = ("nodes", "cut_faces", "cut_parent", "cut_nodes", "added")
+
+
+def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dict[str, NDArray]]) -> meshcore.SmoothSurface:
+    """The smooth surface over ``mesh`` (the faces of ``parts``, in order), from the
+    arrays of :func:`_piece_surface`: the faces not cut with their nodes, then
+    the triangles of those cut."""
+    n_v, n_f = z.shape[0], mesh.faces.shape[0]
+    nodes = meshcore.nodes_from_deviations(mesh.faces, z, np.concatenate([p["nodes"] for p in parts]) if parts
+                                           else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32))
+    added = [np.asarray(p["added"]) for p in parts]
+    if not any(a.shape[0] for a in added):  # nothing cut: the mesh's own faces
+        return meshcore.SmoothSurface(mesh, z, nodes, np.arange(n_f))
+    tris, parent = [], []
+    vertex_offset, face_offset, added_offset = 0, 0, n_v
+    for p, a in zip(parts, added):
+        n_here = p["vertices"].shape[0]
+        c = np.asarray(p["cut_faces"], dtype=np.int64)
+        tris.append(np.where(c < n_here, c + vertex_offset, c - n_here + added_offset))
+        parent.append(np.asarray(p["cut_parent"], dtype=np.int64) + face_offset)
+        vertex_offset += n_here
+        face_offset += p["faces"].shape[0]
+        added_offset += a.shape[0]
+    added_xyz = np.concatenate(added)
+    vertices = np.concatenate([mesh.vertices, added_xyz[:, :2]])
+    z_all = np.concatenate([z, added_xyz[:, 2]])
+    cut_faces = np.column_stack([np.concatenate(tris), np.full(sum(t.shape[0] for t in tris), -1)])
+    cut_parent = np.concatenate(parent)
+    cut_nodes = meshcore.nodes_from_deviations(cut_faces, z_all, np.concatenate([p["cut_nodes"] for p in parts]))
+    is_cut = np.zeros(n_f, dtype=bool)
+    is_cut[cut_parent] = True
+    kept = np.flatnonzero(~is_cut)
+    refined = meshcore.Mesh(vertices, np.concatenate([np.take(mesh.faces, kept, axis=0), cut_faces]), np.arange(vertices.shape[0]))
+    return meshcore.SmoothSurface(refined, z_all, np.concatenate([np.take(nodes, kept, axis=0), cut_nodes]),
+                                  np.concatenate([kept, cut_parent]))
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
@@ -723,8 +811,8 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
     x0 = g.x0 + c0 * g.resolution
     y0 = g.y0 + r0 * g.resolution
-    mesh, z, kinds, nodes = _local_mesh(job)
-    surface = {"surface": job.surface, "nodes": nodes}
+    mesh, z, kinds, smooth = _local_mesh(job)
+    surface = {"surface": job.surface if smooth is None else smooth}
     shape = (r1 - r0, c1 - c0)
     layers: dict[str, NDArray] = {}
     if mesh.faces.shape[0] == 0:
@@ -782,8 +870,8 @@ def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: st
     z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0] * 0.1 + np.sin(xy[:, 1]), duplicates)
     if surface == "smooth":
         variogram = meshcore.fit_variogram(xy, z[mesh.input_to_vertex], neighbours=meshcore.DEFAULT_NEIGHBOURS)
-        hoods = meshcore.smooth_neighbourhoods(mesh, spacing=variogram.spacing)
-        meshcore.smooth_nodes(mesh, z, variogram, neighbourhoods=hoods)
+        long_faced = meshcore.Variogram(variogram.nugget, variogram.sill, variogram.range, variogram.model, 0.5)
+        meshcore.smooth_surface(mesh, z, long_faced)  # edges over a few half metres: the long faces' kernels too
 
 
 def load_surface_kernels(max_edge: float | None, surface: str) -> None:
@@ -797,5 +885,7 @@ def load_surface_kernels(max_edge: float | None, surface: str) -> None:
     meshcore.lexicographic_order(vertices)
     if surface == "smooth":
         nodes = meshcore.linear_nodes(mesh.faces, z)
-        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge, surface="smooth", nodes=nodes)
-        meshcore.gradient(mesh, z, vertices[:3, 0], vertices[:3, 1], surface="smooth", nodes=nodes)
+        nodes = meshcore.nodes_from_deviations(mesh.faces, z, meshcore.node_deviations(mesh.faces, z, nodes))
+        smooth = meshcore.SmoothSurface(mesh, z, nodes, np.arange(faces.shape[0]))
+        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge, surface=smooth)
+        meshcore.gradient(mesh, z, vertices[:3, 0], vertices[:3, 1], surface=smooth)

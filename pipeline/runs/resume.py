@@ -24,7 +24,7 @@ from ..tiling.checkpoint import WorkDir
 from ..config import RunConfig
 from ..errors import PipelineError, UsageError
 from .plan import RunPlan, frame_change, frame_grew, frame_moved
-from ..meshing.tiles import piece_intact
+from ..meshing.tiles import SURFACE_ARRAYS, piece_intact
 from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
@@ -186,7 +186,7 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         say(f"{config.output}: resuming an unfinished run")
         notes.append("resumed an unfinished run: finished work was kept")
     if previous is not None and work.exists():
-        lost = forget_lost_units(work, len(plan.paths), grid, ("nodes",) if config.surface == "smooth" else ())
+        lost = forget_lost_units(work, len(plan.paths), grid, SURFACE_ARRAYS if config.surface == "smooth" else ())
         if lost:
             notes.append(f"{lost} finished unit(s) had lost files in the work folder: done again")
 

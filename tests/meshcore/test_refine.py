@@ -1,0 +1,205 @@
+"""Tests of the smooth surface's long faces: long edges split, their faces cut, the new points kriged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import meshcore
+from meshcore.errors import InvalidInputError
+from meshcore.interpolate import _surface_at
+from meshcore.refine import refine_long_faces
+from meshcore.smooth import Variogram, fit_variogram, smooth_plan, smooth_surface
+
+OFFSET = np.array([6.0e5, 6.8e6])
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(20261203)
+
+
+def _with_void(rng, n=1500):
+    xy = rng.random((n, 2)) * 100.0
+    xy = xy[np.hypot(xy[:, 0] - 50.0, xy[:, 1] - 50.0) > 20.0]  # a void of 40 m across
+    return xy + OFFSET
+
+
+def _area(v, face):
+    pts = v[face[face >= 0]] - v[face[0]]
+    x, y = pts[:, 0], pts[:, 1]
+    return 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y)
+
+
+def test_long_faces_are_cut_into_triangles_that_tile_them(rng):
+    xy = _with_void(rng)
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    refined, parent, ends, t = refine_long_faces(mesh, 2.5, 4.0, 2.0)
+    assert refined.vertices.shape[0] > mesh.vertices.shape[0]
+    v = refined.vertices
+    # conforming: every edge between one or two faces, two of them in opposite directions
+    # (validate() would find the split points on the hull slightly off its straight edges)
+    directed = {}
+    for face in refined.faces:
+        n = 4 if face[3] >= 0 else 3
+        for k in range(n):
+            key = (int(face[k]), int(face[(k + 1) % n]))
+            assert key not in directed
+            directed[key] = True
+    hull_edges = sum((b, a) not in directed for a, b in directed)
+    original = sum(1 for face in mesh.faces for k in range(4 if face[3] >= 0 else 3))
+    assert hull_edges < 0.2 * original
+    areas = np.array([_area(v, f) for f in refined.faces])
+    assert np.all(areas > 0.0)
+    whole = np.zeros(mesh.faces.shape[0])
+    np.add.at(whole, parent, areas)
+    expected = np.array([_area(mesh.vertices, f) for f in mesh.faces])
+    np.testing.assert_allclose(whole, expected, rtol=1e-9, atol=1e-6)  # split points rounded at survey coordinates
+    # every new point on its edge, at its place, and its edge long
+    new = v[mesh.vertices.shape[0]:]
+    a, b = mesh.vertices[ends[:, 0]], mesh.vertices[ends[:, 1]]
+    np.testing.assert_array_equal(new, a + t[:, None] * (b - a))
+    assert np.all(np.hypot(*(b - a).T) > 4.0 * 2.5)
+    # untouched where no edge is long
+    same, parent2, _, _ = refine_long_faces(mesh, 1e6, 4.0, 2.0)
+    assert same is mesh and np.array_equal(parent2, np.arange(mesh.faces.shape[0]))
+    with pytest.raises(InvalidInputError):
+        refine_long_faces(mesh, 0.0, 4.0, 2.0)
+    with pytest.raises(InvalidInputError):
+        refine_long_faces(mesh, 1.0, 2.0, 4.0)
+
+
+def test_refined_smooth_surface_is_continuous_and_through_the_points(rng):
+    xy = _with_void(rng)
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    z = np.sin((mesh.vertices[:, 0] - OFFSET[0]) / 9.0) + 0.02 * (mesh.vertices[:, 1] - OFFSET[1])
+    variogram = Variogram(1e-5, 1.0, 20.0, "matern52", 2.5)  # smooth ground: edges over 4 spacings split
+    surface = smooth_surface(mesh, z, variogram)
+    refined, zr, nodes = surface.mesh, surface.z, surface.nodes
+    assert refined.vertices.shape[0] > mesh.vertices.shape[0]
+    assert np.all(np.isfinite(zr)) and np.array_equal(zr[: z.size], z)
+    v, faces = refined.vertices, refined.faces
+    sides: dict[tuple[int, int], list[int]] = {}
+    for f, face in enumerate(faces):
+        n = 4 if face[3] >= 0 else 3
+        for k in range(n):
+            a, b = int(face[k]), int(face[(k + 1) % n])
+            sides.setdefault((min(a, b), max(a, b)), []).append(f)
+    worst = 0.0
+    for (a, b), fs in sides.items():
+        if len(fs) == 2:
+            for s in rng.random(2):
+                p = v[a] + s * (v[b] - v[a])
+                worst = max(worst, abs(_surface_at(v, faces, zr, nodes, fs[0], p[0], p[1])[0]
+                                       - _surface_at(v, faces, zr, nodes, fs[1], p[0], p[1])[0]))
+    assert worst < 1e-7
+    at = meshcore.interpolate(mesh, z, mesh.vertices[:, 0], mesh.vertices[:, 1], surface=surface)
+    np.testing.assert_allclose(at, z, atol=1e-7)
+    # on rough ground the added points are clamped as nodes are: within their neighbours' and edge's ends' values
+    rough = smooth_surface(mesh, z, Variogram(0.01, 1.0, 20.0, "exponential", 2.5))
+    added = rough.z[z.size:]
+    assert added.size and np.all(added >= z.min()) and np.all(added <= z.max())
+
+
+def test_window_pieces_split_their_shared_long_edges_alike(rng):
+    """Seamless: the new points of an edge two pieces share are bit-identical in place and value."""
+    xy = _with_void(rng, 3000)
+    z = 5.0 + np.sin((xy[:, 0] - OFFSET[0]) / 15.0) + rng.normal(0.0, 0.01, xy.shape[0])
+    variogram = fit_variogram(xy, z)
+    split = OFFSET[0] + 50.0
+    found = []
+    for window in ((OFFSET[0], OFFSET[1], split, OFFSET[1] + 100.0), (split, OFFSET[1], OFFSET[0] + 100.0, OFFSET[1] + 100.0)):
+        lo, hi = window[0] - 40.0, window[2] + 40.0
+        keep = (xy[:, 0] >= lo) & (xy[:, 0] <= hi)
+        mesh = meshcore.build_mesh(xy[keep], "s3", "s4", window=window)
+        zz = np.empty(mesh.vertices.shape[0])
+        zz[mesh.input_to_vertex] = z[keep]
+        plan = smooth_plan(mesh, variogram)
+        surface = smooth_surface(mesh, zz, variogram, plan=plan)
+        n = mesh.vertices.shape[0]
+        found.append({(tuple(mesh.vertices[e0]), tuple(mesh.vertices[e1]), tuple(p)): value
+                      for (e0, e1), p, value in zip(plan.refinement.ends, surface.mesh.vertices[n:], surface.z[n:])})
+    shared = set(found[0]) & set(found[1])
+    assert len(shared) >= 2
+    for key in shared:
+        assert found[0][key] == found[1][key]  # exactly
+
+
+def test_nearest_around_a_few_centres_is_the_exact_nearest(rng):
+    from meshcore.smooth import _nearest, _nearest_around
+
+    xy = rng.random((5000, 2)) * 100.0 + OFFSET
+    xy[:50] = xy[50:100]  # ties
+    centres = np.concatenate([rng.random((40, 2)) * 100.0 + OFFSET, [[OFFSET[0] - 30.0, OFFSET[1]]]])
+    for side in (0.5, 3.0, 20.0):
+        index, d2 = _nearest_around(xy, centres, 16, side)
+        want, want_d2 = _nearest(xy, centres, 16)
+        np.testing.assert_array_equal(index, want)
+        np.testing.assert_array_equal(d2, want_d2)
+
+
+def test_linear_ground_is_reproduced_on_the_cut_faces_too(rng):
+    xy = _with_void(rng)
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    local = mesh.vertices - OFFSET
+    z = 3.0 + 0.2 * local[:, 0] - 0.05 * local[:, 1]
+    surface = smooth_surface(mesh, z, Variogram(0.0, 1.0, 20.0, "matern52", 2.5))
+    assert surface.mesh.faces.shape[0] > mesh.faces.shape[0]
+    q = rng.random((4000, 2)) * 100.0 + OFFSET
+    got = meshcore.interpolate(mesh, z, q[:, 0], q[:, 1], surface=surface)
+    want = 3.0 + 0.2 * (q[:, 0] - OFFSET[0]) - 0.05 * (q[:, 1] - OFFSET[1])
+    inside = np.isfinite(got)
+    assert inside.mean() > 0.9
+    np.testing.assert_allclose(got[inside], want[inside], atol=1e-8)
+    gx, gy = meshcore.gradient(mesh, z, q[inside, 0], q[inside, 1], surface=surface)
+    np.testing.assert_allclose(gx, 0.2, atol=1e-7)
+    np.testing.assert_allclose(gy, -0.05, atol=1e-7)
+
+
+def test_max_edge_leaves_out_the_cells_of_the_faces_cut_with_their_face(rng):
+    xy = _with_void(rng)
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    z = np.sin((mesh.vertices[:, 0] - OFFSET[0]) / 9.0)
+    surface = smooth_surface(mesh, z, Variogram(1e-5, 1.0, 20.0, "matern52", 2.5))
+    for max_edge in (6.0, 12.0, None):
+        smooth = meshcore.rasterize(mesh, z, *OFFSET, 0.5, 200, 200, max_edge=max_edge, surface=surface)
+        linear = meshcore.rasterize(mesh, z, *OFFSET, 0.5, 200, 200, max_edge=max_edge)
+        np.testing.assert_array_equal(np.isnan(smooth), np.isnan(linear))
+    computed = meshcore.rasterize(mesh, z, *OFFSET, 0.5, 200, 200, surface="smooth",
+                                  variogram=Variogram(1e-5, 1.0, 20.0, "matern52", 2.5))
+    np.testing.assert_array_equal(computed, meshcore.rasterize(mesh, z, *OFFSET, 0.5, 200, 200, surface=surface))
+    with pytest.raises(InvalidInputError, match="another mesh"):
+        meshcore.rasterize(mesh, z + 1.0, *OFFSET, 0.5, 20, 20, surface=surface)
+
+
+def test_the_surface_reads_no_point_outside_its_plan_disks(rng):
+    """A point outside every disk of the plan changes nothing: the certificate's promise."""
+    xy = _with_void(rng, 2500)
+    z = 5.0 + np.sin((xy[:, 0] - OFFSET[0]) / 15.0) + rng.normal(0.0, 0.01, xy.shape[0])
+    variogram = fit_variogram(xy, z)
+    window = (OFFSET[0] + 20.0, OFFSET[1] + 20.0, OFFSET[0] + 60.0, OFFSET[1] + 60.0)
+    known = (window[0] - 8.0, window[1] - 8.0, window[2] + 8.0, window[3] + 8.0)
+    mesh = meshcore.build_mesh(xy, "s3", "s4", window=window, known=known)
+    zz = np.empty(mesh.vertices.shape[0])
+    zz[mesh.input_to_vertex] = z
+    plan = smooth_plan(mesh, variogram)
+    assert plan.refinement.ends.shape[0] > 0  # faces across the void are cut
+    # the disks the surface reads, and the circles the Delaunay piece depends on
+    disks = np.concatenate([plan.disks, mesh.window_escapes]) if mesh.window_escapes is not None else plan.disks
+    assert np.all(np.isfinite(disks))
+    d2 = (xy[:, 0, None] - disks[None, :, 0]) ** 2 + (xy[:, 1, None] - disks[None, :, 1]) ** 2
+    far = ~np.any(d2 <= (disks[None, :, 2] * (1 + 1e-9)) ** 2, axis=1)
+    used = np.zeros(mesh.vertices.shape[0], dtype=bool)
+    used[mesh.faces[mesh.faces >= 0]] = True
+    outside = (xy[:, 0] < known[0]) | (xy[:, 1] < known[1]) | (xy[:, 0] > known[2]) | (xy[:, 1] > known[3])
+    drop = far & outside & ~used[mesh.input_to_vertex]
+    assert drop.sum() > 100
+    whole = smooth_surface(mesh, zz, variogram, plan=plan)
+    part_mesh = meshcore.build_mesh(xy[~drop], "s3", "s4", window=window, known=known)
+    part_z = np.empty(part_mesh.vertices.shape[0])
+    part_z[part_mesh.input_to_vertex] = z[~drop]
+    part = smooth_surface(part_mesh, part_z, variogram)
+    q = rng.random((3000, 2)) * 40.0 + OFFSET + 20.0
+    a = meshcore.interpolate(mesh, zz, q[:, 0], q[:, 1], surface=whole)
+    b = meshcore.interpolate(part_mesh, part_z, q[:, 0], q[:, 1], surface=part)
+    np.testing.assert_array_equal(a, b)
