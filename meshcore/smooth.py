@@ -173,18 +173,27 @@ def _before(d2a: float, xa: float, ya: float, d2b: float, xb: float, yb: float) 
 
 @njit
 def _knn_kernel(
-    xy: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
-    start: np.ndarray, items: np.ndarray, queries: np.ndarray, k: int,
-    out_index: np.ndarray, out_d2: np.ndarray,
+    sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
+    start: np.ndarray, queries: np.ndarray, k: int, out_index: np.ndarray, out_d2: np.ndarray,
 ) -> None:
-    """The ``k`` nearest points of every query, in :func:`_before` order (``-1`` pads)."""
+    """The ``k`` nearest points of every query, in :func:`_before` order (``-1`` pads).
+
+    ``sxy`` are the points bucket by bucket (``items``: their indices), so a
+    bucket's points are read in one run; the best so far keep their
+    coordinates beside them, so a candidate farther than the last is dropped
+    without a load and ties compare without one.
+    """
+    bx = np.empty(k)
+    by = np.empty(k)
+    bd = np.empty(k)
+    bi = np.empty(k, dtype=np.int64)
     for q in range(queries.shape[0]):
         qx = queries[q, 0]
         qy = queries[q, 1]
         count = 0
         for s in range(k):
-            out_index[q, s] = -1
-            out_d2[q, s] = math.inf
+            bi[s] = -1
+            bd[s] = math.inf
         ci = min(max(int((qx - x0) / cell), 0), nbx - 1)
         cj = min(max(int((qy - y0) / cell), 0), nby - 1)
         ring = 0
@@ -199,28 +208,28 @@ def _knn_kernel(
                     if i >= 0 and i < nbx:
                         b = j * nbx + i
                         for s in range(start[b], start[b + 1]):
-                            p = items[s]
-                            px = xy[p, 0]
-                            py = xy[p, 1]
+                            px = sxy[s, 0]
+                            py = sxy[s, 1]
                             d2 = (px - qx) * (px - qx) + (py - qy) * (py - qy)
                             if count == k:
-                                last = out_index[q, k - 1]
-                                if not _before(d2, px, py, out_d2[q, k - 1], xy[last, 0], xy[last, 1]):
+                                if not d2 <= bd[k - 1]:
+                                    continue
+                                if not _before(d2, px, py, bd[k - 1], bx[k - 1], by[k - 1]):
                                     continue
                                 pos = k - 1
                             else:
                                 pos = count
                                 count += 1
-                            while pos > 0:
-                                prev = out_index[q, pos - 1]
-                                if _before(d2, px, py, out_d2[q, pos - 1], xy[prev, 0], xy[prev, 1]):
-                                    out_index[q, pos] = prev
-                                    out_d2[q, pos] = out_d2[q, pos - 1]
-                                    pos -= 1
-                                else:
-                                    break
-                            out_index[q, pos] = p
-                            out_d2[q, pos] = d2
+                            while pos > 0 and _before(d2, px, py, bd[pos - 1], bx[pos - 1], by[pos - 1]):
+                                bi[pos] = bi[pos - 1]
+                                bd[pos] = bd[pos - 1]
+                                bx[pos] = bx[pos - 1]
+                                by[pos] = by[pos - 1]
+                                pos -= 1
+                            bi[pos] = items[s]
+                            bd[pos] = d2
+                            bx[pos] = px
+                            by[pos] = py
                     i += step if step > 0 else 1
             covers = ci - ring <= 0 and cj - ring <= 0 and ci + ring >= nbx - 1 and cj + ring >= nby - 1
             if covers:
@@ -232,18 +241,25 @@ def _knn_kernel(
                     min(qy - (y0 + (cj - ring) * cell), (y0 + (cj + ring + 1) * cell) - qy),
                 )
                 gap *= 1.0 - 1e-12
-                if gap > 0.0 and gap * gap > out_d2[q, k - 1]:
+                if gap > 0.0 and gap * gap > bd[k - 1]:
                     break
             ring += 1
+        for s in range(k):
+            out_index[q, s] = bi[s]
+            out_d2[q, s] = bd[s]
 
 
 @njit
-def _bucket_items(key: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """The points bucket by bucket, in input order within each (a stable counting sort)."""
+def _bucket_items(key: np.ndarray, start: np.ndarray, xy: np.ndarray, sxy: np.ndarray) -> np.ndarray:
+    """The points bucket by bucket, in input order within each (a stable counting
+    sort); their coordinates copied to ``sxy`` in that order."""
     fill = start[:-1].copy()
     items = np.empty(key.shape[0], dtype=np.int64)
     for p in range(key.shape[0]):
-        items[fill[key[p]]] = p
+        t = fill[key[p]]
+        items[t] = p
+        sxy[t, 0] = xy[p, 0]
+        sxy[t, 1] = xy[p, 1]
         fill[key[p]] += 1
     return items
 
@@ -271,9 +287,10 @@ def _nearest(
     key = cj * nbx + ci
     start = np.zeros(nbx * nby + 1, dtype=np.int64)
     np.cumsum(np.bincount(key, minlength=nbx * nby), out=start[1:])
-    items = _bucket_items(key, start)
+    sxy = np.empty((n, 2))
+    items = _bucket_items(key, start, xy, sxy)
     q = np.ascontiguousarray(queries, dtype=np.float64)
-    _knn_kernel(xy, float(lo[0]), float(lo[1]), cell, nbx, nby, start, items, q, k, out_index, out_d2)
+    _knn_kernel(sxy, items, float(lo[0]), float(lo[1]), cell, nbx, nby, start, q, k, out_index, out_d2)
     return out_index, out_d2
 
 

@@ -669,22 +669,23 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     """
     n_f, n_v = faces.shape[0], z.shape[0]
     parent = surface.parent
+    # a face kept has the same corners and values in both meshes: the same deviations
+    deviations = meshcore.node_deviations(surface.mesh.faces, surface.z, surface.nodes)
     if surface.mesh.faces.shape[0] == n_f:  # nothing cut (a face cut gives two triangles or more)
-        n_kept, rows = n_f, surface.nodes
+        n_kept, rows = n_f, deviations
     else:
         n_kept = int(np.count_nonzero(np.bincount(parent, minlength=n_f) == 1))  # the faces kept come first
-        rows = np.full((n_f, meshcore.NODES_PER_FACE), np.nan)
-        rows[parent[:n_kept]] = surface.nodes[:n_kept]
-    cut = surface.mesh.faces[n_kept:]
-    corners = cut[:, :3].astype(np.int64)
+        rows = np.full((n_f, meshcore.NODES_PER_FACE), np.nan, dtype=np.float32)
+        rows[parent[:n_kept]] = deviations[:n_kept]
+    corners = surface.mesh.faces[n_kept:, :3].astype(np.int64)
     old = corners < n_v
     corners[old] = remap[corners[old]]
     corners[~old] += int(np.count_nonzero(remap[:n_v] >= 0)) - n_v
     return {
-        "nodes": meshcore.node_deviations(faces, z, rows),
+        "nodes": rows,
         "cut_faces": corners.astype(np.int32),
         "cut_parent": parent[n_kept:].astype(np.int32),
-        "cut_nodes": meshcore.node_deviations(cut, surface.z, surface.nodes[n_kept:]),
+        "cut_nodes": deviations[n_kept:],
         "added": np.column_stack([surface.mesh.vertices[n_v:], surface.z[n_v:]]),
     }
 
@@ -776,11 +777,10 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
     arrays of :func:`_piece_surface`: the faces not cut with their nodes, then
     the triangles of those cut."""
     n_v, n_f = z.shape[0], mesh.faces.shape[0]
-    nodes = meshcore.nodes_from_deviations(mesh.faces, z, np.concatenate([p["nodes"] for p in parts]) if parts
-                                           else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32))
+    deviations = np.concatenate([p["nodes"] for p in parts]) if parts else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32)
     added = [np.asarray(p["added"]) for p in parts]
     if not any(a.shape[0] for a in added):  # nothing cut: the mesh's own faces
-        return meshcore.SmoothSurface(mesh, z, nodes, np.arange(n_f))
+        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
     tris, parent = [], []
     vertex_offset, face_offset, added_offset = 0, 0, n_v
     for p, a in zip(parts, added):
@@ -794,14 +794,21 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
     added_xyz = np.concatenate(added)
     vertices = np.concatenate([mesh.vertices, added_xyz[:, :2]])
     z_all = np.concatenate([z, added_xyz[:, 2]])
-    cut_faces = np.column_stack([np.concatenate(tris), np.full(sum(t.shape[0] for t in tris), -1)])
     cut_parent = np.concatenate(parent)
-    cut_nodes = meshcore.nodes_from_deviations(cut_faces, z_all, np.concatenate([p["cut_nodes"] for p in parts]))
     is_cut = np.zeros(n_f, dtype=bool)
     is_cut[cut_parent] = True
     kept = np.flatnonzero(~is_cut)
-    refined = meshcore.Mesh(vertices, np.concatenate([np.take(mesh.faces, kept, axis=0), cut_faces]), np.arange(vertices.shape[0]))
-    return meshcore.SmoothSurface(refined, z_all, np.concatenate([np.take(nodes, kept, axis=0), cut_nodes]),
+    n_kept, n_cut = kept.size, cut_parent.size
+    # the faces kept, then the triangles of those cut: each array written once
+    faces = np.empty((n_kept + n_cut, 4), dtype=np.int64)
+    faces[:n_kept] = np.take(mesh.faces, kept, axis=0)
+    faces[n_kept:, :3] = np.concatenate(tris)
+    faces[n_kept:, 3] = -1
+    rows = np.empty((n_kept + n_cut, meshcore.NODES_PER_FACE), dtype=np.float32)
+    np.take(deviations, kept, axis=0, out=rows[:n_kept])
+    rows[n_kept:] = np.concatenate([p["cut_nodes"] for p in parts])
+    refined = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
+    return meshcore.SmoothSurface(refined, z_all, meshcore.nodes_from_deviations(faces, z_all, rows),
                                   np.concatenate([kept, cut_parent]))
 
 
