@@ -15,7 +15,7 @@ patches through every point, the paper's section 4).  No I/O.
 from __future__ import annotations
 
 from ._jit import kernel
-from ._order import lexicographic_order
+from ._order import block_order, lexicographic_order
 from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
@@ -61,6 +61,7 @@ __all__ = [
     "Mesh",
     "build_mesh",
     "lexicographic_order",
+    "block_order",
     "kernel",
     "kernels_compiled",
     "interpolate",

@@ -3,6 +3,8 @@ triangulation fixed by the geometry alone."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -10,7 +12,7 @@ from ._jit import njit
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
-__all__ = ["order_ties_by", "sortable_keys", "morton_keys", "geometric_order", "lexicographic_order"]
+__all__ = ["order_ties_by", "sortable_keys", "morton_keys", "geometric_order", "lexicographic_order", "block_order"]
 
 
 @njit
@@ -71,6 +73,74 @@ def lexicographic_order(xy: ArrayLike) -> NDArray[np.int64]:
     key, y_key = _lexicographic_keys(x, y)
     order = np.argsort(key)
     order_ties_by(order, key[order], y_key[order])
+    return order
+
+
+def block_order(xy: ArrayLike, side: float, box: tuple[float, float, float, float]) -> NDArray[np.int64]:
+    """The points ``xy`` (n, 2 or more) in blocks: square cells of ``side`` from
+    the corner of ``box`` (cut to the points), cell by cell in blocks of 8 x 8
+    cells, the blocks row by row, and in their given order within a cell
+    (stable).
+
+    Points outside ``box`` go to its edge cells.  Kernels that read each
+    point's neighbours (the smooth surface's kriging, its layout) then find
+    them near in memory, whatever the order of the points in their files.
+
+    >>> block_order([[5.0, 0.5], [0.5, 0.5], [0.5, 9.0], [1.5, 0.5]], 1.0, (0.0, 0.0, 16.0, 16.0)).tolist()
+    [1, 3, 0, 2]
+    """
+    pts = np.asarray(xy, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 2:
+        raise InvalidInputError(f"xy must have shape (n, 2), got {pts.shape}")
+    x0, y0, x1, y1 = (float(v) for v in box)
+    if not (side > 0.0 and np.isfinite(side) and x1 >= x0 and y1 >= y0):
+        raise InvalidInputError(f"need side > 0 and a box (x0, y0, x1, y1) with x0 <= x1, y0 <= y1, got {side!r}, {box!r}")
+    if pts.shape[0] == 0:
+        return np.empty(0, dtype=np.int64)
+    # the box cut to the points (an open side of a box is infinite)
+    x0, x1 = max(x0, float(np.nanmin(pts[:, 0]))), min(x1, float(np.nanmax(pts[:, 0])))
+    y0, y1 = max(y0, float(np.nanmin(pts[:, 1]))), min(y1, float(np.nanmax(pts[:, 1])))
+    x1, y1 = max(x0, x1), max(y0, y1)
+    if not np.isfinite([x0, y0, x1, y1]).all():
+        x0 = y0 = x1 = y1 = 0.0
+    # at most a few cells per point, whatever the box: larger cells where the points are spread far
+    budget = 64.0 * pts.shape[0] + 4096.0
+    w, h = x1 - x0, y1 - y0
+    side = max(float(side), math.sqrt(w * h / budget), max(w, h) / budget)
+    nx = int(w / side) + 1
+    ny = int(h / side) + 1
+    return _block_order_kernel(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), x0, y0, float(side), nx, ny)
+
+
+@njit
+def _block_cell(v: float, origin: float, side: float, n: int) -> int:
+    t = (v - origin) / side
+    if not t >= 0.0:
+        return 0
+    if t >= n:
+        return n - 1
+    return int(t)
+
+
+@njit
+def _block_order_kernel(x: np.ndarray, y: np.ndarray, x0: float, y0: float, side: float, nx: int, ny: int) -> np.ndarray:
+    """:func:`block_order` by a counting sort."""
+    n = x.shape[0]
+    blocks_x = (nx + 7) // 8
+    blocks_y = (ny + 7) // 8
+    key = np.empty(n, dtype=np.int64)
+    start = np.zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
+    for p in range(n):
+        i = _block_cell(x[p], x0, side, nx)
+        j = _block_cell(y[p], y0, side, ny)
+        key[p] = ((j // 8) * blocks_x + i // 8) * 64 + (j % 8) * 8 + i % 8
+        start[key[p] + 1] += 1
+    for b in range(start.shape[0] - 1):
+        start[b + 1] += start[b]
+    order = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        order[start[key[p]]] = p
+        start[key[p]] += 1
     return order
 
 

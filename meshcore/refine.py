@@ -40,9 +40,9 @@ class Refinement(NamedTuple):
     ----------
     mesh : Mesh
         The refined mesh: the input mesh's vertices first, then the new
-        points; the faces kept first (in their order), then the triangles of
-        the faces cut.
-    parent : (n_f',) int64, the input mesh's face of each face
+        points; the input mesh's faces in their rows, a face cut replaced by
+        its first triangle, then the other triangles of the faces cut.
+    parent : (n_f',) int64, the input mesh's face of each face (``parent[:n_f]`` is ``0 .. n_f - 1``)
     ends : (m, 2) int64, each new point's edge, its ends in coordinate order
     t : (m,) float64, each new point's place along its edge (``first + t (second - first)``)
     """
@@ -292,8 +292,8 @@ def refine_long_faces(mesh: Mesh, spacing: float, longer_than: float, piece: flo
     >>> import numpy as np
     >>> square = Mesh(np.array([[0.0, 0.0], [9.0, 0.0], [9.0, 1.0], [0.0, 1.0]]), np.array([[0, 1, 2, 3]]), np.arange(4))
     >>> cut = refine_long_faces(square, 1.0, 4.0, 3.0)
-    >>> cut.mesh.vertices[4:].tolist(), cut.t.round(3).tolist(), cut.mesh.faces.shape[0]
-    ([[3.0, 0.0], [6.0, 0.0], [3.0, 1.0], [6.0, 1.0]], [0.333, 0.667, 0.333, 0.667], 6)
+    >>> cut.mesh.vertices[4:].tolist(), cut.t.round(3).tolist(), cut.parent.tolist()
+    ([[3.0, 0.0], [6.0, 0.0], [3.0, 1.0], [6.0, 1.0]], [0.333, 0.667, 0.333, 0.667], [0, 0, 0, 0, 0, 0])
     """
     if not (isinstance(spacing, (int, float)) and math.isfinite(spacing) and spacing > 0.0):
         raise InvalidInputError(f"spacing must be a finite number > 0, got {spacing!r}")
@@ -307,9 +307,18 @@ def refine_long_faces(mesh: Mesh, spacing: float, longer_than: float, piece: flo
     new_xy, ends, t, out, parent, failed = _refine_kernel(vertices, faces, cut, longest, float(piece * spacing))
     if failed:
         raise InvalidInputError(f"{failed} faces could not be cut (flat)")
-    keep = np.ones(faces.shape[0], dtype=bool)
-    keep[cut] = False
-    kept = np.flatnonzero(keep)
-    refined = Mesh(np.concatenate([vertices, new_xy]), np.concatenate([faces[kept], out]), mesh.input_to_vertex,
+    # each face cut gives its first triangle its own row; the others follow the faces
+    n_f = faces.shape[0]
+    first = np.ones(parent.size, dtype=bool)
+    first[1:] = parent[1:] != parent[:-1]
+    n_extra = parent.size - cut.size
+    refined_faces = np.empty((n_f + n_extra, 4), dtype=np.int64)
+    refined_faces[:n_f] = faces
+    refined_faces[parent[first]] = out[first]
+    refined_faces[n_f:] = out[~first]
+    parents = np.empty(n_f + n_extra, dtype=np.int64)
+    parents[:n_f] = np.arange(n_f)
+    parents[n_f:] = parent[~first]
+    refined = Mesh(np.concatenate([vertices, new_xy]), refined_faces, mesh.input_to_vertex,
                    mesh.triangle_measure, mesh.quad_measure, mesh.merge, mesh.window, mesh.window_escapes)
-    return Refinement(refined, np.concatenate([kept, parent]), ends, t)
+    return Refinement(refined, parents, ends, t)

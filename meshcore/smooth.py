@@ -1215,8 +1215,9 @@ class SmoothSurface(NamedTuple):
     ----------
     mesh : Mesh
         The faces the patches lie on: the input mesh's faces, those with a
-        long edge cut into triangles; its vertices are the input mesh's, then
-        the points added on long edges.
+        long edge cut into triangles (:class:`meshcore.refine.Refinement`: a
+        face cut keeps its row for its first triangle, the others follow);
+        its vertices are the input mesh's, then the points added on long edges.
     z : (n_v + m,) the values at its vertices (the added points' kriged)
     nodes : (n_f', 12) the patches' node values, one row per face of ``mesh``
     parent : (n_f',) the input mesh's face each face lies in

@@ -389,6 +389,10 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     return bands
 
 
+#: the side of :func:`meshcore.block_order`'s cells, in point spacings, for the smooth surface
+#: (measured on 125k random points: 4 spacings 0.04 s faster a tile than 2 or 32, and than the random order)
+_BLOCK_SPACINGS = 4.0
+
 #: points of other tiles' files tested together by :func:`_load_boxes` (bounds its memory)
 _LOAD_BATCH = 1_000_000
 
@@ -468,11 +472,17 @@ def mesh_tile(job: TileJob) -> TileSummary:
     smooth = job.surface == "smooth"
 
     def build(points):
-        return meshcore.build_mesh(
+        """The mesh of ``points``, and the points in the order it was given them."""
+        if smooth:
+            # near in the plane, near in memory: the smooth surface's kernels read every vertex's neighbours
+            # (random file orders made them 10-20% slower); the mesh is the same in any order
+            points = np.take(points, meshcore.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, held[0]), axis=0)
+        mesh = meshcore.build_mesh(
             points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
         )
+        return mesh, points
 
-    mesh, meshed = build(points), points  # ``meshed``: the points of the last build
+    mesh, meshed = build(points)  # ``meshed``: the points of the last build, in its order
     plan = None  # the smooth surface's long faces and kriging systems over ``mesh``
     ext = job.extent
     while True:
@@ -523,7 +533,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
         if gap or np.any(d2 <= c[None, :, 2] ** 2):
             # a loaded point lies in a circle, or may close the gap: build again
-            mesh, meshed, plan = build(points), points, None
+            (mesh, meshed), plan = build(points), None
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
@@ -660,32 +670,30 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     """A tile's smooth surface as its piece saves it, beside the faces ``faces``
     (over vertices with values ``z``, renumbered to the piece's by ``remap``).
 
-    ``nodes``: each face's nodes (NaN for a face cut); ``cut_faces``,
-    ``cut_parent``, ``cut_nodes``: the triangles of the faces cut, their
+    ``nodes``: the nodes of the surface's face in each face's row (a face cut:
+    its first triangle's); ``cut_faces``, ``cut_parent``, ``cut_nodes``: the
+    triangles of the faces cut, each face's first triangle first, their
     corners numbered past the piece's vertices for the points ``added``
     (x, y, z).  The nodes are single-precision deviations from the linear
     surface (half the bytes), restored bit-identically on both sides of every
     edge by :func:`_local_mesh`.
     """
     n_f, n_v = faces.shape[0], z.shape[0]
-    parent = surface.parent
     # a face kept has the same corners and values in both meshes: the same deviations
     deviations = meshcore.node_deviations(surface.mesh.faces, surface.z, surface.nodes)
-    if surface.mesh.faces.shape[0] == n_f:  # nothing cut (a face cut gives two triangles or more)
-        n_kept, rows = n_f, deviations
-    else:
-        n_kept = int(np.count_nonzero(np.bincount(parent, minlength=n_f) == 1))  # the faces kept come first
-        rows = np.full((n_f, meshcore.NODES_PER_FACE), np.nan, dtype=np.float32)
-        rows[parent[:n_kept]] = deviations[:n_kept]
-    corners = surface.mesh.faces[n_kept:, :3].astype(np.int64)
+    extra = surface.parent[n_f:]
+    cut = np.unique(extra)  # the faces cut, each with a triangle or more beyond its own row
+    order = np.argsort(np.concatenate([cut, extra]), kind="stable")  # each face's first triangle first
+    rows = np.concatenate([cut, n_f + np.arange(extra.size)])[order]
+    corners = surface.mesh.faces[rows, :3].astype(np.int64)
     old = corners < n_v
     corners[old] = remap[corners[old]]
     corners[~old] += int(np.count_nonzero(remap[:n_v] >= 0)) - n_v
     return {
-        "nodes": rows,
+        "nodes": deviations[:n_f],
         "cut_faces": corners.astype(np.int32),
-        "cut_parent": parent[n_kept:].astype(np.int32),
-        "cut_nodes": deviations[n_kept:],
+        "cut_parent": surface.parent[rows].astype(np.int32),
+        "cut_nodes": deviations[rows],
         "added": np.column_stack([surface.mesh.vertices[n_v:], surface.z[n_v:]]),
     }
 
@@ -774,42 +782,47 @@ SURFACE_ARRAYS = ("nodes", "cut_faces", "cut_parent", "cut_nodes", "added")
 
 def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dict[str, NDArray]]) -> meshcore.SmoothSurface:
     """The smooth surface over ``mesh`` (the faces of ``parts``, in order), from the
-    arrays of :func:`_piece_surface`: the faces not cut with their nodes, then
-    the triangles of those cut."""
+    arrays of :func:`_piece_surface`: each face in its row (a face cut: its
+    first triangle), then the other triangles of the faces cut."""
     n_v, n_f = z.shape[0], mesh.faces.shape[0]
-    deviations = np.concatenate([p["nodes"] for p in parts]) if parts else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32)
     added = [np.asarray(p["added"]) for p in parts]
-    if not any(a.shape[0] for a in added):  # nothing cut: the mesh's own faces
-        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
-    tris, parent = [], []
+    tris, parent, extra_rows = [], [], []
     vertex_offset, face_offset, added_offset = 0, 0, n_v
     for p, a in zip(parts, added):
         n_here = p["vertices"].shape[0]
-        c = np.asarray(p["cut_faces"], dtype=np.int64)
-        tris.append(np.where(c < n_here, c + vertex_offset, c - n_here + added_offset))
-        parent.append(np.asarray(p["cut_parent"], dtype=np.int64) + face_offset)
+        if p["cut_parent"].shape[0]:
+            c = np.asarray(p["cut_faces"], dtype=np.int64)
+            tris.append(np.where(c < n_here, c + vertex_offset, c - n_here + added_offset))
+            parent.append(np.asarray(p["cut_parent"], dtype=np.int64) + face_offset)
+            extra_rows.append(np.asarray(p["cut_nodes"]))
         vertex_offset += n_here
         face_offset += p["faces"].shape[0]
         added_offset += a.shape[0]
+    cut_parent = np.concatenate(parent) if parent else np.empty(0, dtype=np.int64)
+    first = np.ones(cut_parent.size, dtype=bool)
+    first[1:] = cut_parent[1:] != cut_parent[:-1]
+    n_extra = int(np.count_nonzero(~first))
+    # every array written once, at its full size
+    rows = np.empty((n_f + n_extra, meshcore.NODES_PER_FACE), dtype=np.float32)
+    if parts:
+        np.concatenate([p["nodes"] for p in parts], out=rows[:n_f])
+    if not cut_parent.size:  # nothing cut: the mesh's own faces
+        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, rows), np.arange(n_f))
+    cut_rows = np.concatenate(extra_rows)
+    cut_faces = np.concatenate(tris)
+    rows[n_f:] = cut_rows[~first]
+    faces = np.empty((n_f + n_extra, 4), dtype=np.int64)
+    faces[:n_f] = mesh.faces
+    faces[cut_parent[first], :3] = cut_faces[first]
+    faces[cut_parent[first], 3] = -1
+    faces[n_f:, :3] = cut_faces[~first]
+    faces[n_f:, 3] = -1
     added_xyz = np.concatenate(added)
     vertices = np.concatenate([mesh.vertices, added_xyz[:, :2]])
     z_all = np.concatenate([z, added_xyz[:, 2]])
-    cut_parent = np.concatenate(parent)
-    is_cut = np.zeros(n_f, dtype=bool)
-    is_cut[cut_parent] = True
-    kept = np.flatnonzero(~is_cut)
-    n_kept, n_cut = kept.size, cut_parent.size
-    # the faces kept, then the triangles of those cut: each array written once
-    faces = np.empty((n_kept + n_cut, 4), dtype=np.int64)
-    faces[:n_kept] = np.take(mesh.faces, kept, axis=0)
-    faces[n_kept:, :3] = np.concatenate(tris)
-    faces[n_kept:, 3] = -1
-    rows = np.empty((n_kept + n_cut, meshcore.NODES_PER_FACE), dtype=np.float32)
-    np.take(deviations, kept, axis=0, out=rows[:n_kept])
-    rows[n_kept:] = np.concatenate([p["cut_nodes"] for p in parts])
     refined = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
     return meshcore.SmoothSurface(refined, z_all, meshcore.nodes_from_deviations(faces, z_all, rows),
-                                  np.concatenate([kept, cut_parent]))
+                                  np.concatenate([np.arange(n_f), cut_parent[~first]]))
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:

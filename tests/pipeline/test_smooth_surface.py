@@ -81,3 +81,26 @@ def test_cli_takes_surface(tmp_path, capsys):
         main([*args, "--surface", "cubic"])
     assert exit_info.value.code == 2
     assert "invalid choice: 'cubic'" in capsys.readouterr().err
+
+
+def test_smooth_store_does_not_depend_on_the_order_of_points_in_the_file(tmp_path):
+    """Tiles sort their points in blocks for the smooth surface's kernels: the store is the same for any file order."""
+    import laspy
+
+    survey = tmp_path / "ground.las"
+    _survey(survey, 7, 220.0, 160.0)
+    las = laspy.read(survey)
+    shuffled = laspy.LasData(las.header)
+    perm = np.random.default_rng(1).permutation(len(las.points))
+    shuffled.points = las.points[perm]
+    shuffled.write(tmp_path / "shuffled.las")
+    kw = dict(resolution=2.0, tile_size=60.0, buffer=8.0, surface="smooth", layers=("slope",))
+    a = _run(survey, tmp_path / "a.zarr", **kw)
+    b = _run(tmp_path / "shuffled.las", tmp_path / "b.zarr", **kw)
+    assert a.tiles > 4 and a.vertices == b.vertices
+    sa, sb = xr.open_zarr(tmp_path / "a.zarr"), xr.open_zarr(tmp_path / "b.zarr")
+    for name in ("elevation", "slope"):
+        np.testing.assert_array_equal(sa[name].values, sb[name].values)
+    ma, mb = xr.open_zarr(tmp_path / "a.zarr", group="mesh"), xr.open_zarr(tmp_path / "b.zarr", group="mesh")
+    for name in ("node_x", "node_y", "node_z", "face_nodes"):
+        np.testing.assert_array_equal(ma[name].values, mb[name].values)
