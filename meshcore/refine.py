@@ -53,6 +53,11 @@ class Refinement(NamedTuple):
     t: NDArray[np.float64]
 
 
+MAX_PIECES = 64
+"""An edge is split into at most this many pieces (longer ones where it is
+longer: an edge to an outlier kilometres away is no ground to follow)."""
+
+
 @njit
 def _first_end(vertices: np.ndarray, s: int, e: int) -> bool:
     """Whether ``s`` comes before ``e`` in coordinate order (x, then y)."""
@@ -70,7 +75,7 @@ def _pieces(vertices: np.ndarray, a: int, b: int, longest: float, piece: float) 
     d2 = dx * dx + dy * dy
     if not d2 > longest * longest:
         return 1
-    return int(math.ceil(math.sqrt(d2) / piece))
+    return int(min(math.ceil(math.sqrt(d2) / piece), MAX_PIECES))
 
 
 @njit
@@ -283,7 +288,7 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
 
 def refine_long_faces(mesh: Mesh, spacing: float, longer_than: float, piece: float) -> Refinement:
     """The mesh with every edge over ``longer_than * spacing`` split into pieces of
-    at most ``piece * spacing``, and the faces with a split edge cut into
+    at most ``piece * spacing`` (at most :data:`MAX_PIECES` of them), and the faces with a split edge cut into
     triangles (see :class:`Refinement`).  A mesh with no long edge comes back
     as it is (``.mesh is mesh``).
 

@@ -172,6 +172,36 @@ def _before(d2a: float, xa: float, ya: float, d2b: float, xb: float, yb: float) 
 
 
 @njit
+def _scan_bucket(sxy: np.ndarray, items: np.ndarray, start: np.ndarray, b: int, qx: float, qy: float, k: int,
+                 count: int, bi: np.ndarray, bd: np.ndarray, bx: np.ndarray, by: np.ndarray) -> int:
+    """Offer bucket ``b``'s points to the best ``count`` so far (kept in :func:`_before` order); returns the new count."""
+    for s in range(start[b], start[b + 1]):
+        px = sxy[s, 0]
+        py = sxy[s, 1]
+        d2 = (px - qx) * (px - qx) + (py - qy) * (py - qy)
+        if count == k:
+            if not d2 <= bd[k - 1]:
+                continue
+            if not _before(d2, px, py, bd[k - 1], bx[k - 1], by[k - 1]):
+                continue
+            pos = k - 1
+        else:
+            pos = count
+            count += 1
+        while pos > 0 and _before(d2, px, py, bd[pos - 1], bx[pos - 1], by[pos - 1]):
+            bi[pos] = bi[pos - 1]
+            bd[pos] = bd[pos - 1]
+            bx[pos] = bx[pos - 1]
+            by[pos] = by[pos - 1]
+            pos -= 1
+        bi[pos] = items[s]
+        bd[pos] = d2
+        bx[pos] = px
+        by[pos] = py
+    return count
+
+
+@njit
 def _knn_kernel(
     sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
     start: np.ndarray, queries: np.ndarray, k: int, out_index: np.ndarray, out_d2: np.ndarray,
@@ -198,39 +228,26 @@ def _knn_kernel(
         cj = min(max(int((qy - y0) / cell), 0), nby - 1)
         ring = 0
         while True:
-            for j in range(cj - ring, cj + ring + 1):
-                if j < 0 or j >= nby:
-                    continue
-                edge_row = j == cj - ring or j == cj + ring
-                step = 1 if edge_row else 2 * ring
-                i = ci - ring
-                while i <= ci + ring:
-                    if i >= 0 and i < nbx:
-                        b = j * nbx + i
-                        for s in range(start[b], start[b + 1]):
-                            px = sxy[s, 0]
-                            py = sxy[s, 1]
-                            d2 = (px - qx) * (px - qx) + (py - qy) * (py - qy)
-                            if count == k:
-                                if not d2 <= bd[k - 1]:
-                                    continue
-                                if not _before(d2, px, py, bd[k - 1], bx[k - 1], by[k - 1]):
-                                    continue
-                                pos = k - 1
-                            else:
-                                pos = count
-                                count += 1
-                            while pos > 0 and _before(d2, px, py, bd[pos - 1], bx[pos - 1], by[pos - 1]):
-                                bi[pos] = bi[pos - 1]
-                                bd[pos] = bd[pos - 1]
-                                bx[pos] = bx[pos - 1]
-                                by[pos] = by[pos - 1]
-                                pos -= 1
-                            bi[pos] = items[s]
-                            bd[pos] = d2
-                            bx[pos] = px
-                            by[pos] = py
-                    i += step if step > 0 else 1
+            # the ring's buckets inside the grid, in rows (an outlier far from a
+            # narrow grid crosses thousands of rings: each costs its buckets only)
+            i_lo = max(ci - ring, 0)
+            i_hi = min(ci + ring, nbx - 1)
+            sides = ci - ring >= 0 or ci + ring < nbx
+            # with no side column in the grid, only the two edge rows (a ring of a thin grid)
+            j_lo = max(cj - ring, 0) if sides else cj - ring
+            j_hi = min(cj + ring, nby - 1) if sides else cj + ring
+            j = j_lo
+            while j <= j_hi:
+                if j >= 0 and j < nby:
+                    if j == cj - ring or j == cj + ring:
+                        for i in range(i_lo, i_hi + 1):
+                            count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
+                    else:
+                        if ci - ring >= 0:
+                            count = _scan_bucket(sxy, items, start, j * nbx + ci - ring, qx, qy, k, count, bi, bd, bx, by)
+                        if ci + ring < nbx:
+                            count = _scan_bucket(sxy, items, start, j * nbx + ci + ring, qx, qy, k, count, bi, bd, bx, by)
+                j += 1 if sides else max(2 * ring, 1)
             covers = ci - ring <= 0 and cj - ring <= 0 and ci + ring >= nbx - 1 and cj + ring >= nby - 1
             if covers:
                 break
@@ -860,14 +877,28 @@ def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int6
     if not max(np.abs(lo).max(), np.abs(hi).max()) / cell < 2.0**52:
         raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for coordinates up to "
                                 f"{max(np.abs(lo).max(), np.abs(hi).max()):.6g}")
-    if not float(((hi[0] - lo[0]) / cell + 9.0) * ((hi[1] - lo[1]) / cell + 9.0)) < 64.0 * positions.shape[0] + 1e6:
-        raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for nodes spread over "
-                                f"{hi[0] - lo[0]:.6g} x {hi[1] - lo[1]:.6g}")
-    order = np.empty(positions.shape[0], dtype=np.int64)
-    cells = _cells_kernel(np.ascontiguousarray(positions), float(cell), order)
-    first = np.append(cells[:, 2], order.size)
-    centres = np.column_stack([(cells[:, 0] + 0.5) * cell, (cells[:, 1] + 0.5) * cell])
+    if float(((hi[0] - lo[0]) / cell + 9.0) * ((hi[1] - lo[1]) / cell + 9.0)) < 64.0 * positions.shape[0] + 1e6:
+        order = np.empty(positions.shape[0], dtype=np.int64)
+        cells = _cells_kernel(np.ascontiguousarray(positions), float(cell), order)
+        first = np.append(cells[:, 2], order.size)
+        ci, cj = cells[:, 0], cells[:, 1]
+    else:  # nodes spread far (an outlier's faces): sorted, not counted in a grid mostly empty
+        order, first, ci, cj = _sparse_cells(positions, cell)
+    centres = np.column_stack([(ci + 0.5) * cell, (cj + 0.5) * cell])
     return order, first, centres
+
+
+def _sparse_cells(positions: NDArray[np.float64], cell: float):
+    """:func:`_cells_kernel`'s order, by a sort: cell by cell, blocks of 8 x 8 cells in rows, stable."""
+    ci = np.floor(positions[:, 0] / cell).astype(np.int64)
+    cj = np.floor(positions[:, 1] / cell).astype(np.int64)
+    ri = ci - ci.min()
+    rj = cj - cj.min()
+    order = np.lexsort((ri % 8, rj % 8, ri // 8, rj // 8))
+    new = np.ones(order.size, dtype=bool)
+    new[1:] = (ci[order][1:] != ci[order][:-1]) | (cj[order][1:] != cj[order][:-1])
+    lead = np.flatnonzero(new)
+    return order, np.append(lead, order.size), ci[order[lead]], cj[order[lead]]
 
 
 @njit

@@ -203,3 +203,31 @@ def test_the_surface_reads_no_point_outside_its_plan_disks(rng):
     a = meshcore.interpolate(mesh, zz, q[:, 0], q[:, 1], surface=whole)
     b = meshcore.interpolate(part_mesh, part_z, q[:, 0], q[:, 1], surface=part)
     np.testing.assert_array_equal(a, b)
+
+
+def test_an_outlier_far_away_costs_little(rng):
+    """Two clusters six thousand kilometres apart (a header's offset lied): edges to the far
+    one are split into a bounded number of pieces, and the nearest search crosses the empty
+    rings between them quickly and exactly."""
+    import time
+
+    from meshcore.smooth import _nearest
+
+    near = rng.random((3000, 2)) * [70.0, 80.0] + [6.51e5, 6.861e6]
+    far = rng.random((3000, 2)) * [70.0, 80.0] + [6.51e5, 0.0]
+    xy = np.round(np.concatenate([near, far]), 2)
+    z = np.sin(xy[:, 0] / 9.0) + 1e-3 * rng.normal(size=xy.shape[0])
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    zz = np.empty(mesh.vertices.shape[0])
+    zz[mesh.input_to_vertex] = z
+    variogram = Variogram(1e-5, 1.0, 20.0, "matern52", 1.0)
+    t0 = time.perf_counter()
+    surface = smooth_surface(mesh, zz, variogram)
+    assert time.perf_counter() - t0 < 60.0  # it took hours, and gigabytes, with no bound on the pieces
+    ends = smooth_plan(mesh, variogram).refinement.ends
+    assert 0 < ends.shape[0] <= 63 * 3 * mesh.faces.shape[0]
+    assert np.all(np.isfinite(surface.z))
+    queries = np.column_stack([np.full(200, 6.51e5 + 35.0), np.linspace(-1e5, 7e6, 200)])
+    index, d2 = _nearest(xy, queries, 16)
+    want = np.sort(((xy[None, :, 0] - queries[:, None, 0]) ** 2 + (xy[None, :, 1] - queries[:, None, 1]) ** 2), axis=1)[:, :16]
+    np.testing.assert_array_equal(d2, want)
