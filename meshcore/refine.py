@@ -186,16 +186,21 @@ def _long_faces(vertices: np.ndarray, faces: np.ndarray, longest: float) -> np.n
 def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, longest: float, piece: float):
     """The new points and the triangles of the faces ``cut`` (their parents alongside)."""
     n_v = vertices.shape[0]
+    # each cut face's edges' pieces, once: the passes below take them from here
+    pieces = np.ones((cut.shape[0], 4), dtype=np.int64)
     extra = 0
     most = 0
-    for f in cut:
+    n_tris = 0
+    for c in range(cut.shape[0]):
+        f = cut[c]
         nc = 4 if faces[f, 3] >= 0 else 3
         size = nc
         for k in range(nc):
-            n = _pieces(vertices, faces[f, k], faces[f, (k + 1) % nc], longest, piece)
-            extra += n - 1  # counted from both faces of an inner edge: room enough
-            size += n - 1
+            pieces[c, k] = _pieces(vertices, faces[f, k], faces[f, (k + 1) % nc], longest, piece)
+            extra += pieces[c, k] - 1  # counted from both faces of an inner edge: room enough
+            size += pieces[c, k] - 1
         most = max(most, size)
+        n_tris += size - 2
     new_xy = np.empty((extra, 2))
     new_ends = np.empty((extra, 2), dtype=np.int64)
     new_t = np.empty(extra)
@@ -207,15 +212,13 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
     key_e = np.empty(size_table, dtype=np.int64)
     value = np.empty(size_table, dtype=np.int64)
     used = 0
-    n_tris = 0
-    for f in cut:
+    for c in range(cut.shape[0]):
+        f = cut[c]
         nc = 4 if faces[f, 3] >= 0 else 3
-        size = nc
         for k in range(nc):
             a = faces[f, k]
             b = faces[f, (k + 1) % nc]
-            n = _pieces(vertices, a, b, longest, piece)
-            size += n - 1
+            n = pieces[c, k]
             if n > 1:
                 s, e = (a, b) if _first_end(vertices, a, b) else (b, a)
                 h = (s * 1000003 + e) & (size_table - 1)
@@ -233,7 +236,6 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
                         new_ends[used, 1] = e
                         new_t[used] = t
                         used += 1
-        n_tris += size - 2
     out = np.empty((n_tris, 4), dtype=np.int64)
     parent = np.empty(n_tris, dtype=np.int64)
     px = np.empty(most)
@@ -244,7 +246,8 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
     tris = np.empty((max(most - 2, 1), 3), dtype=np.int64)
     m_out = 0
     failed = 0
-    for f in cut:
+    for c in range(cut.shape[0]):
+        f = cut[c]
         nc = 4 if faces[f, 3] >= 0 else 3
         m = 0
         for k in range(nc):
@@ -256,7 +259,7 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
             edge[m] = k
             corner[m] = True
             m += 1
-            n = _pieces(vertices, a, b, longest, piece)
+            n = pieces[c, k]
             if n > 1:
                 forward = _first_end(vertices, a, b)
                 s, e = (a, b) if forward else (b, a)

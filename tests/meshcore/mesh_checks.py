@@ -62,3 +62,14 @@ def quad_gains(mesh, quad_measure, quads):
     d02 = np.minimum(tm(v[np.stack([p0, p1, p2], 1)]), tm(v[np.stack([p2, p3, p0], 1)]))
     d13 = np.minimum(tm(v[np.stack([p1, p2, p3], 1)]), tm(v[np.stack([p3, p0, p1], 1)]))
     return q - np.maximum(d02, d13)
+
+
+def edge_faces(faces) -> dict[tuple[int, int], list[int]]:
+    """The faces of every edge, keyed by its ends (lower index first)."""
+    sides: dict[tuple[int, int], list[int]] = {}
+    for f, face in enumerate(np.asarray(faces).tolist()):
+        n = 4 if face[3] >= 0 else 3
+        for k in range(n):
+            a, b = face[k], face[(k + 1) % n]
+            sides.setdefault((min(a, b), max(a, b)), []).append(f)
+    return sides

@@ -11,6 +11,8 @@ from meshcore.interpolate import _surface_at
 from meshcore.refine import refine_long_faces
 from meshcore.smooth import Variogram, fit_variogram, smooth_plan, smooth_surface
 
+from .mesh_checks import edge_faces
+
 OFFSET = np.array([6.0e5, 6.8e6])
 
 
@@ -79,12 +81,7 @@ def test_refined_smooth_surface_is_continuous_and_through_the_points(rng):
     assert refined.vertices.shape[0] > mesh.vertices.shape[0]
     assert np.all(np.isfinite(zr)) and np.array_equal(zr[: z.size], z)
     v, faces = refined.vertices, refined.faces
-    sides: dict[tuple[int, int], list[int]] = {}
-    for f, face in enumerate(faces):
-        n = 4 if face[3] >= 0 else 3
-        for k in range(n):
-            a, b = int(face[k]), int(face[(k + 1) % n])
-            sides.setdefault((min(a, b), max(a, b)), []).append(f)
+    sides = edge_faces(faces)
     worst = 0.0
     for (a, b), fs in sides.items():
         if len(fs) == 2:

@@ -16,7 +16,7 @@ from meshcore.errors import InvalidInputError
 from meshcore.interpolate import _surface_at, gradient, interpolate
 from meshcore.mesh import Mesh
 
-from .mesh_checks import hand_mesh
+from .mesh_checks import edge_faces, hand_mesh
 from meshcore.smooth import (
     CELL_PER_SPACING, MODELS, Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes,
 )
@@ -125,12 +125,7 @@ def test_the_surface_is_continuous_across_every_edge_of_random_meshes(rng, measu
     z = 10.0 + 0.05 * (v[:, 0] - OFFSET[0]) + 3.0 * np.sin((v[:, 1] - OFFSET[1]) / 9.0) + rng.normal(0, 0.1, len(v))
     nodes = smooth_nodes(mesh, z, Variogram(0.01, 1.0, 20.0))
     faces = mesh.faces
-    sides: dict[tuple[int, int], list[int]] = {}
-    for f, face in enumerate(faces):
-        n = 4 if face[3] >= 0 else 3
-        for k in range(n):
-            a, b = int(face[k]), int(face[(k + 1) % n])
-            sides.setdefault((min(a, b), max(a, b)), []).append(f)
+    sides = edge_faces(faces)
     shared = [(e, fs) for e, fs in sides.items() if len(fs) == 2]
     assert len(shared) > 500
     worst = 0.0
