@@ -30,7 +30,12 @@ kriging with a linear drift:
   a nugget under 0.1% of the sill) only those nodes are clamped, so that a
   crest may rise above the points beside it (:func:`_clamps_inside`);
 - a system whose neighbours are collinear (no plane fits) gives its nodes
-  the linear surface's values.
+  the linear surface's values;
+- first, faces with an edge longer than a few spacings are cut
+  (:func:`smooth_plan`, :mod:`meshcore.refine`): the edge is split into
+  equal pieces by its length alone, the new points are kriged from their
+  cells' systems as nodes are, and the patches lie on the triangles
+  (:func:`smooth_surface`).
 
 The covariance is a :class:`Variogram` of one of :data:`MODELS`;
 :func:`fit_variogram` chooses the model, its nugget and range by
