@@ -65,7 +65,10 @@ def test_a_failed_task_is_exit_1_with_one_line(survey, tmp_path, capsys, monkeyp
 # marker file, so the test interrupts the DEM stage for sure, however fast the
 # machine finishes the rest of the job.
 _SLOW_DEM = """
-import pathlib, sys, time
+import pathlib, signal, sys, time
+# Ctrl-C as a terminal's foreground job gets it: a runner started in the
+# background (a shell's `&`) passes SIGINT on ignored, and Python keeps it so
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from pipeline import cli
 from pipeline.store import zarr_store as store
 marker, real = pathlib.Path(sys.argv.pop(1)), store.write_tile
