@@ -952,6 +952,12 @@ def _clamps_inside(variogram: Variogram) -> bool:
     return variogram.model == "exponential" or not variogram.nugget < _SMOOTH_GROUND_NUGGET * variogram.sill
 
 
+def _check_variogram(variogram: object) -> Variogram:
+    if not isinstance(variogram, Variogram):
+        raise InvalidInputError(f"variogram must be a Variogram, got {type(variogram).__name__}")
+    return variogram
+
+
 def _check_neighbours(neighbours: object) -> int:
     if isinstance(neighbours, bool) or not isinstance(neighbours, (int, np.integer)) or not 4 <= neighbours <= 64:
         raise InvalidInputError(f"neighbours must be an integer from 4 to 64, got {neighbours!r}")
@@ -1021,8 +1027,7 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
     data = vertices if data_vertices is None else np.ascontiguousarray(vertices[:data_vertices])
     index, d2 = _nearest(data, centres, k)
-    radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
-    return Neighbourhoods(np.ascontiguousarray(centres), index, radius, first, positions, take, corners, pattern, cell)
+    return Neighbourhoods(np.ascontiguousarray(centres), index, _radii(d2), first, positions, take, corners, pattern, cell)
 
 
 def smooth_nodes(
@@ -1058,6 +1063,7 @@ def smooth_nodes(
     neighbourhoods : Neighbourhoods, optional
         From :func:`smooth_neighbourhoods` for this mesh and the variogram's
         spacing (computed when omitted).
+
     Returns
     -------
     (n_f, 12) float64
@@ -1076,10 +1082,7 @@ def smooth_nodes(
     k = _check_neighbours(neighbours)
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
-    if variogram is None:
-        variogram = fit_variogram(vertices, zv, neighbours=k)
-    elif not isinstance(variogram, Variogram):
-        raise InvalidInputError(f"variogram must be a Variogram, got {type(variogram).__name__}")
+    variogram = fit_variogram(vertices, zv, neighbours=k) if variogram is None else _check_variogram(variogram)
     out = np.full((faces.shape[0], NODES_PER_FACE), np.nan)
     if faces.shape[0] == 0:
         return out
@@ -1265,20 +1268,18 @@ class SmoothSurface(NamedTuple):
     parent: NDArray[np.int64]
 
 
+def _radii(d2: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The distance from each centre to its last neighbour (squared distances of :func:`_nearest`)."""
+    return np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(d2.shape[0])
+
+
 def _added_points(data: NDArray[np.float64], positions: NDArray[np.float64], cell: float, k: int) -> AddedPoints:
     order, first, centres = _cells(positions, cell)
     if centres.shape[0] == 0:
         return AddedPoints(order, first, centres, np.empty((0, k), dtype=np.int64), np.empty(0))
     # the cells of the added points are few and scattered: searched around each, not over a grid of every vertex
     index, d2 = _nearest_around(data, centres, k, 6.0 * cell)
-    radius = np.sqrt(d2[:, -1]) if d2.shape[1] else np.zeros(centres.shape[0])
-    return AddedPoints(order, first, np.ascontiguousarray(centres), index, radius)
-
-
-def _check_variogram(variogram: object) -> Variogram:
-    if not isinstance(variogram, Variogram):
-        raise InvalidInputError(f"variogram must be a Variogram, got {type(variogram).__name__}")
-    return variogram
+    return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2))
 
 
 def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS) -> SmoothPlan:
