@@ -26,7 +26,7 @@ from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
 from .rasterize import rasterize
-from .refine import Refinement, refine_long_faces
+from .refine import Refinement, cut_face_rows, refine_long_faces, with_cut_faces
 from .smooth import (
     DEFAULT_NEIGHBOURS,
     AddedPoints,
@@ -75,6 +75,8 @@ __all__ = [
     "AddedPoints",
     "refine_long_faces",
     "Refinement",
+    "with_cut_faces",
+    "cut_face_rows",
     "fit_variogram",
     "smooth_neighbourhoods",
     "Neighbourhoods",

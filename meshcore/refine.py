@@ -21,16 +21,16 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from typing import NamedTuple
 
+import numpy as np
 from numpy.typing import NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays
 
-__all__ = ["Refinement", "refine_long_faces"]
+__all__ = ["Refinement", "refine_long_faces", "with_cut_faces", "cut_face_rows"]
 
 
 class Refinement(NamedTuple):
@@ -315,18 +315,49 @@ def refine_long_faces(mesh: Mesh, spacing: float, longer_than: float, piece: flo
     new_xy, ends, t, out, parent, failed = _refine_kernel(vertices, faces, cut, longest, float(piece * spacing))
     if failed:
         raise InvalidInputError(f"{failed} faces could not be cut (flat)")
-    # each face cut gives its first triangle its own row; the others follow the faces
-    n_f = faces.shape[0]
-    first = np.ones(parent.size, dtype=bool)
-    first[1:] = parent[1:] != parent[:-1]
-    n_extra = parent.size - cut.size
-    refined_faces = np.empty((n_f + n_extra, 4), dtype=np.int64)
-    refined_faces[:n_f] = faces
-    refined_faces[parent[first]] = out[first]
-    refined_faces[n_f:] = out[~first]
-    parents = np.empty(n_f + n_extra, dtype=np.int64)
-    parents[:n_f] = np.arange(n_f)
-    parents[n_f:] = parent[~first]
+    refined_faces, parents = with_cut_faces(faces, out, parent)
     refined = Mesh(np.concatenate([vertices, new_xy]), refined_faces, mesh.input_to_vertex,
                    mesh.triangle_measure, mesh.quad_measure, mesh.merge, mesh.window, mesh.window_escapes)
     return Refinement(refined, parents, ends, t)
+
+
+def with_cut_faces(rows: NDArray, cut_rows: NDArray, parent: NDArray[np.int64]) -> tuple[NDArray, NDArray[np.int64]]:
+    """Per-face ``rows`` of a mesh (its faces, their nodes, ...) with the rows of
+    its cut faces' triangles placed as a :class:`Refinement` places them: each
+    face cut keeps its row for its first triangle, the others follow.
+
+    ``cut_rows`` are grouped by their face ``parent``, a face's first triangle
+    first (as :func:`cut_face_rows` gives them back).  Returns the rows and
+    each one's face.
+
+    >>> faces = np.array([[0, 1, 2, 3], [1, 4, 2, -1]])
+    >>> out, parent = with_cut_faces(faces, np.array([[0, 1, 3, -1], [1, 2, 3, -1]]), np.array([0, 0]))
+    >>> out.tolist(), parent.tolist()
+    ([[0, 1, 3, -1], [1, 4, 2, -1], [1, 2, 3, -1]], [0, 1, 0])
+    """
+    n_f = rows.shape[0]
+    first = np.ones(parent.size, dtype=bool)
+    first[1:] = parent[1:] != parent[:-1]
+    n_extra = int(np.count_nonzero(~first))
+    out = np.empty((n_f + n_extra, *rows.shape[1:]), dtype=rows.dtype)
+    out[:n_f] = rows
+    out[parent[first]] = cut_rows[first]
+    out[n_f:] = cut_rows[~first]
+    parents = np.empty(n_f + n_extra, dtype=np.int64)
+    parents[:n_f] = np.arange(n_f)
+    parents[n_f:] = parent[~first]
+    return out, parents
+
+
+def cut_face_rows(parent: NDArray[np.int64], n_faces: int) -> NDArray[np.int64]:
+    """The rows of a :class:`Refinement`'s cut triangles (``parent``: each row's
+    face, ``n_faces`` faces before it was cut), grouped by face, each face's
+    first triangle (its own row) first: what :func:`with_cut_faces` takes.
+
+    >>> cut_face_rows(np.array([0, 1, 2, 0, 2, 2]), 3).tolist()
+    [0, 3, 2, 4, 5]
+    """
+    extra = parent[n_faces:]
+    cut = np.unique(extra)  # the faces cut: each has a triangle or more beyond its own row
+    order = np.argsort(np.concatenate([cut, extra]), kind="stable")
+    return np.concatenate([cut, n_faces + np.arange(extra.size)])[order]

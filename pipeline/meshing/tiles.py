@@ -563,19 +563,19 @@ def mesh_tile(job: TileJob) -> TileSummary:
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
     vertices = np.column_stack([np.take(xy, order, axis=0), z[order]])
-    # the patches' nodes: from the neighbourhoods held, the same in every tile
-    nodes = {}
+    # the smooth surface's arrays: from the neighbourhoods held, the same in every tile
+    surface = {}
     if smooth:
-        nodes = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap)
+        surface = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap)
     save_piece(
         job.scratch, job.row, job.col, "piece",
         vertices=vertices,
         faces=faces,
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
-        **nodes,
+        **surface,
     )
     reaching = _reaching_out(vertices, faces, bx)
-    border = _select_faces({"vertices": vertices, "faces": faces, **nodes}, reaching)
+    border = _select_faces({"vertices": vertices, "faces": faces, **surface}, reaching)
     border_v = border["vertices"]
     save_piece(job.scratch, job.row, job.col, "border", **border)
     return TileSummary(
@@ -681,10 +681,7 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     n_f, n_v = faces.shape[0], z.shape[0]
     # a face kept has the same corners and values in both meshes: the same deviations
     deviations = meshcore.node_deviations(surface.mesh.faces, surface.z, surface.nodes)
-    extra = surface.parent[n_f:]
-    cut = np.unique(extra)  # the faces cut, each with a triangle or more beyond its own row
-    order = np.argsort(np.concatenate([cut, extra]), kind="stable")  # each face's first triangle first
-    rows = np.concatenate([cut, n_f + np.arange(extra.size)])[order]
+    rows = meshcore.cut_face_rows(surface.parent, n_f)
     corners = surface.mesh.faces[rows, :3].astype(np.int64)
     old = corners < n_v
     corners[old] = remap[corners[old]]
@@ -786,7 +783,7 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
     first triangle), then the other triangles of the faces cut."""
     n_v, n_f = z.shape[0], mesh.faces.shape[0]
     added = [np.asarray(p["added"]) for p in parts]
-    tris, parent, extra_rows = [], [], []
+    tris, parent, cut_nodes = [], [], []
     vertex_offset, face_offset, added_offset = 0, 0, n_v
     for p, a in zip(parts, added):
         n_here = p["vertices"].shape[0]
@@ -794,35 +791,24 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
             c = np.asarray(p["cut_faces"], dtype=np.int64)
             tris.append(np.where(c < n_here, c + vertex_offset, c - n_here + added_offset))
             parent.append(np.asarray(p["cut_parent"], dtype=np.int64) + face_offset)
-            extra_rows.append(np.asarray(p["cut_nodes"]))
+            cut_nodes.append(np.asarray(p["cut_nodes"]))
         vertex_offset += n_here
         face_offset += p["faces"].shape[0]
         added_offset += a.shape[0]
-    cut_parent = np.concatenate(parent) if parent else np.empty(0, dtype=np.int64)
-    first = np.ones(cut_parent.size, dtype=bool)
-    first[1:] = cut_parent[1:] != cut_parent[:-1]
-    n_extra = int(np.count_nonzero(~first))
-    # every array written once, at its full size
-    rows = np.empty((n_f + n_extra, meshcore.NODES_PER_FACE), dtype=np.float32)
-    if parts:
-        np.concatenate([p["nodes"] for p in parts], out=rows[:n_f])
-    if not cut_parent.size:  # nothing cut: the mesh's own faces
-        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, rows), np.arange(n_f))
-    cut_rows = np.concatenate(extra_rows)
-    cut_faces = np.concatenate(tris)
-    rows[n_f:] = cut_rows[~first]
-    faces = np.empty((n_f + n_extra, 4), dtype=np.int64)
-    faces[:n_f] = mesh.faces
-    faces[cut_parent[first], :3] = cut_faces[first]
-    faces[cut_parent[first], 3] = -1
-    faces[n_f:, :3] = cut_faces[~first]
-    faces[n_f:, 3] = -1
+    deviations = (np.concatenate([p["nodes"] for p in parts]) if parts
+                  else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32))
+    if not parent:  # nothing cut: the mesh's own faces
+        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
+    cut_parent = np.concatenate(parent)
+    triangles = np.concatenate(tris)
+    cut_faces = np.column_stack([triangles, np.full(triangles.shape[0], -1, dtype=np.int64)])
+    faces, parents = meshcore.with_cut_faces(mesh.faces, cut_faces, cut_parent)
+    rows, _ = meshcore.with_cut_faces(deviations, np.concatenate(cut_nodes), cut_parent)
     added_xyz = np.concatenate(added)
     vertices = np.concatenate([mesh.vertices, added_xyz[:, :2]])
     z_all = np.concatenate([z, added_xyz[:, 2]])
     refined = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
-    return meshcore.SmoothSurface(refined, z_all, meshcore.nodes_from_deviations(faces, z_all, rows),
-                                  np.concatenate([np.arange(n_f), cut_parent[~first]]))
+    return meshcore.SmoothSurface(refined, z_all, meshcore.nodes_from_deviations(faces, z_all, rows), parents)
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
