@@ -1144,6 +1144,8 @@ def _nearest_around(vertices: NDArray[np.float64], centres: NDArray[np.float64],
     points of the cells of ``side`` around each centre, again among all where the
     ``k``-th nearest is not nearer than that block's edge."""
     near = _near_cells_kernel(vertices, centres, side)
+    if near.size < min(k, vertices.shape[0]):  # too few around to give ``k`` each: searched among all
+        return _nearest(vertices, centres, k)
     index, d2 = _nearest(np.ascontiguousarray(vertices[near]), centres, k)
     index = np.where(index >= 0, near[np.maximum(index, 0)], -1)
     # every point left out is at least `side` from its centre (the centre's own cell is the middle one)

@@ -128,6 +128,13 @@ def test_nearest_around_a_few_centres_is_the_exact_nearest(rng):
     xy = rng.random((5000, 2)) * 100.0 + OFFSET
     xy[:50] = xy[50:100]  # ties
     centres = np.concatenate([rng.random((40, 2)) * 100.0 + OFFSET, [[OFFSET[0] - 30.0, OFFSET[1]]]])
+    sparse = xy[::400]  # fewer points around the centres than neighbours asked for
+    for points in (xy, sparse):
+        for side in (0.5, 3.0, 20.0):
+            index, d2 = _nearest_around(points, centres, 16, side)
+            want, want_d2 = _nearest(points, centres, 16)
+            np.testing.assert_array_equal(index, want)
+            np.testing.assert_array_equal(d2, want_d2)
     for side in (0.5, 3.0, 20.0):
         index, d2 = _nearest_around(xy, centres, 16, side)
         want, want_d2 = _nearest(xy, centres, 16)
