@@ -18,7 +18,8 @@ from meshcore.mesh import Mesh
 
 from .mesh_checks import edge_faces, hand_mesh
 from meshcore.smooth import (
-    CELL_PER_SPACING, MODELS, Variogram, _layout, _nearest, fit_variogram, smooth_neighbourhoods, smooth_nodes,
+    CELL_PER_SPACING, LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _nearest, _solve_systems,
+    fit_variogram, smooth_neighbourhoods, smooth_nodes,
 )
 
 OFFSET = np.array([6.0e5, 6.8e6])
@@ -321,6 +322,44 @@ def test_node_deviations_are_single_precision_and_restore_the_same_bits_on_both_
     assert_allclose(restored, nodes, rtol=0, atol=1e-6)
     with pytest.raises(meshcore.InvalidInputError, match="shape"):
         meshcore.node_deviations(mesh.faces, z, nodes[:, :9])
+
+
+def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):
+    """Each lane of the kriging solver does one system's operations: the same
+    numbers whatever its neighbours in the batch, singular lanes included."""
+    k = 16
+    xy = rng.random((400, 2)) * 30.0 + OFFSET
+    z = np.sin(xy[:, 0] / 7.0) + 0.01 * rng.standard_normal(400)
+    centres = rng.random((3 * LANES + 3, 2)) * 30.0 + OFFSET
+    neighbours, _ = _nearest(xy, centres, k)
+    neighbours[4, :] = neighbours[4, 0]  # one point repeated: a singular covariance matrix
+    xy[1:3, 1] = xy[0, 1]
+    neighbours[LANES + 1, :3] = [0, 1, 2]  # three neighbours on a line: a singular drift
+    neighbours[LANES + 1, 3:] = -1
+    neighbours[2 * LANES + 2, 12:] = -1  # a shorter row between full ones
+    ratio, scale, model = 0.05, 1.0 / 9.0, MODELS.index("matern32")
+
+    alone = []
+    room = _kriging_scratch(k)
+    for s in range(centres.shape[0]):
+        count = int(np.count_nonzero(neighbours[s] >= 0))
+        _dual_systems(xy, z, centres, neighbours, s, 1, count, ratio, scale, model, room)
+        alone.append((room.radius[0], room.coef[0, : count + 3].copy()))
+
+    together = []
+    first = 0
+    while first < centres.shape[0]:
+        lanes, count = _solve_systems(xy, z, centres, neighbours, first, ratio, scale, model, room)
+        assert 1 <= lanes <= LANES and count == int(np.count_nonzero(neighbours[first] >= 0))
+        together.extend((room.radius[b], room.coef[b, : count + 3].copy()) for b in range(lanes))
+        first += lanes
+    assert len(together) == len(alone)
+    assert np.isnan(alone[4][0]) and np.isnan(alone[LANES + 1][0])
+    assert np.isfinite([radius for radius, _ in alone]).sum() >= centres.shape[0] - 2
+    for (r1, c1), (r2, c2) in zip(alone, together):
+        assert_array_equal(r1, r2)
+        if np.isfinite(r1):
+            assert_array_equal(c1, c2)
 
 
 def test_collinear_neighbours_fall_back_to_the_linear_surface():
