@@ -1620,16 +1620,22 @@ def fit_variogram(
 
     candidates = [(model, factor, ratio) for model in range(len(MODELS)) for factor in _RANGES
                   for ratio in _NUGGETS if model == 0 or ratio > 0.0]
-    # the candidates in two halves on two threads (the kernel releases the GIL)
-    half = (len(candidates) + 1) // 2
-    with ThreadPoolExecutor(2) as pool:
-        parts = pool.map(lambda part: [score(screen, *c) for c in part], (candidates[:half], candidates[half:]))
-        screened = [value for part in parts for value in part]
-    ranked = sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS]
-    best: tuple[float, int] | None = None
     every = np.arange(m)
-    for i in sorted(ranked):
-        rmse = score(every, *candidates[i]) if screen.size < m else screened[i]
+    # the candidates in two halves on two threads (the kernel releases the GIL),
+    # then the finalists on all of the sample, also in two halves
+    with ThreadPoolExecutor(2) as pool:
+
+        def scores(rows: NDArray[np.int64], which: list[int]) -> list[float]:
+            half = (len(which) + 1) // 2
+            parts = pool.map(lambda part: [score(rows, *candidates[i]) for i in part],
+                             (which[:half], which[half:]))
+            return [value for part in parts for value in part]
+
+        screened = scores(screen, list(range(len(candidates))))
+        ranked = sorted(sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS])
+        final = scores(every, ranked) if screen.size < m else [screened[i] for i in ranked]
+    best: tuple[float, int] | None = None
+    for i, rmse in zip(ranked, final):
         if math.isfinite(rmse) and (best is None or rmse < best[0] * (1.0 - 1e-9)):
             best = (rmse, i)
     model, factor, ratio = candidates[best[1]] if best is not None else (0, 10.0, 0.1)

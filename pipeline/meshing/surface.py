@@ -48,14 +48,16 @@ def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
     if points.shape[0] == 0:
         return np.empty((0, 3))
     order = meshcore.lexicographic_order(points[:, :2])  # np.unique(axis=0)'s order, several times faster
-    xy = points[order, :2]
+    xy = np.take(points[:, :2], order, axis=0)  # rows gathered by np.take: several times faster than points[order, :2]
     new = np.empty(order.size, dtype=bool)
     new[0] = True
     new[1:] = (xy[1:, 0] != xy[:-1, 0]) | (xy[1:, 1] != xy[:-1, 1])
     inverse = np.empty(order.size, dtype=np.int64)
     inverse[order] = np.cumsum(new) - 1
-    xy = xy[new]
-    return np.column_stack([xy, vertex_z(inverse, xy.shape[0], points[:, 2], policy)])
+    merged = np.empty((int(np.count_nonzero(new)), 3))
+    merged[:, :2] = xy[new]
+    merged[:, 2] = vertex_z(inverse, merged.shape[0], points[:, 2], policy)
+    return merged
 
 
 def run_variogram(
