@@ -8,8 +8,8 @@ Messages are one line; errors about a file start with the file's path.
 from __future__ import annotations
 
 __all__ = [
-    "CrsError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError", "StorageUnreachableError",
-    "StoreError", "UsageError",
+    "CrsError", "GridTooLargeError", "InputFileError", "OutputWriteError", "PipelineError", "SeamError",
+    "StorageUnreachableError", "StoreError", "UsageError",
     "one_line", "os_error_reason",
 ]
 
@@ -20,6 +20,11 @@ class PipelineError(Exception):
 
 class UsageError(PipelineError, ValueError):
     """A command-line argument or parameter is invalid."""
+
+
+class GridTooLargeError(UsageError):
+    """The inputs' extent at the resolution gives a DEM above ``max_cells`` (or
+    wider than a float spans)."""
 
 
 class InputFileError(PipelineError, OSError):

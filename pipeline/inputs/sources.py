@@ -59,6 +59,7 @@ __all__ = [
     "file_digest",
     "iter_copc_nodes",
     "iter_points",
+    "measured_bounds",
     "read_info",
     "with_measured_bounds",
 ]
@@ -422,6 +423,16 @@ def _info_from_header(path: Location, size: int, header: laspy.LasHeader) -> Sou
 def with_measured_bounds(info: SourceInfo, chunk_size: int = 2_000_000) -> SourceInfo:
     """``info`` with the bounds of its points, every one read (for a header
     whose bounds are unusable: NaN, min > max, never filled in)."""
+    bounds = measured_bounds(info, chunk_size)
+    if bounds is None:
+        return info
+    note = f"header bounds unusable: {bounds} measured from its points"
+    return replace(info, bounds=bounds, notes=(*(n for n in info.notes if not n.startswith("unusable header")), note))
+
+
+def measured_bounds(info: SourceInfo, chunk_size: int = 2_000_000) -> tuple[float, ...] | None:
+    """The bounds ``(xmin, ymin, zmin, xmax, ymax, zmax)`` of the file's points,
+    every one read (None when it holds none)."""
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
     for chunk in iter_points(info.path, PointFilter(classes=None, keep_withheld=True), chunk_size):
@@ -430,10 +441,8 @@ def with_measured_bounds(info: SourceInfo, chunk_size: int = 2_000_000) -> Sourc
             lo = np.minimum(lo, [a.min() for a in xyz])
             hi = np.maximum(hi, [a.max() for a in xyz])
     if not np.isfinite(lo).all():
-        return info
-    bounds = tuple(float(v) for v in (*lo, *hi))
-    note = f"header bounds unusable: {bounds} measured from its points"
-    return replace(info, bounds=bounds, notes=(*(n for n in info.notes if not n.startswith("unusable header")), note))
+        return None
+    return tuple(float(v) for v in (*lo, *hi))
 
 
 def _dtype_name(dtype: Any) -> str:

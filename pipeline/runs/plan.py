@@ -11,7 +11,7 @@ that fix the tiles).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import urls
 from ..config import RunConfig
-from ..errors import InputFileError, PipelineError, UsageError
+from ..errors import GridTooLargeError, InputFileError, PipelineError, UsageError
 from ..tiling.grid import TileGrid, check_cells
 
 if TYPE_CHECKING:
@@ -97,7 +97,7 @@ def plan_run(config: RunConfig) -> RunPlan:
 
     paths, infos, skipped = read_headers(config)
     crs = resolve_crs(infos, config.in_crs, config.out_crs)
-    grid, bounds, buffer, file_bounds = job_frame(config, paths, infos, crs)
+    infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(config, paths, infos, crs)
     provenance = {
         "software": "terrain-pipeline",
         "version": _version(),
@@ -140,6 +140,48 @@ def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, An
     return paths, infos, skipped
 
 
+def _frame_measuring_wide_headers(config: RunConfig, paths, infos, plan):
+    """:func:`job_frame`, and the infos it was computed from.
+
+    Header bounds that claim far more than a file's points (edited files whose
+    header was not updated, a mistyped offset) can make a DEM too large to
+    plan.  Then the widest files' bounds are measured from their points, one
+    at a time, widest first, until the DEM fits; each file so measured keeps
+    a note.  An extent that is truly that large still raises, once the widest
+    file not yet measured proves to hold its header's bounds (an archive
+    planned at too fine a resolution is not read whole before it is told).
+    """
+    from ..inputs.sources import measured_bounds
+
+    infos = list(infos)
+    measured: set[int] = set()
+    while True:
+        try:
+            return infos, job_frame(config, paths, infos, plan)
+        except GridTooLargeError:
+            spans = _spans([_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)])
+            left = [k for k in np.argsort(spans)[::-1] if k not in measured and spans[k] > 0.0]
+            if not left:
+                raise
+            k = int(left[0])
+            measured.add(k)
+            points = measured_bounds(infos[k])
+            header = infos[k].bounds
+            if points is None:
+                continue
+            if points[3] - points[0] >= 0.5 * (header[3] - header[0]) and points[4] - points[1] >= 0.5 * (header[4] - header[1]):
+                raise  # its points fill its header's bounds: the extent is real
+            note = (f"header bounds x {header[0]:.8g} .. {header[3]:.8g}, y {header[1]:.8g} .. {header[4]:.8g} reach far "
+                    f"beyond its points (x {points[0]:.8g} .. {points[3]:.8g}, y {points[1]:.8g} .. {points[4]:.8g}): "
+                    "the grid follows its points")
+            infos[k] = replace(infos[k], bounds=points, notes=(*infos[k].notes, note))
+
+
+def _spans(file_bounds) -> list[float]:
+    """The area of each file's bounds (-1 for a file without points)."""
+    return [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
+
+
 def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, float, list]:
     """The grid, the extent and the buffer of a job over these inputs (and the
     files' bounds in the target CRS): what a run fixes before reading points."""
@@ -153,17 +195,16 @@ def job_frame(config: RunConfig, paths, infos, plan) -> tuple[TileGrid, tuple, f
     if config.extent is not None:  # the planned area: files inside it never move the grid
         bounds = union_bounds([bounds, config.extent])
     if not (math.isfinite(bounds[2] - bounds[0]) and math.isfinite(bounds[3] - bounds[1])):
-        raise UsageError(f"the inputs span more than the largest float: x {bounds[0]:.6g} .. {bounds[2]:.6g}, "
+        raise GridTooLargeError(f"the inputs span more than the largest float: x {bounds[0]:.6g} .. {bounds[2]:.6g}, "
                          f"y {bounds[1]:.6g} .. {bounds[3]:.6g}")
     tile_cells, buffer = _auto_sizes(config, bounds, sum(i.point_count for i in infos))
     grid = TileGrid.covering(bounds, config.resolution, tile_cells)
     try:
         check_cells(grid, config.max_cells)
-    except UsageError as exc:  # say which file spans the most: a wrong CRS or header shows up here
-        spans = [(b[2] - b[0]) * (b[3] - b[1]) if b else -1.0 for b in file_bounds]
-        widest = int(np.argmax(spans))
+    except GridTooLargeError as exc:  # say which file spans the most: a wrong CRS or header shows up here
+        widest = int(np.argmax(_spans(file_bounds)))
         b = file_bounds[widest]
-        raise UsageError(
+        raise GridTooLargeError(
             f"{exc}; the widest input is {paths[widest]}: x {b[0]:.2f} .. {b[2]:.2f}, y {b[1]:.2f} .. {b[3]:.2f}"
         ) from None
     return grid, bounds, buffer, file_bounds

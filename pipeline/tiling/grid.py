@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import UsageError
+from ..errors import GridTooLargeError, UsageError
 
 __all__ = ["TileGrid", "tile_key", "tile_dir", "intersect_boxes", "check_cells"]
 
@@ -285,7 +285,7 @@ def check_cells(grid: TileGrid, max_cells: int) -> None:
     """A DEM larger than ``max_cells`` needs an explicit, larger limit."""
     cells = grid.nx * grid.ny
     if cells > max_cells:
-        raise UsageError(
+        raise GridTooLargeError(
             f"the DEM would have {grid.nx} x {grid.ny} = {cells:,} cells, above max_cells={max_cells:,}; "
             "check the bounds and resolution, or raise max_cells"
         )

@@ -147,6 +147,35 @@ def test_a_dem_above_max_cells_names_the_widest_input(tmp_path, capsys):
     assert "above --max-cells 10,000" in line and f"the widest input is {wide}: x " in line
 
 
+def test_a_header_claiming_far_more_than_its_points_is_measured_and_the_run_succeeds(tmp_path, capsys):
+    """A header whose x minimum was mistyped 9,000 km west: the DEM it implies is
+    over --max-cells, but the file's points are valid; the grid follows them."""
+    import shutil
+    import struct
+
+    import xarray as xr
+
+    honest = tmp_path / "honest"
+    files = write_survey(honest, SurveySpec(points=6_000, files=2, width=120.0, height=80.0, seed=4))
+    lying = tmp_path / "lying"
+    shutil.copytree(honest, lying)
+    wrong = lying / files[1].name
+    data = bytearray(wrong.read_bytes())
+    data[187:195] = struct.pack("<d", struct.unpack("<d", data[187:195])[0] - 9.0e6)  # the header's min x
+    wrong.write_bytes(data)
+
+    stores = {}
+    for name, folder in (("honest", honest), ("lying", lying)):
+        stores[name] = tmp_path / f"{name}.zarr"
+        assert main(["run", str(folder), "-o", str(stores[name]), "--resolution", "1", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {wrong}: header bounds x " in out and "reach far beyond its points" in out
+    assert out.count("reach far beyond its points") == 1  # the honest files are left as they are
+    with xr.open_zarr(stores["honest"]) as a, xr.open_zarr(stores["lying"]) as b:
+        assert a.sizes == b.sizes
+        assert a["elevation"].equals(b["elevation"])
+
+
 def test_common_flags_before_a_workflow_action_count(tmp_path, capsys):
     missing = str(tmp_path / "missing.toml")
     assert main(["workflow", "--log-json", "status", missing]) == 2
