@@ -854,10 +854,11 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
     n_quad = n_f - n_tri
     n_nodes = 2 * n_e + n_tri + 4 * n_quad
     positions = np.empty((n_nodes, 2))
-    corners = np.full((n_nodes, 4), -1, dtype=np.int32)
+    corners = np.empty((n_nodes, 4), dtype=np.int32)
     pattern = np.empty(n_nodes, dtype=np.uint8)
     take = np.full((n_f, 12), -1, dtype=np.int32)
     third = 1.0 / 3.0
+    placed = 0  # the edges numbered below this have their nodes (edges are numbered in slot order)
     for v in range(n_v):
         for i in range(start[v], start[v + 1]):
             f = slot[i] // 4
@@ -867,14 +868,17 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
             forward = faces[f, k] == v
             take[f, 2 * k] = node if forward else node + 1
             take[f, 2 * k + 1] = node + 1 if forward else node
-            if corners[node, 0] >= 0:
+            if edge[i] < placed:
                 continue  # the edge's other face placed its nodes
+            placed = edge[i] + 1
             for j in range(2):
                 t = third if j == 0 else 2.0 * third
                 positions[node + j, 0] = vertices[v, 0] + t * (vertices[b, 0] - vertices[v, 0])
                 positions[node + j, 1] = vertices[v, 1] + t * (vertices[b, 1] - vertices[v, 1])
                 corners[node + j, 0] = v
                 corners[node + j, 1] = b
+                corners[node + j, 2] = -1
+                corners[node + j, 3] = -1
                 pattern[node + j] = j
     tri = 2 * n_e
     quad = 2 * n_e + n_tri
@@ -884,6 +888,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
             positions[tri, 1] = (vertices[faces[f, 0], 1] + vertices[faces[f, 1], 1] + vertices[faces[f, 2], 1]) * third
             for j in range(3):
                 corners[tri, j] = faces[f, j]
+            corners[tri, 3] = -1
             pattern[tri] = 2
             take[f, 8] = tri
             tri += 1
@@ -915,27 +920,26 @@ def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
 
 
 @njit
-def _cells_kernel(positions: np.ndarray, cell: float, order: np.ndarray) -> np.ndarray:
+def _cell_key(x: float, y: float, cell: float, i0: int, j0: int, blocks_x: int) -> int:
+    """The sort key of the cell holding ``(x, y)``: blocks of 8 x 8 cells in rows, cells in rows within a block."""
+    ri = np.int64(math.floor(x / cell)) - i0
+    rj = np.int64(math.floor(y / cell)) - j0
+    return ((rj >> 3) * blocks_x + (ri >> 3)) * 64 + (rj & 7) * 8 + (ri & 7)
+
+
+@njit
+def _cells_kernel(positions: np.ndarray, cell: float, i0: int, j0: int, blocks_x: int, blocks_y: int,
+                  order: np.ndarray) -> np.ndarray:
     """Fill ``order`` (the nodes cell by cell, blocks of 8 x 8 cells in rows)
-    by a counting sort; returns the cells' ``(i, j)`` and their first nodes."""
+    by a counting sort; returns the cells' ``(i, j)`` and their first nodes.
+    ``(i0, j0)``: the lowest cell of any node (keys count from it)."""
     n = positions.shape[0]
-    ci = np.empty(n, dtype=np.int64)
-    cj = np.empty(n, dtype=np.int64)
-    for p in range(n):
-        ci[p] = np.int64(math.floor(positions[p, 0] / cell))
-        cj[p] = np.int64(math.floor(positions[p, 1] / cell))
-    i0 = ci.min()
-    j0 = cj.min()
-    blocks_x = (ci.max() - i0) // 8 + 1
-    blocks_y = (cj.max() - j0) // 8 + 1
     key = np.empty(n, dtype=np.int64)
-    for p in range(n):
-        ri = ci[p] - i0
-        rj = cj[p] - j0
-        key[p] = ((rj // 8) * blocks_x + ri // 8) * 64 + (rj % 8) * 8 + ri % 8
     start = np.zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
     for p in range(n):
-        start[key[p] + 1] += 1
+        kp = _cell_key(positions[p, 0], positions[p, 1], cell, i0, j0, blocks_x)
+        key[p] = kp
+        start[kp + 1] += 1
     cells = 0
     for b in range(start.size - 1):
         if start[b + 1] > 0:
@@ -950,8 +954,8 @@ def _cells_kernel(positions: np.ndarray, cell: float, order: np.ndarray) -> np.n
     for b in range(start.size - 1):
         if start[b + 1] > start[b]:
             lead = order[start[b]]
-            out[m, 0] = ci[lead]
-            out[m, 1] = cj[lead]
+            out[m, 0] = np.int64(math.floor(positions[lead, 0] / cell))
+            out[m, 1] = np.int64(math.floor(positions[lead, 1] / cell))
             out[m, 2] = start[b]
             m += 1
     return out
@@ -974,7 +978,10 @@ def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int6
                                 f"{max(np.abs(lo).max(), np.abs(hi).max()):.6g}")
     if float(((hi[0] - lo[0]) / cell + 9.0) * ((hi[1] - lo[1]) / cell + 9.0)) < 64.0 * positions.shape[0] + 1e6:
         order = np.empty(positions.shape[0], dtype=np.int64)
-        cells = _cells_kernel(np.ascontiguousarray(positions), float(cell), order)
+        # floor(x / cell) grows with x: the lowest and highest cells are those of the extremes
+        i0, j0, i1, j1 = (int(math.floor(v / cell)) for v in (lo[0], lo[1], hi[0], hi[1]))
+        cells = _cells_kernel(np.ascontiguousarray(positions), float(cell), i0, j0, (i1 - i0) // 8 + 1, (j1 - j0) // 8 + 1,
+                              order)
         first = np.append(cells[:, 2], order.size)
         ci, cj = cells[:, 0], cells[:, 1]
     else:  # nodes spread far (an outlier's faces): sorted, not counted in a grid mostly empty
