@@ -252,6 +252,7 @@ def _float_list(text: str, flag: str, count: int) -> list[float]:
 def _demo(args: argparse.Namespace) -> int:
     from .config import RunConfig
     from .tools.preview import render_preview
+    from .runs.compiling import compile_aside
     from .runs.runner import run
     from .inputs.sources import read_info
     from .tools.synthetic import demo_spec, write_survey
@@ -259,18 +260,24 @@ def _demo(args: argparse.Namespace) -> int:
     out, points = args.out, args.points
     spec = demo_spec(points)
     survey = out / "survey"
-    paths = write_survey(survey, spec)
-    written = sum(read_info(p).point_count for p in paths)  # none fall in the lake
-    LOGGER.info(
-        f"wrote {len(paths)} overlapping LAZ strips ({written:,} points, {spec.crs}: hills, a valley with a "
-        f"lake, {spec.buildings} buildings, {spec.trees} trees) to {survey}"
-    )
     config = RunConfig(
         inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
         # bridge the ground under buildings (<= 30 m), not the lake (140 m across)
         layers=("slope", "face_kind", "point_count"), max_edge=50.0, overwrite=True,
     )
-    report = run(config, progress=_progress(args), log=LOGGER.info)
+    # a machine's first run compiles its mesh kernels: another process starts
+    # now, while this one writes the survey on one core, and the run takes it over
+    compiling = compile_aside(config)
+    try:
+        paths = write_survey(survey, spec)
+        written = sum(read_info(p).point_count for p in paths)  # none fall in the lake
+        LOGGER.info(
+            f"wrote {len(paths)} overlapping LAZ strips ({written:,} points, {spec.crs}: hills, a valley with a "
+            f"lake, {spec.buildings} buildings, {spec.trees} trees) to {survey}"
+        )
+        report = run(config, progress=_progress(args), log=LOGGER.info)
+    finally:
+        compiling.stop()  # the run waited for it, unless it stopped first
     code = _report(args, report)
     x0, y0 = spec.origin
     lx, ly, r = spec.lake  # type: ignore[misc]

@@ -865,7 +865,7 @@ def load_kernels(job: TileJob) -> None:
     loads them from the compiled cache meanwhile (0.1 s of a one-file job), so
     the first tiles start at once.  Reads and writes nothing."""
     load_mesh_kernels(job.triangle_measure, job.quad_measure, job.merge, job.duplicates, job.surface)
-    load_surface_kernels(job.max_edge, job.surface)
+    load_surface_kernels(job.max_edge, job.surface, job.layers)
 
 
 def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: str, duplicates: str, surface: str) -> None:
@@ -880,8 +880,9 @@ def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: st
         meshcore.smooth_surface(mesh, z, long_faced)  # edges over a few half metres: the long faces' kernels too
 
 
-def load_surface_kernels(max_edge: float | None, surface: str) -> None:
-    """The DEM kernels of :func:`load_kernels`, on a mesh of three faces made
+def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str, ...] = ()) -> None:
+    """The DEM kernels of :func:`load_kernels` (and ``layers``'), and those a
+    piece's faces reaching its neighbours need, on a mesh of three faces made
     here (so that they compile without the mesh kernels)."""
     vertices = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 4.0], [4.0, 4.0], [8.0, 5.0], [2.0, 8.0]])
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
@@ -889,6 +890,13 @@ def load_surface_kernels(max_edge: float | None, surface: str) -> None:
     z = vertices[:, 0] * 0.1 + np.sin(vertices[:, 1])
     meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
     meshcore.lexicographic_order(vertices)
+    # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them
+    table = np.column_stack([vertices, z])
+    _reaching_out(table, faces.astype(np.int32), (0.0, 0.0, 4.0, 4.0))
+    table.flags.writeable = False  # points as read back from the scratch folder
+    points_in_box(table, (0.0, 0.0, 4.0, 4.0))
+    if "slope" in layers and surface != "smooth":
+        meshcore.gradient(mesh, z, np.array([1.0, 5.0]), np.array([1.0, 2.0]))
     if surface == "smooth":
         nodes = meshcore.linear_nodes(mesh.faces, z)
         nodes = meshcore.nodes_from_deviations(mesh.faces, z, meshcore.node_deviations(mesh.faces, z, nodes))

@@ -21,6 +21,7 @@ import sys
 
 import meshcore
 
+from ..config import RunConfig
 from ..meshing.tiles import TileJob
 
 __all__ = ["KernelCompile", "compile_aside"]
@@ -55,16 +56,27 @@ class KernelCompile:
         self.process = None
 
 
-def compile_aside(job: TileJob) -> KernelCompile:
+_STARTED: dict[str, subprocess.Popen] = {}
+"""The processes this one started, by the measures they compile: a run takes
+over one still compiling (``terrain demo`` starts it before it writes its survey)."""
+
+
+def compile_aside(job: TileJob | RunConfig) -> KernelCompile:
     """Start compiling the mesh kernels of ``job``'s measures in another
-    process, unless the kernel cache holds them already."""
+    process, unless the kernel cache holds them already or such a process is
+    still at it (then that one is returned)."""
     if meshcore.kernels_compiled():
         return KernelCompile(None)
     measures = {"triangle_measure": job.triangle_measure, "quad_measure": job.quad_measure, "merge": job.merge,
                 "duplicates": job.duplicates, "surface": job.surface}
+    key = json.dumps(measures, sort_keys=True)
+    running = _STARTED.get(key)
+    if running is not None and running.poll() is None:
+        return KernelCompile(running)
     try:
         process = subprocess.Popen([sys.executable, "-c", _CHILD, json.dumps(measures)],
                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:  # no process to spare: the tiles compile them
         return KernelCompile(None)
+    _STARTED[key] = process
     return KernelCompile(process)

@@ -441,7 +441,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
 
 
 def _load_surface_kernels(job: TileJob) -> None:
-    load_surface_kernels(job.max_edge, job.surface)
+    load_surface_kernels(job.max_edge, job.surface, job.layers)
 
 
 def _kernel_job(plan: RunPlan, scratch: Scratch) -> TileJob:

@@ -50,3 +50,17 @@ def test_a_run_waits_for_the_kernels_and_ends_the_process(tmp_path, started):
                  progress=False)
     assert report.tiles_uncertified == 0 and report.points_kept > 0
     assert len(started) == 1 and started[0].poll() is not None
+
+
+def test_a_run_takes_over_the_process_its_caller_started(tmp_path, started):
+    """terrain demo starts compiling before it writes its survey; its run waits for that process, starts none."""
+    survey = tmp_path / "survey"
+    config = RunConfig(inputs=(str(survey),), output=str(tmp_path / "o.zarr"), resolution=2.0)
+    early = compiling.compile_aside(config)
+    assert compiling.compile_aside(config).process is early.process  # still at it: the same process
+    write_survey(survey, SurveySpec(points=6_000, files=1, width=60.0, height=40.0, seed=2))
+    report = run(config, progress=False)
+    assert report.points_kept > 0
+    assert len(started) == 1 and started[0].poll() is not None
+    early.stop()  # finished: nothing to stop
+    assert started[0].returncode == 0
