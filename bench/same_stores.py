@@ -1,13 +1,15 @@
 """Stores of this checkout against those of another commit, byte for byte (run by hand).
 
-    python bench/same_stores.py [--ref HEAD~1] [--files ../shared/data/*.laz ...]
+    python bench/same_stores.py [--ref HEAD~1] [--surface smooth] [--files ../shared/data/*.laz ...]
 
 A refactoring must leave every store as it was.  This checks out ``--ref``
 into a temporary worktree, runs ``terrain run`` of both versions on the demo
 survey and on each real sample with ground (default layers plus slope, face
 kind and point count; the samples at 1 unit and 100-unit tiles, so that each
 is several tiles), and compares every array and every chunk file.  Each
-version compiles its own kernels in a cache folder of its own.
+version compiles its own kernels in a cache folder of its own.  With
+``--surface smooth`` the samples are run with the smooth surface (a change of
+its kernels that should change no number).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ref", default="HEAD~1", help="the commit to compare with")
     parser.add_argument("--files", nargs="*", type=Path, default=[SHARED / name for name in SAMPLES])
+    parser.add_argument("--surface", default="linear", choices=("linear", "smooth"), help="the samples' surface")
     args = parser.parse_args()
     sys.path.insert(0, str(HERE))
     from tests.pipeline.store_checks import assert_same_store
@@ -58,7 +61,8 @@ def main() -> None:
                         stores.append(out / "dem.zarr")
                     else:
                         _terrain(source, ["run", str(path), "-o", str(out / "dem.zarr"), "--resolution", "1",
-                                          "--tile-size", "100", "--layers", "slope,face_kind,point_count"],
+                                          "--tile-size", "100", "--layers", "slope,face_kind,point_count",
+                                          "--surface", args.surface],
                                  tmp_path / f"cache_{label}")
                         stores.append(out / "dem.zarr")
                 assert_same_store(stores[1], stores[0])

@@ -237,7 +237,11 @@ def _deviations_kernel(faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, out:
 
 @njit
 def _restore_kernel(faces: np.ndarray, z: np.ndarray, deviations: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (uninitialised): the linear nodes plus the deviations, NaN in a triangle's unused columns."""
     for f in range(faces.shape[0]):
+        if faces[f, 3] < 0:
+            for j in (6, 7, 9, 10, 11):
+                out[f, j] = np.nan
         _face_linear_nodes(faces, z, f, out[f])
         for j in range(NODES_PER_FACE):
             out[f, j] += np.float64(deviations[f, j])
@@ -295,6 +299,6 @@ def nodes_from_deviations(
     values = np.ascontiguousarray(deviations, dtype=np.float32)
     if values.shape != (f.shape[0], NODES_PER_FACE):
         raise InvalidInputError(f"deviations must have shape ({f.shape[0]}, {NODES_PER_FACE}), got {values.shape}")
-    out = np.full((f.shape[0], NODES_PER_FACE), np.nan)
+    out = np.empty((f.shape[0], NODES_PER_FACE))
     _restore_kernel(f, np.ascontiguousarray(z, dtype=np.float64), values, out)
     return out

@@ -1180,7 +1180,7 @@ def smooth_nodes(
     vertices, faces = mesh_arrays(mesh)
     zv = vertex_values(z, vertices.shape[0])
     variogram = fit_variogram(vertices, zv, neighbours=k) if variogram is None else _check_variogram(variogram)
-    out = np.full((faces.shape[0], NODES_PER_FACE), np.nan)
+    out = np.empty((faces.shape[0], NODES_PER_FACE))  # every entry written: a node or NaN
     if faces.shape[0] == 0:
         return out
     hoods = smooth_neighbourhoods(mesh, k, variogram.spacing) if neighbourhoods is None else neighbourhoods
@@ -1492,12 +1492,11 @@ def _krige_added(
 
 @njit
 def _scatter_nodes(values: np.ndarray, take: np.ndarray, out: np.ndarray) -> None:
-    """``out[f, j] = values[take[f, j]]`` where ``take[f, j] >= 0`` (six times faster than a mask in numpy)."""
+    """``out[f, j] = values[take[f, j]]`` where ``take[f, j] >= 0``, else NaN (six times faster than a mask in numpy)."""
     for f in range(take.shape[0]):
         for j in range(take.shape[1]):
             t = take[f, j]
-            if t >= 0:
-                out[f, j] = values[t]
+            out[f, j] = values[t] if t >= 0 else np.nan
 
 
 # --------------------------------------------------------------------------
