@@ -292,10 +292,10 @@ def _nearest(
     """Indices ``(m, k)`` and squared distances of the ``k`` nearest points of each query."""
     n = xy.shape[0]
     k = min(k, n)
-    out_index = np.full((queries.shape[0], k), -1, dtype=np.int64)
-    out_d2 = np.full((queries.shape[0], k), np.inf)
     if n == 0 or queries.shape[0] == 0 or k == 0:
-        return out_index, out_d2
+        return np.full((queries.shape[0], k), -1, dtype=np.int64), np.full((queries.shape[0], k), np.inf)
+    out_index = np.empty((queries.shape[0], k), dtype=np.int64)  # every row written, -1 and inf past the points found
+    out_d2 = np.empty((queries.shape[0], k))
     lo = np.array([xy[:, 0].min(), xy[:, 1].min()])  # min(axis=0) is ten times slower here
     hi = np.array([xy[:, 0].max(), xy[:, 1].max()])
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
@@ -856,7 +856,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
     positions = np.empty((n_nodes, 2))
     corners = np.empty((n_nodes, 4), dtype=np.int32)
     pattern = np.empty(n_nodes, dtype=np.uint8)
-    take = np.full((n_f, 12), -1, dtype=np.int32)
+    take = np.empty((n_f, 12), dtype=np.int32)  # every slot written: a node, or -1 past a triangle's
     third = 1.0 / 3.0
     placed = 0  # the edges numbered below this have their nodes (edges are numbered in slot order)
     for v in range(n_v):
@@ -891,6 +891,8 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
             corners[tri, 3] = -1
             pattern[tri] = 2
             take[f, 8] = tri
+            for j in (6, 7, 9, 10, 11):
+                take[f, j] = -1
             tri += 1
         else:
             for m in range(4):
