@@ -15,6 +15,7 @@ import functools
 import hashlib
 import importlib.abc
 import importlib.util
+import pickle
 import sys
 from pathlib import Path
 
@@ -154,6 +155,33 @@ class _Dispatcher(CPUDispatcher):
         )
 
 
+class _StaleProofIndex(caching.IndexDataCacheFile):
+    """A kernel's cache index that reads as empty when it cannot be unpickled.
+
+    An index holds the kernel's signatures, and a signature the types of its
+    arguments: an index written by another version of this package can name
+    a type this one no longer has (a named tuple renamed), and numba then
+    raises while unpickling it, before it compares the sources' stamp that
+    would have found the index stale.  Stale it is: the kernel compiles and
+    the index is written anew.
+    """
+
+    def _load_index(self):
+        try:
+            return super()._load_index()
+        except (AttributeError, ImportError, IndexError, TypeError, ValueError, EOFError, pickle.UnpicklingError):
+            return {}
+
+
+class _FunctionCache(caching.FunctionCache):
+    """numba's cache of a kernel, with :class:`_StaleProofIndex`."""
+
+    def __init__(self, py_func) -> None:
+        super().__init__(py_func)
+        self._cache_file = _StaleProofIndex(cache_path=self._cache_path, filename_base=self._impl.filename_base,
+                                            source_stamp=self._impl.locator.get_source_stamp())
+
+
 def _compiler(**options):
     """A decorator compiling with meshcore's settings (see the module's docstring) and ``options``."""
     targetoptions = {"nopython": True, "nogil": True, "error_model": "numpy", **options}
@@ -162,7 +190,7 @@ def _compiler(**options):
         if numba.config.DISABLE_JIT:
             return function
         dispatcher = _Dispatcher(py_func=function, locals={}, targetoptions=targetoptions)
-        dispatcher.enable_caching()
+        dispatcher._cache = _FunctionCache(function)  # numba's enable_caching(), with an index robust to old types
         return dispatcher
 
     return compile_

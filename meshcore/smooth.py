@@ -399,29 +399,29 @@ def _correlation_kernel(h: np.ndarray, inv_range: float, model: int, out: np.nda
         out[i] = _covariance(h[i], inv_range, model)
 
 
-LANES = 8
-"""Kriging systems solved side by side (:class:`KrigingScratch`)."""
+_LANES = 8
+"""Kriging systems solved side by side (:class:`_KrigingScratch`)."""
 
 
-class KrigingScratch(NamedTuple):
-    """Room for :func:`_dual_systems`: up to :data:`LANES` systems of ``k`` neighbours."""
+class _KrigingScratch(NamedTuple):
+    """Room for :func:`_dual_systems`: up to :data:`_LANES` systems of ``k`` neighbours."""
 
-    xs: np.ndarray  # (LANES, k) the neighbours relative to each centre
+    xs: np.ndarray  # (_LANES, k) the neighbours relative to each centre
     ys: np.ndarray
-    coef: np.ndarray  # (LANES, k + 3) each system's dual weights and drift
-    radius: np.ndarray  # (LANES,) each system's radius, NaN when singular
-    c: np.ndarray  # (k, k, LANES) the covariances, then their Cholesky factors
-    g: np.ndarray  # (k, 4, LANES) the right-hand sides
-    col: np.ndarray  # (k, LANES)
-    work: np.ndarray  # (16, LANES)
+    coef: np.ndarray  # (_LANES, k + 3) each system's dual weights and drift
+    radius: np.ndarray  # (_LANES,) each system's radius, NaN when singular
+    c: np.ndarray  # (k, k, _LANES) the covariances, then their Cholesky factors
+    g: np.ndarray  # (k, 4, _LANES) the right-hand sides
+    col: np.ndarray  # (k, _LANES)
+    work: np.ndarray  # (16, _LANES)
     pairs: np.ndarray  # (3, k * k)
 
 
 @njit
-def _kriging_scratch(k: int) -> KrigingScratch:
-    return KrigingScratch(
-        np.empty((LANES, k)), np.empty((LANES, k)), np.empty((LANES, k + 3)), np.empty(LANES),
-        np.empty((k, k, LANES)), np.empty((k, 4, LANES)), np.empty((k, LANES)), np.empty((16, LANES)),
+def _kriging_scratch(k: int) -> _KrigingScratch:
+    return _KrigingScratch(
+        np.empty((_LANES, k)), np.empty((_LANES, k)), np.empty((_LANES, k + 3)), np.empty(_LANES),
+        np.empty((k, k, _LANES)), np.empty((k, 4, _LANES)), np.empty((k, _LANES)), np.empty((16, _LANES)),
         np.empty((3, k * k)),
     )
 
@@ -429,11 +429,11 @@ def _kriging_scratch(k: int) -> KrigingScratch:
 @njit
 def _dual_systems(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int,
-    nugget_ratio: float, scale: float, model: int, room: KrigingScratch,
+    nugget_ratio: float, scale: float, model: int, room: _KrigingScratch,
 ) -> None:
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual
     form, for the systems ``first .. first + lanes - 1`` (centres ``centres[s]``,
-    neighbours ``neighbours[s, :k]``; ``lanes <= LANES``).
+    neighbours ``neighbours[s, :k]``; ``lanes <= _LANES``).
 
     Fills, for lane ``b``, ``room.xs[b]``, ``room.ys[b]`` (the neighbours
     relative to the centre ``c``), ``room.coef[b, :k]`` (weights of the
@@ -665,13 +665,13 @@ def _count(neighbours: np.ndarray) -> int:
 @njit
 def _solve_systems(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int,
-    nugget_ratio: float, scale: float, model: int, room: KrigingScratch,
+    nugget_ratio: float, scale: float, model: int, room: _KrigingScratch,
 ) -> tuple[int, int]:
     """:func:`_dual_systems` for the systems from ``first`` on that have as many
-    neighbours as it (at most :data:`LANES`); returns how many, and that count."""
+    neighbours as it (at most :data:`_LANES`); returns how many, and that count."""
     k = neighbours.shape[1]
     count = _count(neighbours[first])
-    end = min(first + LANES, neighbours.shape[0])
+    end = min(first + _LANES, neighbours.shape[0])
     lanes = 1
     if count == k:  # full rows: their last column is set
         while first + lanes < end and neighbours[first + lanes, k - 1] >= 0:
@@ -679,8 +679,8 @@ def _solve_systems(
     else:
         while first + lanes < end and _count(neighbours[first + lanes]) == count:
             lanes += 1
-    if lanes == LANES:  # a constant number of lanes: loops the compiler unrolls and vectorises better
-        _dual_systems(xy, z, centres, neighbours, first, LANES, count, nugget_ratio, scale, model, room)
+    if lanes == _LANES:  # a constant number of lanes: loops the compiler unrolls and vectorises better
+        _dual_systems(xy, z, centres, neighbours, first, _LANES, count, nugget_ratio, scale, model, room)
     else:
         _dual_systems(xy, z, centres, neighbours, first, lanes, count, nugget_ratio, scale, model, room)
     return lanes, count

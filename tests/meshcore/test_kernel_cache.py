@@ -95,3 +95,38 @@ def test_the_first_kernel_call_does_not_import_scipy_linalg():
     # numba's answer is the one its own check gives: is SciPy installed?
     assert have_blas == str(importlib.util.find_spec("scipy") is not None)
     assert ensure_blas_module == "numba.np.linalg"  # numba's own check is back for kernels that use a BLAS
+
+
+_TYPED = '''
+from typing import NamedTuple
+import numpy as np
+from meshcore import kernel
+
+
+class {name}(NamedTuple):
+    values: np.ndarray
+
+
+@kernel
+def total(room):
+    return room.values.sum()
+'''
+
+
+def test_a_cache_naming_a_type_the_sources_no_longer_have_is_compiled_anew(tmp_path):
+    """A kernel's cache index holds its signatures, with the types of its
+    arguments: after an upgrade that renamed one (a named tuple), numba
+    raised while unpickling the old index; it is stale, and the kernel compiles."""
+    import os
+    import subprocess
+    import sys
+
+    call = "import sys, numpy as np; sys.path.insert(0, sys.argv[1]); import typed; print(typed.total(typed.{name}(np.ones(3))))"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    for name in ("Room", "Space"):  # the same kernel, on the same line, its argument's type renamed
+        (tmp_path / "typed.py").write_text(_TYPED.format(name=name))
+        done = subprocess.run([sys.executable, "-c", call.format(name=name), str(tmp_path)], capture_output=True,
+                              text=True, env=env, timeout=120)
+        assert done.returncode == 0, done.stderr[-500:]
+        assert done.stdout.strip() == "3.0"
+    assert list((tmp_path / "cache").rglob("*.nbi"))  # the kernel was cached (the first run wrote an index)

@@ -18,7 +18,7 @@ from meshcore.mesh import Mesh
 
 from .mesh_checks import edge_faces, hand_mesh
 from meshcore.smooth import (
-    CELL_PER_SPACING, LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _nearest, _solve_systems,
+    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _nearest, _solve_systems,
     fit_variogram, smooth_neighbourhoods, smooth_nodes,
 )
 
@@ -330,13 +330,13 @@ def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):
     k = 16
     xy = rng.random((400, 2)) * 30.0 + OFFSET
     z = np.sin(xy[:, 0] / 7.0) + 0.01 * rng.standard_normal(400)
-    centres = rng.random((3 * LANES + 3, 2)) * 30.0 + OFFSET
+    centres = rng.random((3 * _LANES + 3, 2)) * 30.0 + OFFSET
     neighbours, _ = _nearest(xy, centres, k)
     neighbours[4, :] = neighbours[4, 0]  # one point repeated: a singular covariance matrix
     xy[1:3, 1] = xy[0, 1]
-    neighbours[LANES + 1, :3] = [0, 1, 2]  # three neighbours on a line: a singular drift
-    neighbours[LANES + 1, 3:] = -1
-    neighbours[2 * LANES + 2, 12:] = -1  # a shorter row between full ones
+    neighbours[_LANES + 1, :3] = [0, 1, 2]  # three neighbours on a line: a singular drift
+    neighbours[_LANES + 1, 3:] = -1
+    neighbours[2 * _LANES + 2, 12:] = -1  # a shorter row between full ones
     ratio, scale, model = 0.05, 1.0 / 9.0, MODELS.index("matern32")
 
     alone = []
@@ -350,11 +350,11 @@ def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):
     first = 0
     while first < centres.shape[0]:
         lanes, count = _solve_systems(xy, z, centres, neighbours, first, ratio, scale, model, room)
-        assert 1 <= lanes <= LANES and count == int(np.count_nonzero(neighbours[first] >= 0))
+        assert 1 <= lanes <= _LANES and count == int(np.count_nonzero(neighbours[first] >= 0))
         together.extend((room.radius[b], room.coef[b, : count + 3].copy()) for b in range(lanes))
         first += lanes
     assert len(together) == len(alone)
-    assert np.isnan(alone[4][0]) and np.isnan(alone[LANES + 1][0])
+    assert np.isnan(alone[4][0]) and np.isnan(alone[_LANES + 1][0])
     assert np.isfinite([radius for radius, _ in alone]).sum() >= centres.shape[0] - 2
     for (r1, c1), (r2, c2) in zip(alone, together):
         assert_array_equal(r1, r2)
