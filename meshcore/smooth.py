@@ -476,7 +476,7 @@ def _dual_systems(
         # the covariances with the nugget on the diagonal; the right-hand sides
         # [1, x / R, y / R, z - z0] are carried along into g = L^-1 [...]
         z0 = z[neighbours[s, 0]] if k > 0 else 0.0
-        inv_r = 1.0 / r
+        inv_r = 1.0 / r if r > 0.0 else 0.0  # a lane without a radius is singular (and Python divides by no zero)
         m = 0
         for i in range(k):
             for j in range(i):
@@ -497,8 +497,10 @@ def _dual_systems(
     for j in range(k):
         for b in range(lanes):
             d = c[j, j, b]
+            # a pivot this small: the lane is singular, and goes on with NaN (no
+            # square root of a negative number when the kernels run as Python)
             ok[b] = ok[b] if d > 1e-14 else 0.0
-            v = 1.0 / math.sqrt(d)
+            v = 1.0 / math.sqrt(d) if d > 1e-14 else math.nan
             inv_d[b] = v
             c[j, j, b] = v
             g0[b] = g[j, 0, b] * v
@@ -564,6 +566,8 @@ def _dual_systems(
         m11 = s00[b] * s22[b] - s02[b] * s02[b]
         m12 = s01[b] * s02[b] - s00[b] * s12[b]
         m22 = s00[b] * s11[b] - s01[b] * s01[b]
+        if det == 0.0:  # singular (ok is 0): nothing to divide
+            det = math.nan
         beta0 = (m00 * r0[b] + m01 * r1[b] + m02 * r2[b]) / det
         beta1 = (m01 * r0[b] + m11 * r1[b] + m12 * r2[b]) / det
         beta2 = (m02 * r0[b] + m12 * r1[b] + m22 * r2[b]) / det

@@ -337,7 +337,8 @@ def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):
     neighbours[_LANES + 1, :3] = [0, 1, 2]  # three neighbours on a line: a singular drift
     neighbours[_LANES + 1, 3:] = -1
     neighbours[2 * _LANES + 2, 12:] = -1  # a shorter row between full ones
-    ratio, scale, model = 0.05, 1.0 / 9.0, MODELS.index("matern32")
+    neighbours[2 * _LANES + 3, 1] = neighbours[2 * _LANES + 3, 0]  # a point twice, no nugget: a zero pivot
+    ratio, scale, model = 0.0, 1.0 / 9.0, MODELS.index("matern32")
 
     alone = []
     room = _kriging_scratch(k)
@@ -354,8 +355,8 @@ def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):
         together.extend((room.radius[b], room.coef[b, : count + 3].copy()) for b in range(lanes))
         first += lanes
     assert len(together) == len(alone)
-    assert np.isnan(alone[4][0]) and np.isnan(alone[_LANES + 1][0])
-    assert np.isfinite([radius for radius, _ in alone]).sum() >= centres.shape[0] - 2
+    assert np.isnan(alone[4][0]) and np.isnan(alone[_LANES + 1][0]) and np.isnan(alone[2 * _LANES + 3][0])
+    assert np.isfinite([radius for radius, _ in alone]).sum() >= centres.shape[0] - 3
     for (r1, c1), (r2, c2) in zip(alone, together):
         assert_array_equal(r1, r2)
         if np.isfinite(r1):
