@@ -74,7 +74,7 @@ def compile_aside(job: TileJob | RunConfig) -> KernelCompile:
     if running is not None and running.poll() is None:
         return KernelCompile(running)
     try:
-        process = subprocess.Popen([sys.executable, "-c", _CHILD, json.dumps(measures)],
+        process = subprocess.Popen([sys.executable, "-c", _CHILD, key],
                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:  # no process to spare: the tiles compile them
         return KernelCompile(None)
