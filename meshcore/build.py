@@ -9,7 +9,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit, njit_borrowing
 from ._order import geometric_order
-from .delaunay import _next, _prev, circumcenter_terms, delaunay
+from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
 from .flip import flip_edges
 from .merge import merge_triangles
@@ -17,7 +17,7 @@ from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import cross_rounded, lex_before
 
-__all__ = ["build_mesh", "as_points"]
+__all__ = ["build_mesh", "as_points", "load_kernels", "KERNEL_STAGES"]
 
 
 def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
@@ -358,8 +358,20 @@ def build_mesh(
     mm = parse_option(MergeMethod, merge, "merge")
     bounds = None if window is None else _check_window(window)
     points = as_points(xy)
+    known_box = None if known is None or bounds is None else _check_window(known)
+    return _combined_mesh(points, delaunay(points), tm, qm, mm, bounds, known_box)
 
-    triangulation = delaunay(points)
+
+def _combined_mesh(
+    points: NDArray[np.float64],
+    triangulation: Triangulation,
+    tm: TriangleMeasure,
+    qm: QuadMeasure | None,
+    mm: MergeMethod,
+    bounds: tuple[float, float, float, float] | None,
+    known: tuple[float, float, float, float] | None,
+) -> Mesh:
+    """:func:`build_mesh` after the Delaunay triangulation of ``points``."""
     if bounds is not None:
         # a window piece is numbered by its geometry, so that its flips and
         # merges match its neighbours' and a whole run's wherever they overlap
@@ -373,7 +385,7 @@ def build_mesh(
         active = _window_mask(
             triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles, *bounds
         )
-        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else _check_window(known)
+        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else known
         escapes = _escaping_circles(
             triangulation.x, triangulation.y, triangulation.triangles, active, np.array(bounds), float(o[0]), float(o[1]),
             *box,
@@ -401,3 +413,33 @@ def build_mesh(
         window=bounds,
         window_escapes=escapes,
     )
+
+
+KERNEL_STAGES = ("triangulation", "faces")
+"""The stages of :func:`build_mesh` whose kernels :func:`load_kernels` compiles apart."""
+
+
+def load_kernels(stage: str, triangle_measure: str = "s1", quad_measure: str | None = "s2",
+                 merge: str = "greedy") -> Mesh | None:
+    """Compile (or load from the kernel cache) the kernels of one stage of
+    :func:`build_mesh` with a window, as it runs them, on a small example.
+
+    ``stage`` is ``"triangulation"`` (the Delaunay sweep) or ``"faces"``
+    (everything after it: the geometric order, the window, flips, merges and
+    faces, run on a triangulation of a grid made without the sweep's
+    kernels; the measures as ``build_mesh`` takes them).  Each takes about
+    9 s to compile on one core, so two processes compile a machine's first
+    mesh kernels in half the time of one.  Returns the example's mesh
+    (``"faces"``) or None.
+    """
+    tm = parse_option(TriangleMeasure, triangle_measure, "triangle_measure")
+    qm = None if quad_measure is None else parse_option(QuadMeasure, quad_measure, "quad_measure")
+    mm = parse_option(MergeMethod, merge, "merge")
+    triangulation = grid_triangulation(8, 8)
+    points = np.column_stack([triangulation.x, triangulation.y])
+    if stage == "triangulation":
+        delaunay(points)
+        return None
+    if stage != "faces":
+        raise InvalidInputError(f"stage must be one of {', '.join(KERNEL_STAGES)}, got {stage!r}")
+    return _combined_mesh(points, triangulation, tm, qm, mm, (1.0, 1.0, 6.0, 6.0), (-1.0, -1.0, 9.0, 9.0))

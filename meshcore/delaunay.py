@@ -745,3 +745,24 @@ def delaunay(xy: NDArray[np.float64]) -> Triangulation:
     origin = bbox_origin(xy)
     x, y, order, rep, tri, he = _delaunay_driver(xy, float(origin[0]), float(origin[1]))
     return Triangulation(x, y, origin, order, rep, tri, he)
+
+
+def grid_triangulation(columns: int, rows: int) -> Triangulation:
+    """A triangulation of a slightly jittered ``columns`` x ``rows`` grid,
+    each square cut on its rising diagonal, made here without the sweep's
+    kernels: for compiling the kernels of the stages that follow the sweep
+    on their own (see :func:`meshcore.build.load_kernels`).  Not Delaunay
+    in general (flips make it so)."""
+    k = np.arange(columns * rows)
+    x = (k % columns + 0.01 * (k * 7 % 5)).astype(np.float64)
+    y = (k // columns + 0.01 * (k * 3 % 7)).astype(np.float64)
+    corners = []
+    for j in range(rows - 1):
+        for i in range(columns - 1):
+            a = j * columns + i
+            corners += [(a, a + 1, a + columns + 1), (a, a + columns + 1, a + columns)]
+    tri = np.array(corners, dtype=np.int32).reshape(-1)
+    edge_of = {(int(tri[e]), int(tri[e - e % 3 + (e + 1) % 3])): e for e in range(tri.size)}
+    he = np.array([edge_of.get((b, a), -1) for (a, b) in edge_of], dtype=np.int32)
+    ids = k.astype(np.int32)
+    return Triangulation(x, y, np.zeros(2), ids, ids.copy(), tri, he)

@@ -43,7 +43,7 @@ from ..tiling.routing import neighbour_tile_points, points_in_box
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
-    "reached_tiles", "load_kernels", "load_mesh_kernels", "load_surface_kernels",
+    "reached_tiles", "load_kernels", "load_mesh_kernels", "load_surface_kernels", "MESH_KERNEL_PARTS",
 ]
 
 @dataclass(frozen=True)
@@ -864,32 +864,68 @@ def load_kernels(job: TileJob) -> None:
     tile, with the job's measures: a thread that the route stage leaves idle
     loads them from the compiled cache meanwhile (0.1 s of a one-file job), so
     the first tiles start at once.  Reads and writes nothing."""
-    load_mesh_kernels(job.triangle_measure, job.quad_measure, job.merge, job.duplicates, job.surface)
+    load_mesh_kernels(job.triangle_measure, job.quad_measure, job.merge, job.surface)
     load_surface_kernels(job.max_edge, job.surface, job.layers)
 
 
-def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: str, duplicates: str, surface: str) -> None:
-    """The mesh kernels of :func:`load_kernels`: a tile's mesh (and its smooth nodes)."""
-    k = np.arange(64, dtype=np.float64)
-    xy = np.column_stack([k % 8 + 0.01 * (k * 7 % 5), k // 8 + 0.01 * (k * 3 % 7)])
-    mesh = meshcore.build_mesh(xy, triangle_measure, quad_measure, merge, window=(1.0, 1.0, 6.0, 6.0), known=(-1.0, -1.0, 9.0, 9.0))
-    z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], xy[:, 0] * 0.1 + np.sin(xy[:, 1]), duplicates)
-    if surface == "smooth":
-        variogram = meshcore.fit_variogram(xy, z[mesh.input_to_vertex], neighbours=meshcore.DEFAULT_NEIGHBOURS)
-        long_faced = meshcore.Variogram(variogram.nugget, variogram.sill, variogram.range, variogram.model, 0.5)
-        meshcore.smooth_surface(mesh, z, long_faced)  # edges over a few half metres: the long faces' kernels too
+MESH_KERNEL_PARTS = ("triangulation", "faces", "smooth")
+"""The parts of :func:`load_mesh_kernels` that processes can compile side by side."""
+
+
+def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: str, surface: str,
+                      parts: tuple[str, ...] = MESH_KERNEL_PARTS) -> None:
+    """The mesh kernels of :func:`load_kernels`: a tile's mesh (and its smooth
+    nodes), or those of ``parts`` of it, each compiled without the others:
+    ``"triangulation"`` and ``"faces"`` (the two stages of
+    :func:`meshcore.load_kernels`; with the order of a piece's vertices) and
+    ``"smooth"`` (the nodes and their long faces, on a mesh made here; only
+    with ``surface="smooth"``).  The variogram's fit is left to the caller,
+    which runs it before the tiles."""
+    if "triangulation" in parts:
+        meshcore.load_kernels("triangulation")
+    if "faces" in parts:
+        mesh = meshcore.load_kernels("faces", triangle_measure, quad_measure, merge)
+        meshcore.lexicographic_order(mesh.vertices)
+    if "smooth" in parts and surface == "smooth":
+        mesh = _grid_mesh(8)
+        z = mesh.vertices[:, 0] * 0.1 + np.sin(mesh.vertices[:, 1])
+        meshcore.block_order(np.column_stack([mesh.vertices, z]), 1.0, (0.0, 0.0, 8.0, 8.0))
+        # not fitted: the run fits its variogram itself, before its tiles.  Its
+        # edges are 20 spacings long, split as long faces are: those kernels too
+        variogram = meshcore.Variogram(nugget=0.01, sill=1.0, range=3.0, model="matern52", spacing=0.05)
+        meshcore.smooth_surface(mesh, z, variogram)
+
+
+def _grid_mesh(n: int) -> meshcore.Mesh:
+    """A mesh of an ``n`` x ``n`` grid, slightly jittered: quadrangles, and
+    pairs of triangles on every third square."""
+    k = np.arange(n * n)
+    vertices = np.column_stack([k % n + 0.01 * (k * 7 % 5), k // n + 0.01 * (k * 3 % 7)])
+    faces = []
+    for j in range(n - 1):
+        for i in range(n - 1):
+            a = j * n + i
+            if (i + j) % 3:
+                faces.append([a, a + 1, a + n + 1, a + n])
+            else:
+                faces += [[a, a + 1, a + n + 1, -1], [a, a + n + 1, a + n, -1]]
+    return meshcore.Mesh(vertices, np.array(faces, dtype=np.int64), np.arange(n * n))
 
 
 def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str, ...] = ()) -> None:
     """The DEM kernels of :func:`load_kernels` (and ``layers``'), and those a
     piece's faces reaching its neighbours need, on a mesh of three faces made
-    here (so that they compile without the mesh kernels)."""
+    here (so that they compile without the mesh kernels); with the smooth
+    surface, the variogram's fit too."""
     vertices = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 4.0], [4.0, 4.0], [8.0, 5.0], [2.0, 8.0]])
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
     mesh = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
     z = vertices[:, 0] * 0.1 + np.sin(vertices[:, 1])
     meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
-    meshcore.lexicographic_order(vertices)
+    if surface == "smooth":  # the run's variogram is fitted (its sample merged) before the tiles
+        meshcore.lexicographic_order(vertices)
+        grid = _grid_mesh(8).vertices
+        meshcore.fit_variogram(grid, grid[:, 0] * 0.1 + np.sin(grid[:, 1]), neighbours=meshcore.DEFAULT_NEIGHBOURS)
     # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them
     table = np.column_stack([vertices, z])
     _reaching_out(table, faces.astype(np.int32), (0.0, 0.0, 4.0, 4.0))

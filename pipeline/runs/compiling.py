@@ -1,16 +1,17 @@
-"""The first run on a machine: the mesh kernels compiled in a second process.
+"""The first run on a machine: the mesh kernels compiled in other processes.
 
 numba compiles a kernel in the thread that first calls it, holding the GIL,
 so a run on this process's threads compiles its kernels one after another:
 about 25 s of the demo's first run on two cores (its later runs take 6 s).
 When the kernel cache holds no mesh kernels compiled from these sources
 (:func:`meshcore.kernels_compiled`: the first run after an install or an
-upgrade), :func:`compile_aside` starts a process that compiles them
-(:func:`~pipeline.meshing.tiles.load_mesh_kernels`) while this one creates
-the store, reads and routes the points and compiles the DEM's kernels; the
-tiles wait for it (:meth:`KernelCompile.wait`) and load its kernels from the
-cache.  Nothing depends on it: had it failed, the tiles compile their kernels
-themselves.
+upgrade), :func:`compile_aside` starts a process for each part of them
+(:data:`~pipeline.meshing.tiles.MESH_KERNEL_PARTS`: the Delaunay sweep's,
+the kernels after it, the smooth surface's; about 9 s each on one core)
+while this one creates the store, reads and routes the points and compiles
+the DEM's kernels; the tiles wait for them (:meth:`KernelCompile.wait`) and
+load their kernels from the cache.  Nothing depends on them: had one failed,
+the tiles compile its kernels themselves.
 """
 
 from __future__ import annotations
@@ -22,61 +23,67 @@ import sys
 import meshcore
 
 from ..config import RunConfig
-from ..meshing.tiles import TileJob
+from ..meshing.tiles import MESH_KERNEL_PARTS, TileJob
 
 __all__ = ["KernelCompile", "compile_aside"]
 
-_CHILD = "import json, sys; from pipeline.meshing.tiles import load_mesh_kernels; load_mesh_kernels(**json.loads(sys.argv[1]))"
+_CHILD = (
+    "import json, sys; from pipeline.meshing.tiles import load_mesh_kernels; "
+    "load_mesh_kernels(**json.loads(sys.argv[1]), parts=(sys.argv[2],))"
+)
 
 WAIT_SECONDS = 600.0
-"""How long the tiles wait for the other process at most (it compiles in about 20 s)."""
+"""How long the tiles wait for the other processes at most (they compile in about 10 s)."""
 
 
 class KernelCompile:
-    """The process compiling the mesh kernels, if one was started."""
+    """The processes compiling the mesh kernels, if any were started."""
 
-    def __init__(self, process: subprocess.Popen | None) -> None:
-        self.process = process
+    def __init__(self, processes: list[subprocess.Popen] | None = None) -> None:
+        self.processes = list(processes or [])
 
     def wait(self) -> None:
-        """Until the kernels are compiled (or the process ended otherwise)."""
-        if self.process is None:
-            return
-        try:
-            self.process.wait(timeout=WAIT_SECONDS)
-        except subprocess.TimeoutExpired:
-            self.stop()
-        self.process = None
+        """Until the kernels are compiled (or the processes ended otherwise)."""
+        for process in self.processes:
+            try:
+                process.wait(timeout=WAIT_SECONDS)
+            except subprocess.TimeoutExpired:
+                break
+        self.stop()
 
     def stop(self) -> None:
-        """End the process now (the run stopped before its tiles)."""
-        if self.process is not None and self.process.poll() is None:
-            self.process.kill()
-            self.process.wait()
-        self.process = None
+        """End the processes now (the run stopped before its tiles)."""
+        for process in self.processes:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+        self.processes = []
 
 
-_STARTED: dict[str, subprocess.Popen] = {}
+_STARTED: dict[str, list[subprocess.Popen]] = {}
 """The processes this one started, by the measures they compile: a run takes
-over one still compiling (``terrain demo`` starts it before it writes its survey)."""
+over those still compiling (``terrain demo`` starts them before it writes its survey)."""
 
 
 def compile_aside(job: TileJob | RunConfig) -> KernelCompile:
-    """Start compiling the mesh kernels of ``job``'s measures in another
-    process, unless the kernel cache holds them already or such a process is
-    still at it (then that one is returned)."""
+    """Start compiling the mesh kernels of ``job``'s measures in other
+    processes, one per part, unless the kernel cache holds them already or
+    such processes are still at it (then those are returned)."""
     if meshcore.kernels_compiled():
-        return KernelCompile(None)
+        return KernelCompile()
     measures = {"triangle_measure": job.triangle_measure, "quad_measure": job.quad_measure, "merge": job.merge,
-                "duplicates": job.duplicates, "surface": job.surface}
+                "surface": job.surface}
     key = json.dumps(measures, sort_keys=True)
-    running = _STARTED.get(key)
-    if running is not None and running.poll() is None:
+    running = [p for p in _STARTED.get(key, []) if p.poll() is None]
+    if running:
         return KernelCompile(running)
-    try:
-        process = subprocess.Popen([sys.executable, "-c", _CHILD, key],
-                                   stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    except OSError:  # no process to spare: the tiles compile them
-        return KernelCompile(None)
-    _STARTED[key] = process
-    return KernelCompile(process)
+    parts = [part for part in MESH_KERNEL_PARTS if part != "smooth" or job.surface == "smooth"]
+    processes = []
+    for part in parts:
+        try:
+            processes.append(subprocess.Popen([sys.executable, "-c", _CHILD, key, part], stdin=subprocess.DEVNULL,
+                                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        except OSError:  # no process to spare: the tiles compile the rest
+            break
+    _STARTED[key] = processes
+    return KernelCompile(processes)

@@ -305,7 +305,7 @@ def _execute(
         # process meanwhile, the DEM's in that thread
         job = _kernel_job(plan, work.scratch)
         compiling = compile_aside(job)
-        client.submit(load_kernels if compiling.process is None else _load_surface_kernels, job)
+        client.submit(_load_surface_kernels if compiling.processes else load_kernels, job)
     try:
         resume.prepare(plan, decision, work, incremental, report.notes, say)
         report.stages["scan"] = time.perf_counter() - t0

@@ -450,3 +450,19 @@ def test_a_sliver_circle_is_bounded_to_ulps_of_its_radius(offset, bulge):
     assert gap + exact_r <= r
     # ... and is no wider than a micrometre per thousand kilometres
     assert r - exact_r <= 4e-12 * exact_r + 1e-9
+
+
+def test_the_faces_stage_compiles_on_a_grid_it_makes_as_build_mesh_would():
+    """load_kernels("faces") runs build_mesh's stages after the sweep on a
+    grid's triangulation: a valid windowed mesh, the same as build_mesh
+    gives for the grid's points with the same window."""
+    mesh = meshcore.load_kernels("faces", "s3", "s4", "greedy")
+    meshcore.validate(mesh)
+    assert mesh.window == (1.0, 1.0, 6.0, 6.0) and mesh.faces.shape[0] > 0
+    built = meshcore.build_mesh(mesh.vertices, "s3", "s4", "greedy", window=(1.0, 1.0, 6.0, 6.0),
+                                known=(-1.0, -1.0, 9.0, 9.0))
+    corners = {tuple(sorted(map(tuple, mesh.vertices[f[f >= 0]]))) for f in mesh.faces}
+    assert corners == {tuple(sorted(map(tuple, built.vertices[f[f >= 0]]))) for f in built.faces}
+    assert meshcore.load_kernels("triangulation") is None
+    with pytest.raises(meshcore.InvalidInputError, match="stage"):
+        meshcore.load_kernels("flips")
