@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
 
 __all__ = ["Mesh", "mesh_arrays", "vertex_values"]
@@ -86,10 +87,22 @@ def mesh_arrays(mesh: Mesh) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         )
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     n_v = vertices.shape[0]
-    lowest = faces.min(axis=0) if faces.size else None  # one pass for both checks of the low end
-    if faces.size and (lowest[:3].min() < 0 or lowest[3] < -1 or faces.max() >= n_v):
+    if not _corners_in_range(faces, n_v):
         raise InvalidMeshError(f"faces refer to vertices outside 0..{n_v - 1}")
     return np.ascontiguousarray(vertices[:, :2]), faces
+
+
+@njit
+def _corners_in_range(faces: np.ndarray, n_v: int) -> bool:
+    """Whether every corner is a vertex below ``n_v``, the fourth ``-1`` too
+    (one pass; numpy's reductions along the rows of an ``(n, 4)`` array
+    took 3 ms a mesh of 190k faces, a tenth of a second a tile)."""
+    for f in range(faces.shape[0]):
+        for k in range(4):
+            v = faces[f, k]
+            if v >= n_v or v < (-1 if k == 3 else 0):
+                return False
+    return True
 
 
 def vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:

@@ -13,7 +13,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import Delaunay
 
-from meshcore.errors import InvalidInputError
+from meshcore.errors import InvalidInputError, InvalidMeshError
 from meshcore.interpolate import (
     _bilinear_inverse,
     _surface_at,
@@ -457,3 +457,14 @@ def test_python_form_of_kernels_agrees():
     for a, b in zip(py_values, jit_values):
         assert_allclose(a, b, rtol=1e-14, atol=1e-14)
     assert not np.isnan(jit_values[0]).all()
+
+
+@pytest.mark.parametrize("row, col, value", [(0, 0, -1), (1, 2, -1), (1, 3, -2), (0, 3, 5), (1, 1, 5)])
+def test_a_corner_out_of_range_is_refused_before_any_kernel_reads_it(row, col, value):
+    vertices = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [2.0, 0.0]])
+    faces = np.array([[0, 1, 2, 3], [1, 4, 2, -1]])
+    z = vertices[:, 0]
+    assert np.allclose(interpolate(Mesh(vertices, faces, np.arange(5)), z, [0.5], [0.5]), 0.5)
+    faces[row, col] = value
+    with pytest.raises(InvalidMeshError, match="outside 0..4"):
+        interpolate(Mesh(vertices, faces, np.arange(5)), z, [0.5], [0.5])
