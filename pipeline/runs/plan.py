@@ -140,21 +140,33 @@ def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, An
     return paths, infos, skipped
 
 
+THIN_HEADER = 16.0
+"""A file whose header bounds would hold its points this many times more
+thinly than the survey's files hold theirs (the median) has its bounds
+measured from its points, when they widen the survey's extent."""
+
+
 def _frame_measuring_wide_headers(config: RunConfig, paths, infos, plan):
     """:func:`job_frame`, and the infos it was computed from.
 
     Header bounds that claim far more than a file's points (edited files whose
-    header was not updated, a mistyped offset) can make a DEM too large to
-    plan.  Then the widest files' bounds are measured from their points, one
-    at a time, widest first, until the DEM fits; each file so measured keeps
-    a note.  An extent that is truly that large still raises, once the widest
-    file not yet measured proves to hold its header's bounds (an archive
-    planned at too fine a resolution is not read whole before it is told).
+    header was not updated, a mistyped offset) widen the DEM with empty cells,
+    up to one too large to plan.  So the bounds of a file whose header would
+    hold its points :data:`THIN_HEADER` times more thinly than the survey's
+    files do are measured from its points, where they widen the extent; and
+    while the DEM is too large, the widest files' bounds are measured, one
+    at a time, widest first, until it fits.  Each file whose points fill less
+    than half of its header's bounds along an axis then takes its points'
+    bounds, with a note.  An extent that is truly too large still raises,
+    once the widest file not yet measured proves to hold its header's bounds
+    (an archive planned at too fine a resolution is not read whole before it
+    is told).
     """
-    from ..inputs.sources import measured_bounds
-
     infos = list(infos)
     measured: set[int] = set()
+    for k in [] if config.bbox is not None else _thin_headers(infos, plan):  # a bbox bounds the grid already
+        measured.add(k)
+        infos[k] = _bounds_of_points(infos[k])[0]
     while True:
         try:
             return infos, job_frame(config, paths, infos, plan)
@@ -165,16 +177,47 @@ def _frame_measuring_wide_headers(config: RunConfig, paths, infos, plan):
                 raise
             k = int(left[0])
             measured.add(k)
-            points = measured_bounds(infos[k])
-            header = infos[k].bounds
-            if points is None:
-                continue
-            if points[3] - points[0] >= 0.5 * (header[3] - header[0]) and points[4] - points[1] >= 0.5 * (header[4] - header[1]):
+            infos[k], filled = _bounds_of_points(infos[k])
+            if filled:
                 raise  # its points fill its header's bounds: the extent is real
-            note = (f"header bounds x {header[0]:.8g} .. {header[3]:.8g}, y {header[1]:.8g} .. {header[4]:.8g} reach far "
-                    f"beyond its points (x {points[0]:.8g} .. {points[3]:.8g}, y {points[1]:.8g} .. {points[4]:.8g}): "
-                    "the grid follows its points")
-            infos[k] = replace(infos[k], bounds=points, notes=(*infos[k].notes, note))
+
+
+def _thin_headers(infos, plan) -> list[int]:
+    """The files whose header bounds widen the survey's extent and would hold
+    their points :data:`THIN_HEADER` times more thinly than the median file."""
+    bounds = [_file_bounds(i, src, plan.target_wkt) for i, src in zip(infos, plan.source_wkts)]
+    spans = _spans(bounds)
+    density = [i.point_count / a if a > 0.0 and i.point_count else math.nan for i, a in zip(infos, spans)]
+    if sum(math.isfinite(d) for d in density) < 2:
+        return []
+    median = float(np.nanmedian(density))
+    thin = []
+    for k, d in enumerate(density):
+        if not d < median / THIN_HEADER:
+            continue
+        others = union_bounds([b for j, b in enumerate(bounds) if j != k and b])
+        b = bounds[k]
+        if b[0] < others[0] or b[1] < others[1] or b[2] > others[2] or b[3] > others[3]:
+            thin.append(k)
+    return thin
+
+
+def _bounds_of_points(info):
+    """``(info, filled)``: ``info`` with its points' bounds (and a note) when
+    they fill less than half of its header's bounds along an axis; ``filled``
+    when they fill them (``info`` then as it was)."""
+    from ..inputs.sources import measured_bounds
+
+    points = measured_bounds(info)
+    header = info.bounds
+    if points is None:
+        return info, False
+    if points[3] - points[0] >= 0.5 * (header[3] - header[0]) and points[4] - points[1] >= 0.5 * (header[4] - header[1]):
+        return info, True
+    note = (f"header bounds x {header[0]:.8g} .. {header[3]:.8g}, y {header[1]:.8g} .. {header[4]:.8g} reach far "
+            f"beyond its points (x {points[0]:.8g} .. {points[3]:.8g}, y {points[1]:.8g} .. {points[4]:.8g}): "
+            "the grid follows its points")
+    return replace(info, bounds=points, notes=(*info.notes, note)), False
 
 
 def _spans(file_bounds) -> list[float]:

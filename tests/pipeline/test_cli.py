@@ -220,3 +220,39 @@ def test_a_tile_that_cannot_be_certified_fails_the_run_naming_it(survey, tmp_pat
     err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(err) == 1 and "tile (0, 1)" in err[0] and "certified" in err[0], err
     assert store.read_attrs(out)["complete"] is False
+
+
+def test_a_header_kilometres_off_within_max_cells_is_measured_too(tmp_path, capsys, monkeypatch):
+    """A header whose x minimum is 3 km off: the DEM fits --max-cells, but it
+    would be 25 times wider than the survey and empty there.  The file's
+    header holds its points far more thinly than the others': measured, and
+    the grid follows the points.  The honest files are not read twice."""
+    import shutil
+    import struct
+
+    import xarray as xr
+
+    honest = tmp_path / "honest"
+    files = write_survey(honest, SurveySpec(points=9_000, files=3, width=120.0, height=80.0, seed=6))
+    lying = tmp_path / "lying"
+    shutil.copytree(honest, lying)
+    wrong = lying / files[2].name
+    data = bytearray(wrong.read_bytes())
+    data[187:195] = struct.pack("<d", struct.unpack("<d", data[187:195])[0] - 3000.0)  # the header's min x
+    wrong.write_bytes(data)
+
+    from pipeline.inputs import sources
+
+    measured = []
+    measure = sources.measured_bounds
+    monkeypatch.setattr(sources, "measured_bounds", lambda info: measured.append(info.path) or measure(info))
+    stores = {}
+    for name, folder in (("honest", honest), ("lying", lying)):
+        stores[name] = tmp_path / f"{name}.zarr"
+        assert main(["run", str(folder), "-o", str(stores[name]), "--resolution", "1", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {wrong}: header bounds x " in out and out.count("reach far beyond its points") == 1
+    assert [str(p) for p in measured] == [str(wrong)]
+    with xr.open_zarr(stores["honest"]) as a, xr.open_zarr(stores["lying"]) as b:
+        assert a.sizes == b.sizes
+        assert a["elevation"].equals(b["elevation"])
