@@ -102,7 +102,8 @@ def test_a_header_spanning_far_beyond_its_points_gets_tiles_of_bounded_chunks(tm
     from pipeline.tools.synthetic import SurveySpec, write_survey
 
     paths = write_survey(tmp_path / "survey", SurveySpec(points=12_000, files=2, width=120.0, height=80.0, seed=3))
-    _lying_min_y(paths[0], -1.0)
+    for path in paths:  # every header: one file's lie alone is measured from its points (test_cli)
+        _lying_min_y(path, -1.0)
     config = RunConfig(inputs=(str(tmp_path / "survey"),), output=str(tmp_path / "o.zarr"), resolution=2.0)
     plan = plan_run(config)
     assert plan.grid.ny > 3_000_000 and plan.grid.tile_cells == MAX_AUTO_TILE_CELLS
