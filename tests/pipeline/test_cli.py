@@ -147,27 +147,34 @@ def test_a_dem_above_max_cells_names_the_widest_input(tmp_path, capsys):
     assert "above --max-cells 10,000" in line and f"the widest input is {wide}: x " in line
 
 
-def test_a_header_claiming_far_more_than_its_points_is_measured_and_the_run_succeeds(tmp_path, capsys):
-    """A header whose x minimum was mistyped 9,000 km west: the DEM it implies is
-    over --max-cells, but the file's points are valid; the grid follows them."""
+def _honest_and_lying_runs(tmp_path, spec, west: float):
+    """A survey run as written and with its last file's header minimum x
+    moved ``west`` metres: that file, and the two stores by name."""
     import shutil
     import struct
 
-    import xarray as xr
-
     honest = tmp_path / "honest"
-    files = write_survey(honest, SurveySpec(points=6_000, files=2, width=120.0, height=80.0, seed=4))
+    files = write_survey(honest, spec)
     lying = tmp_path / "lying"
     shutil.copytree(honest, lying)
-    wrong = lying / files[1].name
+    wrong = lying / files[-1].name
     data = bytearray(wrong.read_bytes())
-    data[187:195] = struct.pack("<d", struct.unpack("<d", data[187:195])[0] - 9.0e6)  # the header's min x
+    data[187:195] = struct.pack("<d", struct.unpack("<d", data[187:195])[0] - west)  # the header's min x
     wrong.write_bytes(data)
-
     stores = {}
     for name, folder in (("honest", honest), ("lying", lying)):
         stores[name] = tmp_path / f"{name}.zarr"
         assert main(["run", str(folder), "-o", str(stores[name]), "--resolution", "1", "--no-progress"]) == 0
+    return wrong, stores
+
+
+def test_a_header_claiming_far_more_than_its_points_is_measured_and_the_run_succeeds(tmp_path, capsys):
+    """A header whose x minimum was mistyped 9,000 km west: the DEM it implies is
+    over --max-cells, but the file's points are valid; the grid follows them."""
+    import xarray as xr
+
+    wrong, stores = _honest_and_lying_runs(tmp_path, SurveySpec(points=6_000, files=2, width=120.0, height=80.0, seed=4),
+                                           9.0e6)
     out = capsys.readouterr().out
     assert f"note: {wrong}: header bounds x " in out and "reach far beyond its points" in out
     assert out.count("reach far beyond its points") == 1  # the honest files are left as they are
@@ -227,29 +234,15 @@ def test_a_header_kilometres_off_within_max_cells_is_measured_too(tmp_path, caps
     would be 25 times wider than the survey and empty there.  The file's
     header holds its points far more thinly than the others': measured, and
     the grid follows the points.  The honest files are not read twice."""
-    import shutil
-    import struct
-
     import xarray as xr
-
-    honest = tmp_path / "honest"
-    files = write_survey(honest, SurveySpec(points=9_000, files=3, width=120.0, height=80.0, seed=6))
-    lying = tmp_path / "lying"
-    shutil.copytree(honest, lying)
-    wrong = lying / files[2].name
-    data = bytearray(wrong.read_bytes())
-    data[187:195] = struct.pack("<d", struct.unpack("<d", data[187:195])[0] - 3000.0)  # the header's min x
-    wrong.write_bytes(data)
 
     from pipeline.inputs import sources
 
     measured = []
     measure = sources.measured_bounds
     monkeypatch.setattr(sources, "measured_bounds", lambda info: measured.append(info.path) or measure(info))
-    stores = {}
-    for name, folder in (("honest", honest), ("lying", lying)):
-        stores[name] = tmp_path / f"{name}.zarr"
-        assert main(["run", str(folder), "-o", str(stores[name]), "--resolution", "1", "--no-progress"]) == 0
+    wrong, stores = _honest_and_lying_runs(tmp_path, SurveySpec(points=9_000, files=3, width=120.0, height=80.0, seed=6),
+                                           3000.0)
     out = capsys.readouterr().out
     assert f"note: {wrong}: header bounds x " in out and out.count("reach far beyond its points") == 1
     assert [str(p) for p in measured] == [str(wrong)]
