@@ -16,6 +16,7 @@ import errno
 import io
 import math
 import os
+import re
 import shutil
 import threading
 from collections.abc import Iterable, Mapping
@@ -67,19 +68,47 @@ def load_array(path: str | os.PathLike[str], mmap: bool = False) -> np.ndarray:
         return _read_npy(handle, str(path), file=True)
 
 
+_SAVED_HEADER = re.compile(
+    rb"\{'descr': '([<>|=][a-zA-Z]\d{1,2})', 'fortran_order': (True|False), 'shape': \(((?:\d+, ?)*\d*)\), \} *\n"
+)
+"""The header ``np.save`` writes for an array of a plain dtype."""
+
+
+def _saved_header(handle: BinaryIO) -> tuple[tuple[int, ...], bool, np.dtype] | None:
+    """The shape, order and dtype of a ``.npy`` header as ``np.save`` writes
+    it, read without numpy's parser (and its lock); ``None`` for any other
+    (the stream is then where it was)."""
+    start = handle.tell()
+    magic = handle.read(10)
+    if len(magic) == 10 and magic[:6] == b"\x93NUMPY" and magic[6] == 1:
+        size = int.from_bytes(magic[8:10], "little")
+        match = _SAVED_HEADER.fullmatch(handle.read(size))
+        if match is not None:
+            dims = match.group(3).replace(b" ", b"").rstrip(b",")
+            shape = tuple(int(d) for d in dims.split(b",")) if dims else ()
+            return shape, match.group(2) == b"True", np.dtype(match.group(1).decode())
+    handle.seek(start)
+    return None
+
+
 def _read_npy(handle: BinaryIO, name: str, file: bool = False) -> np.ndarray:
     """The array of an open ``.npy`` stream.
 
-    numpy parses a ``.npy`` header with ``ast.literal_eval``, and CPython 3.11
-    builds ASTs with interpreter-wide state: two threads parsing at once can
-    fail with a spurious "AST constructor recursion depth mismatch"
-    SystemError (CPython gh-106905).  Headers are parsed one at a time; the
-    data is read outside the lock.
+    The header ``np.save`` writes is read with a pattern.  Any other goes to
+    numpy, which parses it with ``ast.literal_eval``; CPython 3.11 builds ASTs
+    with interpreter-wide state, and two threads parsing at once can fail with
+    a spurious "AST constructor recursion depth mismatch" SystemError (CPython
+    gh-106905), so those headers are parsed one at a time.  (A run of many
+    small tiles reads tens of thousands of work files: numpy's parser was 8%
+    of its time.)  The data is read outside the lock.
     """
-    with _NPY_HEADER_LOCK:
-        version = np.lib.format.read_magic(handle)
-        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, fortran, dtype = read_header(handle)
+    header = _saved_header(handle)
+    if header is None:
+        with _NPY_HEADER_LOCK:
+            version = np.lib.format.read_magic(handle)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            header = read(handle)
+    shape, fortran, dtype = header
     count = math.prod(shape)
     if file:
         values = np.fromfile(handle, dtype=dtype, count=count)

@@ -224,3 +224,35 @@ def test_route_results_report_their_file_as_before():
     assert counted.to_report() == {"path": "c.copc.laz", "sha256": "cd", "bounds": [0.0, 0.0, 1.0, 1.0], "read": 9,
                                    "filtered_class": 1, "filtered_withheld": 0, "outside_bbox": 2, "kept": 6}
     assert WINDOW.read == 0  # frozen: counting makes a new result
+
+
+def test_work_files_read_back_as_written_with_or_without_numpys_header_parser(tmp_path):
+    import io
+
+    from pipeline.tiling.scratch import _saved_header
+
+    arrays = {
+        "plain": np.arange(7.0), "scalar": np.array(2.5), "empty": np.zeros((0, 3)), "none": np.zeros((3, 0, 2), np.int64),
+        "ints": np.arange(12, dtype=np.int32).reshape(3, 4), "fortran": np.asfortranarray(np.arange(6.0).reshape(2, 3)),
+        "flags": np.array([True, False]), "big_endian": np.array([1, -2], dtype=">i4"), "large": np.arange(400_000.0),
+        "structured": np.zeros(2, dtype=[("a", "<f8"), ("b", "<i4")]),  # numpy's parser
+    }
+    scratch = Scratch(tmp_path)
+    scratch.save_many({f"a/{k}.npy": v for k, v in arrays.items()})
+    for mmap in (False, True):
+        for (name, want), got in zip(arrays.items(), scratch.load_many([f"a/{k}.npy" for k in arrays], mmap=mmap)):
+            assert got.dtype == want.dtype and got.shape == want.shape and np.array_equal(got, want), name
+            assert got.flags.f_contiguous == want.flags.f_contiguous or want.ndim < 2, name
+    for name, want in arrays.items():
+        raw = (tmp_path / "a" / f"{name}.npy").read_bytes()
+        header = _saved_header(io.BytesIO(raw))
+        if name == "structured":
+            assert header is None
+        else:  # what numpy reads from the same bytes
+            assert header == np.lib.format.read_array_header_1_0(io.BytesIO(raw[8:])), name
+    # a version 2 header (numpy writes one when the header outgrows 64 KiB) goes to numpy's parser too
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, arrays["ints"], version=(2, 0))
+    (tmp_path / "a" / "v2.npy").write_bytes(buffer.getvalue())
+    assert _saved_header(io.BytesIO(buffer.getvalue())) is None
+    assert np.array_equal(scratch.load("a/v2.npy"), arrays["ints"])
