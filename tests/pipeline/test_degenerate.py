@@ -115,3 +115,26 @@ def test_a_header_spanning_far_beyond_its_points_gets_tiles_of_bounded_chunks(tm
                  "--tile-size", str(too_big), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "--tile-size" in err and not (tmp_path / "o.zarr").exists()
+
+
+def test_a_tile_size_far_too_small_for_the_points_gets_a_note_in_the_words_of_each_interface(tmp_path):
+    from pipeline.cli import as_flags
+    from pipeline.config import RunConfig
+    from pipeline.runs.plan import SMALL_TILE_POINTS, plan_run
+    from pipeline.tools.synthetic import SurveySpec, write_survey
+
+    write_survey(tmp_path / "survey", SurveySpec(points=12_000, files=2, width=120.0, height=80.0, seed=3))
+
+    def notes(tile_size):
+        config = RunConfig(inputs=(str(tmp_path / "survey"),), output=str(tmp_path / "o.zarr"), resolution=0.5,
+                           tile_size=tile_size)
+        plan = plan_run(config)
+        return plan.grid.n_tiles, [n for n in plan.notes if "tiles of about" in n]
+
+    tiles, small = notes(5.0)  # 16 x 24 tiles of about 30 points
+    assert tiles >= 300 and len(small) == 1
+    assert small[0].startswith(f"tile_size=5 cuts the survey into {tiles:,} tiles of about ")
+    assert as_flags(small[0]).startswith("--tile-size=5 cuts the survey")
+    tiles, small = notes(60.0)  # 2 x 2 tiles of 3,000 points
+    assert 12_000 / tiles >= SMALL_TILE_POINTS and small == []
+    assert notes(None)[1] == []  # a size chosen from the density is never too small
