@@ -28,7 +28,10 @@ from ..meshing.tiles import SURFACE_ARRAYS, piece_intact
 from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
-__all__ = ["Resume", "Update", "decide", "plan_update", "prepare", "work_reusable"]
+__all__ = [
+    "Resume", "Update", "decide", "plan_update", "prepare", "work_reusable", "ALL_BUT_NOISE", "classes_kept",
+    "keep_all_but_noise", "kept_all_but_noise",
+]
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,43 @@ def work_reusable(work: WorkDir) -> bool:
     return record is not None and record.get("digest") == sources_digest()
 
 
+ALL_BUT_NOISE = tuple(c for c in range(256) if c not in (7, 18))
+"""Every ASPRS class but low (7) and high (18) noise: what a survey with no
+point of the default classes (ground) is meshed from (:func:`keep_all_but_noise`)."""
+
+
+def classes_kept(work: WorkDir, config: RunConfig) -> tuple[int, ...] | None:
+    """The classes this job's inputs are routed with: ``config.classes``, or
+    :data:`ALL_BUT_NOISE` once :func:`keep_all_but_noise` recorded that the
+    survey holds no point of the default classes."""
+    recorded = work.recorded("survey", "classes")
+    return config.classes if recorded is None else tuple(recorded["classes"])
+
+
+def kept_all_but_noise(work: WorkDir) -> bool:
+    """Whether this job's survey held no point of the default classes
+    (:func:`keep_all_but_noise`): an update of its inputs starts over, as
+    new inputs may hold some."""
+    return work.recorded("survey", "classes") is not None
+
+
+def keep_all_but_noise(work: WorkDir, output: str) -> None:
+    """Start the job over keeping every class but noise: its inputs, routed
+    with the default classes (ground), kept no point at all.
+
+    A survey that was never classified (class 0 or 1 throughout) is valid
+    input; it gives a surface of every point instead of no surface.  The
+    work folder starts empty (nothing in it came from a kept point) with the
+    classes recorded first, so that a run stopped while routing again resumes
+    with them; the store forgets any tile it marked written.
+    """
+    from ..store import zarr_store as store
+
+    _start_work(work)
+    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE)})
+    store.reset_tiles_done(output)
+
+
 def _start_work(work: WorkDir) -> None:
     """An empty work folder, stamped with the sources that will fill it."""
     work.reset()
@@ -166,6 +206,12 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         store.reset_tiles_done(config.output)
         _start_work(work)
         notes.append(f"the work folder {why}: every tile was computed again")
+    elif not resume.same_inputs and kept_all_but_noise(work):
+        # the inputs held no ground point: whether the new ones do decides the classes again
+        store.reset_tiles_done(config.output)
+        _start_work(work)
+        notes.append("inputs changed in a survey that held no point of the default classes: every tile was computed again")
+        store.finalize_store(config.output, {"provenance": provenance, "complete": False})
     elif not resume.same_inputs:
         update = plan_update(plan, resume, work)
         forget_changed_inputs(work, len(previous["provenance"]["inputs"]), update.keep)

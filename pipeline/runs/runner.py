@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import RunConfig
+from ..config import DEFAULT_CLASSES, RunConfig
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import WorkDir, output_lock, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
@@ -320,6 +320,8 @@ def _execute(
         t0 = time.perf_counter()
         routed = _route_stage(plan, work, client, show, report)
         report.stages["route"] = time.perf_counter() - t0
+        if routed.classes != config.classes:
+            provenance["classes_kept"] = {"classes": routed.classes, "why": "no input point is of the default classes"}
         variogram = None
         if config.surface == "smooth":
             t0 = time.perf_counter()
@@ -375,6 +377,8 @@ class Routed:
     results: list[RouteResult]
     windows: tuple[WindowSource, ...]
     hull: np.ndarray
+    classes: tuple[int, ...] | None
+    """The classes kept: the run's, or every class but noise for a survey without any of the default ones."""
 
 
 def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport) -> Routed:
@@ -384,6 +388,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     computed again."""
     config, grid, crs, scratch = plan.config, plan.grid, plan.crs, work.scratch
     paths, infos = plan.paths, plan.infos
+    classes = resume.classes_kept(work, config)
     records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
     results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
@@ -393,7 +398,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     jobs = [
         _RouteJob(
             i, str(p), scratch, grid, plan.buffer, crs.source_wkts[i], crs.target_wkt, crs.z_factor(i),
-            config.classes, config.keep_withheld, config.bbox, config.skip_bad_files,
+            classes, config.keep_withheld, config.bbox, config.skip_bad_files,
         )
         for i, p in enumerate(paths)
         if results[i] is None and i not in windowed
@@ -408,6 +413,15 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     surveys = [w for w in windows if results[w.index] is None]
     map_tasks(client, survey_hull, surveys, Progress("hull", len(surveys), show), lambda _: 0,
               lambda w, result: routed(w.index, result))
+    if config.classes == DEFAULT_CLASSES and classes == config.classes and not windows and _no_point_kept(results):
+        # a survey never classified: every point but noise, rather than no surface
+        resume.keep_all_but_noise(work, config.output)
+        return _route_stage(plan, work, client, show, report)
+    if classes != config.classes:
+        report.notes.append(
+            "no input point is of the default classes (2, ground): the surface was made from every point but noise "
+            "(classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a terrain model"
+        )
     done: list[RouteResult] = []
     for i, c in enumerate(results):
         assert c is not None
@@ -437,7 +451,13 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         forget_tiles(work, config.output, grid, moved)
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
-    return Routed(done, windows, hull)
+    return Routed(done, windows, hull, classes)
+
+
+def _no_point_kept(results: list[RouteResult | None]) -> bool:
+    """Whether the inputs routed kept no point, and dropped some for their class."""
+    counted = [r for r in results if r is not None and r.skipped is None]
+    return sum(r.kept for r in counted) == 0 and sum(r.filtered_class for r in counted) > 0
 
 
 def _load_surface_kernels(job: TileJob) -> None:

@@ -138,3 +138,94 @@ def test_a_tile_size_far_too_small_for_the_points_gets_a_note_in_the_words_of_ea
     tiles, small = notes(60.0)  # 2 x 2 tiles of 3,000 points
     assert 12_000 / tiles >= SMALL_TILE_POINTS and small == []
     assert notes(None)[1] == []  # a size chosen from the density is never too small
+
+
+def _classed(path, n, classes, seed=0):
+    """``n`` points of a gentle slope on 40 x 40 m, cut at the LAS scale, of ``classes`` drawn in turn."""
+    rng = np.random.default_rng(seed)
+    x = np.round(500_000 + rng.random(n) * 40, 2)
+    y = np.round(4_000_000 + rng.random(n) * 40, 2)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([500_000.0, 4_000_000.0, 0.0])
+    header.add_crs(CRS.from_epsg(2154))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, np.round(100.0 + 0.05 * (x - 500_000) + 0.02 * (y - 4_000_000), 2)
+    las.classification = np.resize(np.asarray(classes, dtype=np.uint8), n)
+    las.write(path)
+    return path
+
+
+def test_a_survey_never_classified_gives_a_surface_of_every_point_but_noise(tmp_path, capsys):
+    from pipeline import RunConfig, run
+    from pipeline.store import zarr_store as store
+
+    # classes 0 and 1 (never classified, unassigned) and noise: no ground anywhere
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    _classed(folder / "a.laz", 3000, [0, 1, 1, 0, 7])
+    _classed(folder / "b.laz", 2000, [1, 18, 1, 1], seed=1)
+    out = tmp_path / "o.zarr"
+    assert _run(folder, out) == 0
+    said = capsys.readouterr().out
+    assert "no input point is of the default classes (2, ground)" in said and "every point but noise" in said
+    report = store.read_attrs(out)["report"]
+    noise = 3000 // 5 + 2000 // 4
+    assert report["points_read"] == 5000 and report["filtered_class"] == noise
+    assert report["points_kept"] == 5000 - noise
+    attrs = store.read_attrs(out)
+    assert attrs["complete"] is True
+    assert 7 not in attrs["provenance"]["classes_kept"]["classes"] and 1 in attrs["provenance"]["classes_kept"]["classes"]
+    elevation = xr.open_zarr(out)["elevation"].values
+    assert np.isfinite(elevation).sum() > 1000
+    # the same job again: the store is complete, nothing is routed again
+    again = run(RunConfig(inputs=(str(folder),), output=str(out), resolution=1.0))
+    assert "the store was already complete: nothing was recomputed" in again.notes
+    assert again.points_kept == 5000 - noise
+
+
+def test_ground_anywhere_keeps_only_ground_and_other_chosen_classes_stay_an_error(tmp_path, capsys):
+    from pipeline.store import zarr_store as store
+
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    _classed(folder / "ground.laz", 3000, [2, 1, 5])
+    _classed(folder / "unclassified.laz", 3000, [1], seed=1)
+    out = tmp_path / "o.zarr"
+    assert _run(folder, out) == 0
+    assert "every point but noise" not in capsys.readouterr().out
+    report = store.read_attrs(out)["report"]
+    assert report["points_kept"] == 1000 and report["filtered_class"] == 5000
+    assert "classes_kept" not in store.read_attrs(out)["provenance"]
+    # classes chosen by the user are kept to, even when none of them is there
+    assert _run(folder / "unclassified.laz", tmp_path / "b.zarr", "--classes", "6") == 2
+    assert "no surface" in capsys.readouterr().err
+
+
+def test_a_run_stopped_while_routing_a_survey_without_ground_again_resumes_with_every_class(tmp_path, monkeypatch):
+    from pipeline import RunConfig, run
+    from pipeline.runs import runner
+
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    _classed(folder / "a.laz", 3000, [1, 1, 7])
+    _classed(folder / "b.laz", 3000, [0], seed=1)
+    real = runner.route_source
+
+    def stopped(job):
+        if job.classes != (2,) and job.path.endswith("b.laz"):  # routing again, every class but noise
+            raise RuntimeError("power cut")
+        return real(job)
+
+    monkeypatch.setattr(runner, "route_source", stopped)
+    config = RunConfig(inputs=(str(folder),), output=str(tmp_path / "o.zarr"), resolution=1.0, workers=1)
+    with pytest.raises(Exception, match="power cut"):
+        run(config, progress=False)
+    monkeypatch.setattr(runner, "route_source", real)
+    resumed = run(config, progress=False)
+    assert any("resum" in n for n in resumed.notes), resumed.notes
+    assert resumed.points_kept == 6000 - 1000 and resumed.filtered_class == 1000
+    whole = run(RunConfig(inputs=(str(folder),), output=str(tmp_path / "w.zarr"), resolution=1.0), progress=False)
+    assert whole.points_kept == resumed.points_kept
+    a, b = (xr.open_zarr(tmp_path / name)["elevation"].values for name in ("o.zarr", "w.zarr"))
+    np.testing.assert_array_equal(a, b)

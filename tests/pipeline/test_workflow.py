@@ -384,3 +384,40 @@ def test_an_upgrade_between_runs_computes_every_tile_again(job, tmp_path, monkey
     _patch(tmp_path / "archive", "patch_a", (20.0, 20.0), seed=24)
     report = run_workflow(workflow, progress=False)
     assert any("inputs changed" in note for note in report.notes), report.notes
+
+
+def _reclassify(path: Path, classes: list[int] | None) -> None:
+    """Set every point of ``path`` to class ``classes[0]`` (``None``: back to the classes saved beside it)."""
+    import laspy
+    import numpy as np
+
+    las = laspy.read(path)
+    saved = path.with_suffix(".classes.npy")
+    if classes is None:
+        las.classification = np.load(saved)
+        saved.unlink()
+    else:
+        np.save(saved, np.asarray(las.classification))
+        las.classification = np.full(len(las.points), classes[0], dtype=np.uint8)
+    las.write(path)
+
+
+def test_a_survey_without_ground_that_gains_some_is_computed_again_with_ground_only(job, tmp_path):
+    archive = tmp_path / "archive"
+    files = sorted(archive.glob("*.laz"))
+    for path in files:
+        _reclassify(path, [1])
+    workflow = Workflow.load(job)
+    report = run_workflow(workflow, progress=False)
+    assert any("no input point is of the default classes" in n for n in report.notes), report.notes
+    assert report.filtered_class == 0 and report.points_kept == report.points_read - report.filtered_withheld
+
+    time.sleep(0.01)
+    _reclassify(files[0], None)  # one file classified: the survey now has ground
+    status = workflow_status(workflow)
+    assert status["changed_files"] == [str(files[0])] and status["tiles_pending"] == "all"
+    report = run_workflow(workflow, progress=False)
+    assert any("every tile was computed again" in n for n in report.notes), report.notes
+    assert not any("no input point is of the default classes" in n for n in report.notes), report.notes
+    assert 0 < report.points_kept < report.points_read
+    assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
