@@ -531,6 +531,11 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     if report.faces == 0:
         paths = plan.paths
         names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+        if report.points_kept == 0 and report.filtered_class > 0:
+            kept = ("every class but noise" if routed.classes != config.classes
+                    else ", ".join(str(c) for c in routed.classes or ()))
+            raise PipelineError(f"{names}: no surface: none of the {report.points_read:,} point(s) read is of the "
+                                f"classes kept ({kept})")
         raise PipelineError(
             f"{names}: no surface: the {report.vertices:,} distinct kept point(s) are fewer than three "
             "or all on one line"
