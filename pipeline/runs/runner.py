@@ -21,6 +21,7 @@ resumes, and :func:`execute` can update a store after its inputs changed.
 from __future__ import annotations
 
 import contextlib
+import copy
 import errno
 import math
 import sys
@@ -317,20 +318,14 @@ def _execute(
 
     provenance = dict(plan.provenance)
     try:
-        t0 = time.perf_counter()
-        routed = _route_stage(plan, work, client, show, report)
-        report.stages["route"] = time.perf_counter() - t0
-        if routed.classes != config.classes:
-            provenance["classes_kept"] = {"classes": routed.classes, "why": "no input point is of the default classes"}
-        variogram = None
-        if config.surface == "smooth":
-            t0 = time.perf_counter()
-            variogram, provenance["smooth_surface"] = run_variogram(work, grid, config.duplicates, report.points_kept)
-            report.stages["variogram"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        compiling.wait()
-        meshed = _mesh_stage(plan, work, client, routed, variogram, show, report)
-        report.stages["mesh"] = time.perf_counter() - t0
+        before = copy.deepcopy(report)
+        try:
+            meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
+        except _NoDefaultClasses:
+            # a survey never classified: every point but noise, rather than no surface
+            resume.keep_all_but_noise(work, config.output)
+            report = before
+            meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
         t0 = time.perf_counter()
         node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
         _dem_stage(plan, work, client, meshed, node_offsets, show)
@@ -369,6 +364,35 @@ def _already_complete(config: RunConfig, decision: resume.Resume, work: WorkDir,
     return done
 
 
+class _NoDefaultClasses(Exception):
+    """The inputs hold no point of the default classes (and some of others)."""
+
+
+def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompile, show: bool, report: RunReport,
+                    provenance: dict[str, Any]) -> Meshed:
+    """The route, variogram and mesh stages (see :func:`_execute`)."""
+    config = plan.config
+    t0 = time.perf_counter()
+    routed = _route_stage(plan, work, client, show, report)
+    report.stages["route"] = time.perf_counter() - t0
+    if routed.classes != config.classes:
+        provenance["classes_kept"] = {"classes": routed.classes, "why": "no input point is of the default classes"}
+        report.notes.append(
+            "no input point is of the default classes (2, ground): the surface was made from every point but noise "
+            "(classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a terrain model"
+        )
+    variogram = None
+    if config.surface == "smooth":
+        t0 = time.perf_counter()
+        variogram, provenance["smooth_surface"] = run_variogram(work, plan.grid, config.duplicates, report.points_kept)
+        report.stages["variogram"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    compiling.wait()
+    meshed = _mesh_stage(plan, work, client, routed, variogram, show, report)
+    report.stages["mesh"] = time.perf_counter() - t0
+    return meshed
+
+
 @dataclass(frozen=True)
 class Routed:
     """What the route stage leaves for the tiles: each input's result (its
@@ -392,7 +416,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
     results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
-    windows = tuple(w for w in _window_sources(config, paths, infos, crs)
+    windows = tuple(w for w in _window_sources(config, classes, paths, infos, crs)
                     if results[w.index] is None or results[w.index].window)
     windowed = {w.index for w in windows}
     jobs = [
@@ -413,15 +437,6 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     surveys = [w for w in windows if results[w.index] is None]
     map_tasks(client, survey_hull, surveys, Progress("hull", len(surveys), show), lambda _: 0,
               lambda w, result: routed(w.index, result))
-    if config.classes == DEFAULT_CLASSES and classes == config.classes and not windows and _no_point_kept(results):
-        # a survey never classified: every point but noise, rather than no surface
-        resume.keep_all_but_noise(work, config.output)
-        return _route_stage(plan, work, client, show, report)
-    if classes != config.classes:
-        report.notes.append(
-            "no input point is of the default classes (2, ground): the surface was made from every point but noise "
-            "(classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a terrain model"
-        )
     done: list[RouteResult] = []
     for i, c in enumerate(results):
         assert c is not None
@@ -453,11 +468,6 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     work.save("hull.npy", hull)
     return Routed(done, windows, hull, classes)
 
-
-def _no_point_kept(results: list[RouteResult | None]) -> bool:
-    """Whether the inputs routed kept no point, and dropped some for their class."""
-    counted = [r for r in results if r is not None and r.skipped is None]
-    return sum(r.kept for r in counted) == 0 and sum(r.filtered_class for r in counted) > 0
 
 
 def _load_surface_kernels(job: TileJob) -> None:
@@ -532,6 +542,8 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         paths = plan.paths
         names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
         if report.points_kept == 0 and report.filtered_class > 0:
+            if config.classes == DEFAULT_CLASSES and routed.classes == config.classes:
+                raise _NoDefaultClasses()
             kept = ("every class but noise" if routed.classes != config.classes
                     else ", ".join(str(c) for c in routed.classes or ()))
             raise PipelineError(f"{names}: no surface: none of the {report.points_read:,} point(s) read is of the "
@@ -601,7 +613,7 @@ def _tile_key(job: TileJob) -> str:
     return tile_key(job.row, job.col)
 
 
-def _window_sources(config: RunConfig, paths, infos, plan) -> tuple[WindowSource, ...]:
+def _window_sources(config: RunConfig, classes: tuple[int, ...] | None, paths, infos, plan) -> tuple[WindowSource, ...]:
     """The inputs tiles read by window: COPC files already in the target CRS.
 
     The others are routed, and so is every file of a run that skips broken
@@ -613,7 +625,7 @@ def _window_sources(config: RunConfig, paths, infos, plan) -> tuple[WindowSource
     if config.skip_bad_files or config.surface != "linear":
         return ()
     return tuple(
-        WindowSource(i, str(p), config.classes, config.keep_withheld, config.bbox)
+        WindowSource(i, str(p), classes, config.keep_withheld, config.bbox)
         for i, (p, info) in enumerate(zip(paths, infos))
         if info.is_copc and Reprojector(plan.source_wkts[i], plan.target_wkt, plan.z_factor(i)).is_identity
     )

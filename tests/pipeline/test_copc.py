@@ -222,3 +222,23 @@ def test_each_tile_fetches_about_the_nodes_it_needs_from_a_copc_on_s3(survey, ne
         urls.use_storage_options(None)
         server.stop()
 
+
+
+def test_a_copc_survey_never_classified_is_read_by_window_with_every_class_but_noise(tmp_path):
+    rng = np.random.default_rng(43)
+    n = 20_000
+    x = np.round(ORIGIN[0] + rng.random(n) * 200.0, 2)
+    y = np.round(ORIGIN[1] + rng.random(n) * 150.0, 2)
+    z = np.round(terrain_height(x, y, ORIGIN), 2)
+    noise = rng.random(n) < 0.02
+    copc = write_copc(tmp_path / "raw.copc.laz", x, y, z, np.where(noise, 7, 1), depth=4)
+    twin = plain_twin(copc, tmp_path / "raw.laz")
+    stores = {}
+    for name, path in (("copc", copc), ("twin", twin)):
+        stores[name] = tmp_path / f"{name}.zarr"
+        report = run(RunConfig(inputs=(str(path),), output=str(stores[name]), resolution=1.0, tile_size=64.0,
+                               workers=2), progress=False)
+        assert any("no input point is of the default classes" in note for note in report.notes), report.notes
+        assert report.points_read == n and report.filtered_class == int(noise.sum())
+        assert report.points_kept == n - int(noise.sum())
+    assert_same_store(stores["copc"], stores["twin"])
