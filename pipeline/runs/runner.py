@@ -469,7 +469,6 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     return Routed(done, windows, hull, classes)
 
 
-
 def _load_surface_kernels(job: TileJob) -> None:
     load_surface_kernels(job.max_edge, job.surface, job.layers)
 
