@@ -100,7 +100,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile)")
     run.add_argument("--buffer", type=float, help="overlap around each tile in CRS units (default: 12 point spacings)")
     run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground; "
-                     "a survey without any ground point: every class but noise, with a note)")
+                     "a survey whose ground makes no surface: every class but noise, with a note)")
     run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
     run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
     run.add_argument(

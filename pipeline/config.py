@@ -49,8 +49,9 @@ LAYERS = tuple(member.value for member in Layer)
 """The DEM layers a run can write, by name; ``elevation`` is always written."""
 
 DEFAULT_CLASSES = (2,)
-"""ASPRS class 2: ground.  A survey that holds no point of it at all is meshed
-from every class but noise instead (:data:`pipeline.runs.resume.ALL_BUT_NOISE`), with a note."""
+"""ASPRS class 2: ground.  A survey whose points of it make no surface (none,
+or too few) is meshed from every class but noise instead
+(:data:`pipeline.runs.resume.ALL_BUT_NOISE`), with a note."""
 
 
 class DuplicatePolicy(str, Enum):

@@ -29,8 +29,8 @@ from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
 __all__ = [
-    "Resume", "Update", "decide", "plan_update", "prepare", "work_reusable", "ALL_BUT_NOISE", "classes_kept",
-    "keep_all_but_noise", "kept_all_but_noise",
+    "Resume", "Update", "decide", "plan_update", "prepare", "work_reusable", "ALL_BUT_NOISE", "ClassFallback",
+    "class_fallback", "keep_all_but_noise",
 ]
 
 
@@ -135,39 +135,44 @@ def work_reusable(work: WorkDir) -> bool:
 
 
 ALL_BUT_NOISE = tuple(c for c in range(256) if c not in (7, 18))
-"""Every ASPRS class but low (7) and high (18) noise: what a survey with no
-point of the default classes (ground) is meshed from (:func:`keep_all_but_noise`)."""
+"""Every ASPRS class but low (7) and high (18) noise: what a survey whose
+default classes (ground) make no surface is meshed from (:func:`keep_all_but_noise`)."""
 
 
-def classes_kept(work: WorkDir, config: RunConfig) -> tuple[int, ...] | None:
-    """The classes this job's inputs are routed with: ``config.classes``, or
-    :data:`ALL_BUT_NOISE` once :func:`keep_all_but_noise` recorded that the
-    survey holds no point of the default classes."""
+@dataclass(frozen=True)
+class ClassFallback:
+    """A survey whose points of the default classes made no surface, meshed from :attr:`classes` instead."""
+
+    classes: tuple[int, ...]
+    default_points: int
+    """The points the default classes kept (none, or too few or all on one line for a surface)."""
+
+
+def class_fallback(work: WorkDir) -> ClassFallback | None:
+    """The fallback :func:`keep_all_but_noise` recorded in this job's work folder, if any.
+
+    An update of such a survey's inputs starts over (:func:`prepare`): new
+    inputs may hold ground."""
     recorded = work.recorded("survey", "classes")
-    return config.classes if recorded is None else tuple(recorded["classes"])
+    if recorded is None:
+        return None
+    return ClassFallback(tuple(recorded["classes"]), int(recorded.get("default_points", 0)))
 
 
-def kept_all_but_noise(work: WorkDir) -> bool:
-    """Whether this job's survey held no point of the default classes
-    (:func:`keep_all_but_noise`): an update of its inputs starts over, as
-    new inputs may hold some."""
-    return work.recorded("survey", "classes") is not None
+def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
+    """Start the job over keeping every class but noise: its inputs' points of
+    the default classes (ground), ``default_points`` of them, made no surface.
 
-
-def keep_all_but_noise(work: WorkDir, output: str) -> None:
-    """Start the job over keeping every class but noise: its inputs, routed
-    with the default classes (ground), kept no point at all.
-
-    A survey that was never classified (class 0 or 1 throughout) is valid
-    input; it gives a surface of every point instead of no surface.  The
-    work folder starts empty (nothing in it came from a kept point) with the
-    classes recorded first, so that a run stopped while routing again resumes
-    with them; the store forgets any tile it marked written.
+    A survey that was never classified (class 0 or 1 throughout), or holds a
+    ground point or two, is valid input; it gives a surface of every point
+    instead of none.  The work folder starts empty with the fallback recorded
+    first, so that a run stopped while routing again resumes with it; the
+    store forgets any tile it marked written.
     """
     from ..store import zarr_store as store
 
     _start_work(work)
-    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE)})
+    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
     store.reset_tiles_done(output)
 
 
@@ -206,7 +211,7 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         store.reset_tiles_done(config.output)
         _start_work(work)
         notes.append(f"the work folder {why}: every tile was computed again")
-    elif not resume.same_inputs and kept_all_but_noise(work):
+    elif not resume.same_inputs and class_fallback(work) is not None:
         # the inputs held no ground point: whether the new ones do decides the classes again
         store.reset_tiles_done(config.output)
         _start_work(work)

@@ -321,9 +321,9 @@ def _execute(
         before = copy.deepcopy(report)
         try:
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
-        except _NoDefaultClasses:
+        except _NoDefaultClasses as no_surface:
             # a survey never classified: every point but noise, rather than no surface
-            resume.keep_all_but_noise(work, config.output)
+            resume.keep_all_but_noise(work, config.output, no_surface.points)
             report = before
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
         t0 = time.perf_counter()
@@ -365,7 +365,11 @@ def _already_complete(config: RunConfig, decision: resume.Resume, work: WorkDir,
 
 
 class _NoDefaultClasses(Exception):
-    """The inputs hold no point of the default classes (and some of others)."""
+    """The inputs' points of the default classes make no surface, and they hold points of others."""
+
+    def __init__(self, points: int) -> None:
+        super().__init__(points)
+        self.points = points
 
 
 def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompile, show: bool, report: RunReport,
@@ -375,11 +379,14 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     t0 = time.perf_counter()
     routed = _route_stage(plan, work, client, show, report)
     report.stages["route"] = time.perf_counter() - t0
-    if routed.classes != config.classes:
-        provenance["classes_kept"] = {"classes": routed.classes, "why": "no input point is of the default classes"}
+    if routed.fallback is not None:
+        found = routed.fallback.default_points
+        why = f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes (2, ground)"
+        provenance["classes_kept"] = {"classes": routed.classes, "why": why}
         report.notes.append(
-            "no input point is of the default classes (2, ground): the surface was made from every point but noise "
-            "(classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a terrain model"
+            f"{why}{'' if found == 0 else ', too few or all on one line'}: the surface was made from every point but "
+            "noise (classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a "
+            "terrain model"
         )
     variogram = None
     if config.surface == "smooth":
@@ -402,7 +409,9 @@ class Routed:
     windows: tuple[WindowSource, ...]
     hull: np.ndarray
     classes: tuple[int, ...] | None
-    """The classes kept: the run's, or every class but noise for a survey without any of the default ones."""
+    """The classes kept: the run's, or :attr:`fallback`'s."""
+    fallback: resume.ClassFallback | None
+    """Every class but noise, kept because the default ones made no surface."""
 
 
 def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport) -> Routed:
@@ -412,7 +421,8 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     computed again."""
     config, grid, crs, scratch = plan.config, plan.grid, plan.crs, work.scratch
     paths, infos = plan.paths, plan.infos
-    classes = resume.classes_kept(work, config)
+    fallback = resume.class_fallback(work)
+    classes = config.classes if fallback is None else fallback.classes
     records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
     results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
@@ -466,7 +476,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         forget_tiles(work, config.output, grid, moved)
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
-    return Routed(done, windows, hull, classes)
+    return Routed(done, windows, hull, classes, fallback)
 
 
 def _load_surface_kernels(job: TileJob) -> None:
@@ -540,10 +550,10 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     if report.faces == 0:
         paths = plan.paths
         names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
+        if report.filtered_class > 0 and config.classes == DEFAULT_CLASSES and routed.fallback is None:
+            raise _NoDefaultClasses(report.points_kept)
         if report.points_kept == 0 and report.filtered_class > 0:
-            if config.classes == DEFAULT_CLASSES and routed.classes == config.classes:
-                raise _NoDefaultClasses()
-            kept = ("every class but noise" if routed.classes != config.classes
+            kept = ("every class but noise" if routed.fallback is not None
                     else ", ".join(str(c) for c in routed.classes or ()))
             raise PipelineError(f"{names}: no surface: none of the {report.points_read:,} point(s) read is of the "
                                 f"classes kept ({kept})")

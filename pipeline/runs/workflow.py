@@ -177,7 +177,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
     decision on the store (:func:`~pipeline.runs.resume.decide`) and the tiles an
     update meshes again (:func:`~pipeline.runs.resume.plan_update`)."""
     from .plan import frame_change, plan_run
-    from .resume import decide, kept_all_but_noise, plan_update, work_reusable
+    from .resume import class_fallback, decide, plan_update, work_reusable
 
     try:
         plan = plan_run(config)
@@ -190,7 +190,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
         return "all"
     if decision.same_inputs:  # a file left out or only touched: the run resumes or has nothing to do
         return 0 if decision.complete else int(done.size - done.sum())
-    if kept_all_but_noise(work):  # a survey without ground: new inputs may hold some
+    if class_fallback(work) is not None:  # a survey without ground: new inputs may hold some
         return "all"
     return len(plan_update(plan, decision, work).tiles)
 

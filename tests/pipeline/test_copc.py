@@ -238,7 +238,7 @@ def test_a_copc_survey_never_classified_is_read_by_window_with_every_class_but_n
         stores[name] = tmp_path / f"{name}.zarr"
         report = run(RunConfig(inputs=(str(path),), output=str(stores[name]), resolution=1.0, tile_size=64.0,
                                workers=2), progress=False)
-        assert any("no input point is of the default classes" in note for note in report.notes), report.notes
+        assert any("input point(s) of the default classes (2, ground)" in note for note in report.notes), report.notes
         assert report.points_read == n and report.filtered_class == int(noise.sum())
         assert report.points_kept == n - int(noise.sum())
     assert_same_store(stores["copc"], stores["twin"])

@@ -168,7 +168,7 @@ def test_a_survey_never_classified_gives_a_surface_of_every_point_but_noise(tmp_
     out = tmp_path / "o.zarr"
     assert _run(folder, out) == 0
     said = capsys.readouterr().out
-    assert "no input point is of the default classes (2, ground)" in said and "every point but noise" in said
+    assert "no input point(s) of the default classes (2, ground)" in said and "every point but noise" in said
     report = store.read_attrs(out)["report"]
     noise = 3000 // 5 + 2000 // 4
     assert report["points_read"] == 5000 and report["filtered_class"] == noise
@@ -230,3 +230,16 @@ def test_a_run_stopped_while_routing_a_survey_without_ground_again_resumes_with_
     assert whole.points_kept == resumed.points_kept
     a, b = (xr.open_zarr(tmp_path / name)["elevation"].values for name in ("o.zarr", "w.zarr"))
     np.testing.assert_array_equal(a, b)
+
+
+def test_two_ground_points_in_an_unclassified_survey_are_too_few_and_every_class_is_meshed(tmp_path, capsys):
+    from pipeline.store import zarr_store as store
+
+    path = _classed(tmp_path / "a.laz", 4000, [2, 2] + [1] * 3998)
+    out = tmp_path / "o.zarr"
+    assert _run(path, out) == 0
+    said = capsys.readouterr().out
+    assert "only 2 input point(s) of the default classes (2, ground), too few or all on one line" in said, said
+    report = store.read_attrs(out)["report"]
+    assert report["points_kept"] == 4000 and report["filtered_class"] == 0
+    assert store.read_attrs(out)["provenance"]["classes_kept"]["why"].startswith("only 2 input point(s)")

@@ -409,7 +409,7 @@ def test_a_survey_without_ground_that_gains_some_is_computed_again_with_ground_o
         _reclassify(path, [1])
     workflow = Workflow.load(job)
     report = run_workflow(workflow, progress=False)
-    assert any("no input point is of the default classes" in n for n in report.notes), report.notes
+    assert any("input point(s) of the default classes (2, ground)" in n for n in report.notes), report.notes
     assert report.filtered_class == 0 and report.points_kept == report.points_read - report.filtered_withheld
 
     time.sleep(0.01)
@@ -418,6 +418,6 @@ def test_a_survey_without_ground_that_gains_some_is_computed_again_with_ground_o
     assert status["changed_files"] == [str(files[0])] and status["tiles_pending"] == "all"
     report = run_workflow(workflow, progress=False)
     assert any("every tile was computed again" in n for n in report.notes), report.notes
-    assert not any("no input point is of the default classes" in n for n in report.notes), report.notes
+    assert not any("input point(s) of the default classes (2, ground)" in n for n in report.notes), report.notes
     assert 0 < report.points_kept < report.points_read
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
