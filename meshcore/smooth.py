@@ -414,7 +414,9 @@ class _KrigingScratch(NamedTuple):
     g: np.ndarray  # (k, 4, _LANES) the right-hand sides
     col: np.ndarray  # (k, _LANES)
     work: np.ndarray  # (16, _LANES)
-    pairs: np.ndarray  # (3, k * k)
+    pairs: np.ndarray  # (2, k * k) the lags of the pairs below the diagonal
+    cov: np.ndarray  # (_LANES, k * k) their covariances
+    reach: np.ndarray  # (_LANES,) each system's radius
 
 
 @njit
@@ -422,7 +424,7 @@ def _kriging_scratch(k: int) -> _KrigingScratch:
     return _KrigingScratch(
         np.empty((_LANES, k)), np.empty((_LANES, k)), np.empty((_LANES, k + 3)), np.empty(_LANES),
         np.empty((k, k, _LANES)), np.empty((k, 4, _LANES)), np.empty((k, _LANES)), np.empty((16, _LANES)),
-        np.empty((3, k * k)),
+        np.empty((2, k * k)), np.empty((_LANES, k * k)), np.empty(_LANES),
     )
 
 
@@ -431,11 +433,53 @@ def _dual_systems(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int,
     nugget_ratio: float, scale: float, model: int, room: _KrigingScratch,
 ) -> None:
+    """:func:`_dual_setup`, then :func:`_dual_solve`: see the latter."""
+    _dual_setup(xy, centres, neighbours, first, lanes, k, scale, model, room)
+    _dual_solve(z, neighbours, first, lanes, k, nugget_ratio, room)
+
+
+@njit
+def _dual_setup(
+    xy: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int,
+    scale: float, model: int, room: _KrigingScratch,
+) -> None:
+    """What :func:`_dual_solve` takes of the systems ``first .. first + lanes - 1``
+    and is the same for every nugget: ``room.xs``, ``room.ys`` (the neighbours
+    relative to each centre), ``room.reach`` (the radius) and ``room.cov`` (the
+    covariances of the pairs below the diagonal, row by row)."""
+    xs, ys, pairs, cov, reach = room.xs, room.ys, room.pairs, room.cov, room.reach
+    for b in range(lanes):
+        s = first + b
+        cx = centres[s, 0]
+        cy = centres[s, 1]
+        r = 0.0
+        for i in range(k):
+            q = neighbours[s, i]
+            xs[b, i] = xy[q, 0] - cx
+            ys[b, i] = xy[q, 1] - cy
+            r = max(r, math.sqrt(xs[b, i] * xs[b, i] + ys[b, i] * ys[b, i]))
+        reach[b] = r
+        # the lags of the pairs below the diagonal, then their covariances in
+        # one long loop (row by row, the short rows would not vectorise)
+        m = 0
+        for i in range(k):
+            for j in range(i):
+                pairs[0, m] = xs[b, j] - xs[b, i]
+                pairs[1, m] = ys[b, j] - ys[b, i]
+                m += 1
+        _covariances(pairs[0], pairs[1], m, 0.0, 0.0, scale, model, cov[b])
+
+
+@njit
+def _dual_solve(
+    z: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int, nugget_ratio: float, room: _KrigingScratch,
+) -> None:
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual
     form, for the systems ``first .. first + lanes - 1`` (centres ``centres[s]``,
-    neighbours ``neighbours[s, :k]``; ``lanes <= _LANES``).
+    neighbours ``neighbours[s, :k]``; ``lanes <= _LANES``) that
+    :func:`_dual_setup` set up, with the nugget ``nugget_ratio`` of the sill.
 
-    Fills, for lane ``b``, ``room.xs[b]``, ``room.ys[b]`` (the neighbours
+    Fills, for lane ``b`` (its neighbours ``room.xs[b]``, ``room.ys[b]``
     relative to the centre ``c``), ``room.coef[b, :k]`` (weights of the
     covariances) and ``room.coef[b, k:k+3]`` (the drift, in coordinates
     relative to ``c`` over the radius ``R``) so that the estimates at other
@@ -451,27 +495,10 @@ def _dual_systems(
     vectorise where a system's own loops are too short to (a third faster).
     """
     xs, ys, coef, radius, c, g, col, work = room.xs, room.ys, room.coef, room.radius, room.c, room.g, room.col, room.work
-    pairs = room.pairs
+    cov, reach = room.cov, room.reach
     for b in range(lanes):
         s = first + b
-        cx = centres[s, 0]
-        cy = centres[s, 1]
-        r = 0.0
-        for i in range(k):
-            q = neighbours[s, i]
-            xs[b, i] = xy[q, 0] - cx
-            ys[b, i] = xy[q, 1] - cy
-            r = max(r, math.sqrt(xs[b, i] * xs[b, i] + ys[b, i] * ys[b, i]))
-        radius[b] = r
-        # the lags of the pairs below the diagonal, then their covariances in
-        # one long loop (row by row, the short rows would not vectorise)
-        m = 0
-        for i in range(k):
-            for j in range(i):
-                pairs[0, m] = xs[b, j] - xs[b, i]
-                pairs[1, m] = ys[b, j] - ys[b, i]
-                m += 1
-        _covariances(pairs[0], pairs[1], m, 0.0, 0.0, scale, model, pairs[2])
+        r = reach[b]
         # C = L L' in the lower triangle of c (its diagonal keeps 1 / L[j, j]),
         # the covariances with the nugget on the diagonal; the right-hand sides
         # [1, x / R, y / R, z - z0] are carried along into g = L^-1 [...]
@@ -480,7 +507,7 @@ def _dual_systems(
         m = 0
         for i in range(k):
             for j in range(i):
-                c[i, j, b] = pairs[2, m]
+                c[i, j, b] = cov[b, m]
                 m += 1
             c[i, i, b] = 1.0 + nugget_ratio
             g[i, 0, b] = 1.0
@@ -490,7 +517,8 @@ def _dual_systems(
         work[15, b] = z0
     ok = work[14]
     for b in range(lanes):
-        ok[b] = 1.0 if k >= 3 and radius[b] > 0.0 else 0.0
+        ok[b] = 1.0 if k >= 3 and reach[b] > 0.0 else 0.0
+        radius[b] = reach[b]
     # each column is scaled, then updates the columns right of it: the
     # operations and their order of a dot-product Cholesky
     inv_d, g0, g1, g2, g3 = work[0], work[1], work[2], work[3], work[4]
@@ -667,12 +695,8 @@ def _count(neighbours: np.ndarray) -> int:
 
 
 @njit
-def _solve_systems(
-    xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int,
-    nugget_ratio: float, scale: float, model: int, room: _KrigingScratch,
-) -> tuple[int, int]:
-    """:func:`_dual_systems` for the systems from ``first`` on that have as many
-    neighbours as it (at most :data:`_LANES`); returns how many, and that count."""
+def _lanes(neighbours: np.ndarray, first: int) -> tuple[int, int]:
+    """How many systems from ``first`` on (at most :data:`_LANES`) have as many neighbours as it, and that count."""
     k = neighbours.shape[1]
     count = _count(neighbours[first])
     end = min(first + _LANES, neighbours.shape[0])
@@ -683,6 +707,17 @@ def _solve_systems(
     else:
         while first + lanes < end and _count(neighbours[first + lanes]) == count:
             lanes += 1
+    return lanes, count
+
+
+@njit
+def _solve_systems(
+    xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int,
+    nugget_ratio: float, scale: float, model: int, room: _KrigingScratch,
+) -> tuple[int, int]:
+    """:func:`_dual_systems` for the systems from ``first`` on that have as many
+    neighbours as it (at most :data:`_LANES`); returns how many, and that count."""
+    lanes, count = _lanes(neighbours, first)
     if lanes == _LANES:  # a constant number of lanes: loops the compiler unrolls and vectorises better
         _dual_systems(xy, z, centres, neighbours, first, _LANES, count, nugget_ratio, scale, model, room)
     else:
@@ -1513,9 +1548,14 @@ def _scatter_nodes(values: np.ndarray, take: np.ndarray, out: np.ndarray) -> Non
 @njit
 def _loo_errors_kernel(
     xy: np.ndarray, z: np.ndarray, sample: np.ndarray, neighbours: np.ndarray,
-    nugget_ratio: float, inv_range: float, model: int, out: np.ndarray,
+    nugget_ratios: np.ndarray, inv_range: float, model: int, out: np.ndarray,
 ) -> None:
-    """Leave-one-out errors: each sample point kriged from its neighbours (itself left out)."""
+    """Leave-one-out errors: each sample point kriged from its neighbours (itself
+    left out), in row ``r`` of ``out`` with the nugget ``nugget_ratios[r]``.
+
+    A system's covariances do not depend on the nugget: they are computed once
+    for every nugget (:func:`_dual_setup`), and each nugget solves the system
+    as the smooth surface does (:func:`_dual_solve`)."""
     k = neighbours.shape[1]
     room = _kriging_scratch(k)
     centres = np.empty((sample.shape[0], 2))
@@ -1528,14 +1568,24 @@ def _loo_errors_kernel(
     scale = _LAG_SCALE[model] * inv_range
     s0 = 0
     while s0 < sample.shape[0]:
-        lanes, count = _solve_systems(xy, z, centres, neighbours, s0, nugget_ratio, scale, model, room)
-        for b in range(lanes):
-            radius = room.radius[b]
-            if math.isfinite(radius):
-                _dual_values(room.xs[b], room.ys[b], count, room.coef[b], radius, scale, model, origin, origin, 1, block, value)
-                out[s0 + b] = value[0] - z[sample[s0 + b]]
+        lanes, count = _lanes(neighbours, s0)
+        if lanes == _LANES:  # a constant number of lanes, as in _solve_systems
+            _dual_setup(xy, centres, neighbours, s0, _LANES, count, scale, model, room)
+        else:
+            _dual_setup(xy, centres, neighbours, s0, lanes, count, scale, model, room)
+        for r in range(nugget_ratios.shape[0]):
+            if lanes == _LANES:
+                _dual_solve(z, neighbours, s0, _LANES, count, nugget_ratios[r], room)
             else:
-                out[s0 + b] = math.nan
+                _dual_solve(z, neighbours, s0, lanes, count, nugget_ratios[r], room)
+            for b in range(lanes):
+                radius = room.radius[b]
+                if math.isfinite(radius):
+                    _dual_values(room.xs[b], room.ys[b], count, room.coef[b], radius, scale, model, origin, origin, 1,
+                                 block, value)
+                    out[r, s0 + b] = value[0] - z[sample[s0 + b]]
+                else:
+                    out[r, s0 + b] = math.nan
         s0 += lanes
 
 
@@ -1622,26 +1672,39 @@ def fit_variogram(
         nearest = float(np.median(np.sqrt(d2[np.isfinite(d2)]))) or 1.0
     screen = np.sort(np.random.default_rng(seed + 1).permutation(m)[: min(_SCREEN, m)])
 
-    def score(rows: NDArray[np.int64], model: int, factor: float, ratio: float) -> float:
-        errors = np.empty(rows.size)
-        _loo_errors_kernel(pts, zz, chosen[rows], np.ascontiguousarray(index[rows]), ratio, 1.0 / (factor * nearest), model, errors)
-        ok = np.isfinite(errors)
-        if np.count_nonzero(~ok) > 1e-3 * rows.size or not ok.any():
-            return math.inf
-        return float(np.sqrt(np.mean(errors[ok] ** 2)))
-
     candidates = [(model, factor, ratio) for model in range(len(MODELS)) for factor in _RANGES
                   for ratio in _NUGGETS if model == 0 or ratio > 0.0]
     every = np.arange(m)
-    # the candidates in two halves on two threads (the kernel releases the GIL),
-    # then the finalists on all of the sample, also in two halves
+
+    def errors(rows: NDArray[np.int64], which: list[int]) -> NDArray[np.float64]:
+        """``(len(which), rows.size)``: the errors of candidates ``which`` at ``rows``,
+        the nuggets of one model and range on the same covariances."""
+        out = np.empty((len(which), rows.size))
+        groups: dict[tuple[int, float], list[int]] = {}
+        for slot, i in enumerate(which):
+            groups.setdefault(candidates[i][:2], []).append(slot)
+        sample, hoods = chosen[rows], np.ascontiguousarray(index[rows])
+        for (model, factor), slots in groups.items():
+            ratios = np.array([candidates[which[slot]][2] for slot in slots])
+            found = np.empty((len(slots), rows.size))
+            _loo_errors_kernel(pts, zz, sample, hoods, ratios, 1.0 / (factor * nearest), model, found)
+            out[slots] = found
+        return out
+
+    def rmse(values: NDArray[np.float64]) -> float:
+        ok = np.isfinite(values)
+        if np.count_nonzero(~ok) > 1e-3 * values.size or not ok.any():
+            return math.inf
+        return float(np.sqrt(np.mean(values[ok] ** 2)))
+
+    # the sample in two halves on two threads (the kernel releases the GIL):
+    # every candidate on the screen, then the finalists on all of the sample
     with ThreadPoolExecutor(2) as pool:
 
         def scores(rows: NDArray[np.int64], which: list[int]) -> list[float]:
-            half = (len(which) + 1) // 2
-            parts = pool.map(lambda part: [score(rows, *candidates[i]) for i in part],
-                             (which[:half], which[half:]))
-            return [value for part in parts for value in part]
+            half = (rows.size + 1) // 2
+            found = np.concatenate(list(pool.map(lambda part: errors(part, which), (rows[:half], rows[half:]))), axis=1)
+            return [rmse(row) for row in found]
 
         screened = scores(screen, list(range(len(candidates))))
         ranked = sorted(sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS])

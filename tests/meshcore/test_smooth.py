@@ -18,7 +18,8 @@ from meshcore.mesh import Mesh
 
 from .mesh_checks import edge_faces, hand_mesh
 from meshcore.smooth import (
-    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _nearest, _solve_systems,
+    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _loo_errors_kernel, _nearest,
+    _solve_systems,
     fit_variogram, smooth_neighbourhoods, smooth_nodes,
 )
 
@@ -496,3 +497,28 @@ def test_python_form_of_the_smooth_kernels_agrees():
     for a, b in zip(*runs):
         assert_allclose(a, b, rtol=1e-9, atol=1e-9)
     assert np.isfinite(runs[1][1]).sum() > 200
+
+
+def test_leave_one_out_errors_of_several_nuggets_are_those_of_each_nugget_alone(rng):
+    """The fit solves every nugget of a model and range on covariances computed
+    once: each nugget's errors are those it gives alone, bit for bit, whatever
+    the batch of lanes (a short row and a singular system among them)."""
+    k = 12
+    xy = rng.random((300, 2)) * 20.0 + OFFSET
+    z = np.cos(xy[:, 1] / 5.0) + 0.02 * rng.standard_normal(300)
+    sample = np.arange(0, 300, 7)
+    neighbours, _ = _nearest(xy, xy[sample], k + 1)
+    neighbours = np.ascontiguousarray(neighbours[:, 1:])
+    neighbours[3, 9:] = -1  # a shorter row
+    neighbours[5, :] = neighbours[5, 0]  # one point repeated: singular without a nugget
+    ratios = np.array([0.0, 1e-4, 0.1, 5.0])
+    for model in range(len(MODELS)):
+        together = np.empty((ratios.size, sample.size))
+        _loo_errors_kernel(xy, z, sample, neighbours, ratios, 1.0 / 4.0, model, together)
+        for r, ratio in enumerate(ratios):
+            alone = np.empty((1, sample.size))
+            _loo_errors_kernel(xy, z, sample, neighbours, ratios[r : r + 1], 1.0 / 4.0, model, alone)
+            assert_array_equal(together[r], alone[0])
+            assert np.isfinite(alone[0]).sum() >= sample.size - 1
+        # the nugget matters: the errors differ from one to the next
+        assert not np.array_equal(together[1], together[3])
