@@ -130,7 +130,8 @@ def vertex_z(input_to_vertex: NDArray[np.int64], n_vertices: int, z: NDArray[np.
         out = np.full(n_vertices, -np.inf)
         np.maximum.at(out, input_to_vertex, z)
     elif policy == "mean":
-        out = np.bincount(input_to_vertex, weights=z, minlength=n_vertices)
+        # float64 also for no point (numpy then counts in integers)
+        out = np.bincount(input_to_vertex, weights=z, minlength=n_vertices).astype(np.float64, copy=False)
         out /= np.bincount(input_to_vertex, minlength=n_vertices)
     else:
         first = np.full(n_vertices, np.iinfo(np.int64).max)

@@ -243,3 +243,21 @@ def test_two_ground_points_in_an_unclassified_survey_are_too_few_and_every_class
     report = store.read_attrs(out)["report"]
     assert report["points_kept"] == 4000 and report["filtered_class"] == 0
     assert store.read_attrs(out)["provenance"]["classes_kept"]["why"].startswith("only 2 input point(s)")
+
+
+@pytest.mark.parametrize("policy", ["lowest", "highest", "mean", "first"])
+def test_each_duplicate_policy_gives_float_heights_for_no_point_and_for_duplicates(policy):
+    from pipeline.meshing.tiles import vertex_z
+
+    empty = vertex_z(np.empty(0, dtype=np.int64), 0, np.empty(0), policy)
+    assert empty.dtype == np.float64 and empty.shape == (0,)
+    z = vertex_z(np.array([0, 1, 1, 2, 1]), 3, np.array([5.0, 1.0, 4.0, 2.0, 7.0]), policy)
+    expected = {"lowest": [5.0, 1.0, 2.0], "highest": [5.0, 7.0, 2.0], "mean": [5.0, 4.0, 2.0], "first": [5.0, 1.0, 2.0]}
+    np.testing.assert_array_equal(z, expected[policy])
+
+
+def test_mean_of_duplicates_in_a_survey_whose_first_pass_has_empty_tiles(tmp_path):
+    # no ground: the first pass meshes empty tiles, then every class but noise
+    path = _classed(tmp_path / "a.laz", 3000, [1, 0])
+    assert _run(path, tmp_path / "o.zarr", "--duplicates", "mean", "--tile-size", "10") == 0
+    assert np.isfinite(xr.open_zarr(tmp_path / "o.zarr")["elevation"].values).sum() > 1000
