@@ -885,6 +885,13 @@ def _is_copc(header: laspy.LasHeader) -> bool:
     return any(v.user_id == "copc" and v.record_id == 1 for v in header.vlrs)
 
 
+def _declares_copc(path: Location) -> bool:
+    """Whether the header of ``path`` has COPC's info VLR (a header that
+    cannot be read raises :class:`InputFileError`)."""
+    with _open(path) as (reader, _):
+        return _is_copc(reader.header)
+
+
 def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, float, float]) -> Iterator[Any]:
     """For a COPC file: its header, then ``(None, n)`` with the ``n`` points of
     the octree nodes that miss ``window`` (closed, x and y; never read), then
@@ -899,7 +906,8 @@ def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, 
             try:
                 reader = CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION)
             except Exception as exc:
-                if "copc" in one_line(exc).lower():  # laspy: the first VLR is not COPC's info
+                # laspy: the first VLR is not COPC's info, or there is no VLR at all
+                if "copc" in one_line(exc).lower() or not _declares_copc(path):
                     yield None
                     return
                 raise _header_error(path, size, exc) from exc

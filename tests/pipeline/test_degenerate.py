@@ -261,3 +261,20 @@ def test_mean_of_duplicates_in_a_survey_whose_first_pass_has_empty_tiles(tmp_pat
     path = _classed(tmp_path / "a.laz", 3000, [1, 0])
     assert _run(path, tmp_path / "o.zarr", "--duplicates", "mean", "--tile-size", "10") == 0
     assert np.isfinite(xr.open_zarr(tmp_path / "o.zarr")["elevation"].values).sum() > 1000
+
+
+def test_a_bbox_over_a_file_without_any_vlr_reads_it_as_plain_las(tmp_path):
+    from pipeline import RunConfig, run
+
+    rng = np.random.default_rng(5)
+    header = laspy.LasHeader(point_format=3, version="1.2")  # no CRS: not a single VLR
+    header.scales, header.offsets = np.array([0.01, 0.01, 0.01]), np.array([500_000.0, 4_000_000.0, 0.0])
+    las = laspy.LasData(header)
+    las.x, las.y = 500_000 + rng.random(2000) * 40, 4_000_000 + rng.random(2000) * 40
+    las.z, las.classification = rng.random(2000), np.full(2000, 2, dtype=np.uint8)
+    las.write(tmp_path / "bare.las")
+    assert not laspy.read(tmp_path / "bare.las").header.vlrs
+    report = run(RunConfig(inputs=(str(tmp_path / "bare.las"),), output=str(tmp_path / "o.zarr"), resolution=1.0,
+                           in_crs="EPSG:2154", bbox=(500_000.0, 4_000_000.0, 500_020.0, 4_000_040.0)), progress=False)
+    assert report.points_read == 2000 and 0 < report.points_kept < 2000
+    assert report.points_kept + report.outside_bbox == 2000
