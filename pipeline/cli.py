@@ -298,8 +298,8 @@ def _progress(args: argparse.Namespace) -> bool | None:
 
 
 _SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
-_VALUES = re.compile(r"\b(in_crs|out_crs|max_cells|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
-_NAMES = re.compile(r"\b(in_crs|out_crs|max_cells|skip_bad_files|tile_size)\b")
+_VALUES = re.compile(r"\b(in_crs|out_crs|max_cells|max_edge|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
+_NAMES = re.compile(r"\b(in_crs|out_crs|max_cells|max_edge|skip_bad_files|tile_size)\b")
 
 
 def _flag(name: str) -> str:

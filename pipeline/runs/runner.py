@@ -328,7 +328,9 @@ def _execute(
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
         t0 = time.perf_counter()
         node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
-        _dem_stage(plan, work, client, meshed, node_offsets, show)
+        valued = _dem_stage(plan, work, client, meshed, node_offsets, show)
+        if valued == 0:
+            report.notes.append(_empty_dem_note(config))
         report.stages["dem"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
@@ -570,9 +572,18 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     return Meshed(tile_jobs, summaries, pending)
 
 
-def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offsets, show: bool) -> None:
+def _empty_dem_note(config: RunConfig) -> str:
+    """Why a DEM of a surface has no value."""
+    if config.max_edge is not None:
+        return (f"the DEM is empty: no cell centre lies under a face no longer than max_edge={config.max_edge:g}; "
+                "a larger max_edge keeps longer faces")
+    return "the DEM is empty: no cell centre lies under a face (the faces are smaller than the cells); finer cells meet them"
+
+
+def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offsets, show: bool) -> int | None:
     """Write the DEM of every tile not yet written, and of every tile that a
-    face meshed by this run reaches.
+    face meshed by this run reaches; returns the cells with an elevation,
+    when this run wrote every tile (else None: the others were not counted).
 
     The same tasks number the pieces' nodes for the mesh writer (they read
     the pieces too, and need nothing of the DEM): the cores go from one to the
@@ -592,6 +603,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     pending = [job for job in tile_jobs if not written[job.row, job.col]]
 
     def dem_and_write(job: TileJob) -> int:
+        """The tile's DEM written; how many of its cells have an elevation."""
         layers = dem_tile(job)
         try:
             store.write_tile(config.output, grid, job.row, job.col, layers, run=job.run_id)
@@ -601,7 +613,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
                 f"{config.output}: cannot write tile ({job.row}, {job.col}): {exc.strerror or exc}; "
                 "the store is incomplete: run the same command again to resume once this is fixed"
             ) from None
-        return 0
+        return int(np.count_nonzero(np.isfinite(layers["elevation"])))
 
     unnumbered = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
     number = partial(global_node_ids, node_offsets=node_offsets)
@@ -610,12 +622,18 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
         what, job = task
         return dem_and_write(job) if what == "dem" else number(job) or 0
 
-    def done(task: tuple[str, TileJob], _) -> None:
+    valued = 0
+
+    def done(task: tuple[str, TileJob], result: int) -> None:
+        nonlocal valued
         if task[0] == "number":
             work.record("write", f"ids_{_tile_key(task[1])}", {})
+        else:
+            valued += result
 
     tasks = [("dem", job) for job in pending] + [("number", job) for job in unnumbered]
     map_tasks(client, dem_or_number, tasks, Progress("dem", len(tasks), show), lambda _: 0, done)
+    return valued if len(pending) == len(tile_jobs) else None
 
 
 def _tile_key(job: TileJob) -> str:

@@ -278,3 +278,20 @@ def test_a_bbox_over_a_file_without_any_vlr_reads_it_as_plain_las(tmp_path):
                            in_crs="EPSG:2154", bbox=(500_000.0, 4_000_000.0, 500_020.0, 4_000_040.0)), progress=False)
     assert report.points_read == 2000 and 0 < report.points_kept < 2000
     assert report.points_kept + report.outside_bbox == 2000
+
+
+def test_a_max_edge_shorter_than_every_face_says_why_the_dem_is_empty(tmp_path, capsys):
+    from pipeline import RunConfig, run
+
+    path = _classed(tmp_path / "a.laz", 300, [2])  # 300 points on 40 x 40 m: faces of about 2 m
+    report = run(RunConfig(inputs=(str(path),), output=str(tmp_path / "o.zarr"), resolution=1.0, max_edge=0.05),
+                 progress=False)
+    assert report.faces > 0
+    assert not np.isfinite(xr.open_zarr(tmp_path / "o.zarr")["elevation"].values).any()
+    assert any("the DEM is empty: no cell centre lies under a face no longer than max_edge=0.05" in n for n in report.notes)
+    assert _run(path, tmp_path / "c.zarr", "--max-edge", "0.05") == 0
+    assert "no longer than --max-edge 0.05; a larger --max-edge keeps longer faces" in capsys.readouterr().out
+    # with a larger one, cells have values and no such note is given
+    report = run(RunConfig(inputs=(str(path),), output=str(tmp_path / "p.zarr"), resolution=1.0, max_edge=10.0),
+                 progress=False)
+    assert not any("the DEM is empty" in n for n in report.notes)
