@@ -160,6 +160,34 @@ def test_optimal_merge_gains_at_least_as_much_as_greedy(rng):
     assert totals["optimal"] >= totals["greedy"] - 1e-9
 
 
+@pytest.mark.parametrize("quad_measure", ["s2", "s4"])
+def test_optimal_merge_matches_each_group_of_triangles_as_well_as_the_whole_graph(rng, quad_measure):
+    """Matching each connected group of candidate triangles alone gives the
+    largest total gain the whole graph's matching gives."""
+    import networkx as nx
+
+    from meshcore.delaunay import delaunay
+    from meshcore.merge import _optimal_partner, merge_candidates
+
+    xy = np.round(rng.random((700, 2)) * 50.0, 2)
+    triangulation = delaunay(xy)
+    nt = triangulation.triangles.shape[0] // 3
+    edges, gains = merge_candidates(triangulation, quad_measure)
+    partner = _optimal_partner(triangulation.halfedges, edges, gains, nt)
+    chosen = [e for e in partner.tolist() if e >= 0]
+    twins = triangulation.halfedges[chosen]
+    # every merged triangle is paired with the triangle across its chosen diagonal, and with it only
+    assert all(partner[f // 3] == f for f in twins.tolist())
+    gain_of = {min(e, int(f)): g for e, f, g in zip(edges.tolist(), triangulation.halfedges[edges].tolist(), gains.tolist())}
+    total = sum(gain_of[min(e, int(f))] for e, f in zip(chosen, twins.tolist()) if e < f)
+    graph = nx.Graph()
+    for e, f, g in zip(edges.tolist(), triangulation.halfedges[edges].tolist(), gains.tolist()):
+        graph.add_edge(e // 3, f // 3, weight=g)
+    whole = sum(graph.edges[a, b]["weight"] for a, b in nx.max_weight_matching(graph, maxcardinality=False))
+    assert nx.number_connected_components(graph) > 1
+    assert total == pytest.approx(whole, rel=1e-12, abs=1e-12)
+
+
 def test_scale_and_translation_invariance(rng):
     xy = rng.integers(0, 4000, size=(600, 2)) / 16.0
     reference = build_mesh(xy, "s3", "s4")
