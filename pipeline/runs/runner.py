@@ -576,8 +576,8 @@ def _empty_dem_note(config: RunConfig) -> str:
     """Why a DEM of a surface has no value."""
     if config.max_edge is not None:
         return (f"the DEM is empty: no cell centre lies under a face no longer than max_edge={config.max_edge:g}; "
-                "a larger max_edge keeps longer faces")
-    return "the DEM is empty: no cell centre lies under a face (the faces are smaller than the cells); finer cells meet them"
+                "finer cells, or a larger max_edge, give some")
+    return "the DEM is empty: no cell centre lies under a face (the surface is smaller than the cells); finer cells give some"
 
 
 def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offsets, show: bool) -> int | None:

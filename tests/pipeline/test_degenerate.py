@@ -290,7 +290,7 @@ def test_a_max_edge_shorter_than_every_face_says_why_the_dem_is_empty(tmp_path, 
     assert not np.isfinite(xr.open_zarr(tmp_path / "o.zarr")["elevation"].values).any()
     assert any("the DEM is empty: no cell centre lies under a face no longer than max_edge=0.05" in n for n in report.notes)
     assert _run(path, tmp_path / "c.zarr", "--max-edge", "0.05") == 0
-    assert "no longer than --max-edge 0.05; a larger --max-edge keeps longer faces" in capsys.readouterr().out
+    assert "no longer than --max-edge 0.05; finer cells, or a larger --max-edge, give some" in capsys.readouterr().out
     # with a larger one, cells have values and no such note is given
     report = run(RunConfig(inputs=(str(path),), output=str(tmp_path / "p.zarr"), resolution=1.0, max_edge=10.0),
                  progress=False)
