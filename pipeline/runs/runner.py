@@ -383,7 +383,8 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     report.stages["route"] = time.perf_counter() - t0
     if routed.fallback is not None:
         found = routed.fallback.default_points
-        why = f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes (2, ground)"
+        why = (f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes (2, ground)"
+               f"{'' if config.bbox is None else ' inside the bbox'}")
         provenance["classes_kept"] = {"classes": routed.classes, "why": why}
         report.notes.append(
             f"{why}{'' if found == 0 else ', too few or all on one line'}: the surface was made from every point but "

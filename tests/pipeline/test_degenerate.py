@@ -295,3 +295,19 @@ def test_a_max_edge_shorter_than_every_face_says_why_the_dem_is_empty(tmp_path, 
     report = run(RunConfig(inputs=(str(path),), output=str(tmp_path / "p.zarr"), resolution=1.0, max_edge=10.0),
                  progress=False)
     assert not any("the DEM is empty" in n for n in report.notes)
+
+
+def test_a_bbox_holding_no_ground_of_a_survey_with_some_says_so_in_its_note(tmp_path):
+    from pipeline import RunConfig, run
+
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    _classed(folder / "ground.laz", 2000, [2])  # ground on 40 x 40 m
+    far = _classed(folder / "roofs.laz", 2000, [6], seed=1)  # buildings, 1 km east
+    las = laspy.read(far)
+    las.x = np.asarray(las.x) + 1000.0
+    las.write(far)
+    report = run(RunConfig(inputs=(str(folder),), output=str(tmp_path / "o.zarr"), resolution=1.0,
+                           bbox=(500_990.0, 3_999_990.0, 501_050.0, 4_000_050.0)), progress=False)
+    assert report.points_kept == 2000 and report.outside_bbox == 2000
+    assert any(n.startswith("no input point(s) of the default classes (2, ground) inside the bbox:") for n in report.notes)
