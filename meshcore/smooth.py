@@ -475,9 +475,9 @@ def _dual_solve(
     z: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int, nugget_ratio: float, room: _KrigingScratch,
 ) -> None:
     """Universal kriging (linear drift) over ``k`` neighbours, solved in its dual
-    form, for the systems ``first .. first + lanes - 1`` (centres ``centres[s]``,
-    neighbours ``neighbours[s, :k]``; ``lanes <= _LANES``) that
-    :func:`_dual_setup` set up, with the nugget ``nugget_ratio`` of the sill.
+    form, for the systems ``first .. first + lanes - 1`` (neighbours
+    ``neighbours[s, :k]``; ``lanes <= _LANES``) that :func:`_dual_setup` set
+    up, with the nugget ``nugget_ratio`` of the sill.
 
     Fills, for lane ``b`` (its neighbours ``room.xs[b]``, ``room.ys[b]``
     relative to the centre ``c``), ``room.coef[b, :k]`` (weights of the

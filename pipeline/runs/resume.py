@@ -29,7 +29,7 @@ from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
 __all__ = [
-    "Resume", "Update", "decide", "plan_update", "prepare", "work_reusable", "ALL_BUT_NOISE", "ClassFallback",
+    "Resume", "Update", "decide", "plan_update", "prepare", "work_reusable", "NOISE_CLASSES", "ALL_BUT_NOISE", "ClassFallback",
     "class_fallback", "keep_all_but_noise",
 ]
 
@@ -134,9 +134,12 @@ def work_reusable(work: WorkDir) -> bool:
     return record is not None and record.get("digest") == sources_digest()
 
 
-ALL_BUT_NOISE = tuple(c for c in range(256) if c not in (7, 18))
-"""Every ASPRS class but low (7) and high (18) noise: what a survey whose
-default classes (ground) make no surface is meshed from (:func:`keep_all_but_noise`)."""
+NOISE_CLASSES = (7, 18)
+"""ASPRS low and high noise."""
+
+ALL_BUT_NOISE = tuple(c for c in range(256) if c not in NOISE_CLASSES)
+"""Every ASPRS class but :data:`NOISE_CLASSES`: what a survey whose default
+classes (ground) make no surface is meshed from (:func:`keep_all_but_noise`)."""
 
 
 @dataclass(frozen=True)
@@ -156,7 +159,7 @@ def class_fallback(work: WorkDir) -> ClassFallback | None:
     recorded = work.recorded("survey", "classes")
     if recorded is None:
         return None
-    return ClassFallback(tuple(recorded["classes"]), int(recorded.get("default_points", 0)))
+    return ClassFallback(tuple(recorded["classes"]), int(recorded["default_points"]))
 
 
 def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
@@ -169,11 +172,17 @@ def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
     first, so that a run stopped while routing again resumes with it; the
     store forgets any tile it marked written.
     """
+    _start_over(work, output)
+    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
+
+
+def _start_over(work: WorkDir, output: str) -> None:
+    """Every unit of the job to be done again: no DEM tile of the store marked
+    written, and an empty work folder."""
     from ..store import zarr_store as store
 
-    _start_work(work)
-    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
     store.reset_tiles_done(output)
+    _start_work(work)
 
 
 def _start_work(work: WorkDir) -> None:
@@ -208,13 +217,11 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
     elif not work_reusable(work):
         # the intermediate files are gone, or another version wrote them: every stage runs again
         why = "was written by another version of the software" if work.exists() else "was missing"
-        store.reset_tiles_done(config.output)
-        _start_work(work)
+        _start_over(work, config.output)
         notes.append(f"the work folder {why}: every tile was computed again")
     elif not resume.same_inputs and class_fallback(work) is not None:
         # the inputs held no ground point: whether the new ones do decides the classes again
-        store.reset_tiles_done(config.output)
-        _start_work(work)
+        _start_over(work, config.output)
         notes.append("inputs changed in a survey that held no point of the default classes: every tile was computed again")
         store.finalize_store(config.output, {"provenance": provenance, "complete": False})
     elif not resume.same_inputs:

@@ -383,12 +383,14 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     report.stages["route"] = time.perf_counter() - t0
     if routed.fallback is not None:
         found = routed.fallback.default_points
-        why = (f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes (2, ground)"
+        default = ", ".join(str(c) for c in DEFAULT_CLASSES)
+        why = (f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes ({default}, ground)"
                f"{'' if config.bbox is None else ' inside the bbox'}")
-        provenance["classes_kept"] = {"classes": routed.classes, "why": why}
+        provenance["classes_kept"] = {"classes": routed.fallback.classes, "why": why}
+        noise = " and ".join(str(c) for c in resume.NOISE_CLASSES)
         report.notes.append(
             f"{why}{'' if found == 0 else ', too few or all on one line'}: the surface was made from every point but "
-            "noise (classes 7 and 18), of whatever the survey hit, not of bare earth; classify the ground first for a "
+            f"noise (classes {noise}), of whatever the survey hit, not of bare earth; classify the ground first for a "
             "terrain model"
         )
     variogram = None
@@ -411,10 +413,8 @@ class Routed:
     results: list[RouteResult]
     windows: tuple[WindowSource, ...]
     hull: np.ndarray
-    classes: tuple[int, ...] | None
-    """The classes kept: the run's, or :attr:`fallback`'s."""
     fallback: resume.ClassFallback | None
-    """Every class but noise, kept because the default ones made no surface."""
+    """Every class but noise, kept because the default ones made no surface (None: the run's classes)."""
 
 
 def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport) -> Routed:
@@ -479,7 +479,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         forget_tiles(work, config.output, grid, moved)
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
-    return Routed(done, windows, hull, classes, fallback)
+    return Routed(done, windows, hull, fallback)
 
 
 def _load_surface_kernels(job: TileJob) -> None:
@@ -557,7 +557,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
             raise _NoDefaultClasses(report.points_kept)
         if report.points_kept == 0 and report.filtered_class > 0:
             kept = ("every class but noise" if routed.fallback is not None
-                    else ", ".join(str(c) for c in routed.classes or ()))
+                    else ", ".join(str(c) for c in config.classes or ()))
             raise PipelineError(f"{names}: no surface: none of the {report.points_read:,} point(s) read is of the "
                                 f"classes kept ({kept})")
         raise PipelineError(
