@@ -3,9 +3,11 @@
 Kernels are compiled once and cached on disk (``cache=True``) and release the
 GIL (``nogil=True``) so that dask threads run them in parallel.  ``fastmath``
 stays off: the exact predicates rely on IEEE round-to-nearest arithmetic.
-Helpers called per element with the caller's arrays that allocate nothing can
-be compiled without reference counting (:data:`njit_borrowing`), with scratch
-space on the stack (:func:`stack_array`).
+Helpers that only other kernels call are compiled without an entry point
+from Python (:data:`njit_helper`).  Helpers called per element with the
+caller's arrays that allocate nothing can be compiled without reference
+counting either (:data:`njit_borrowing`), with scratch space on the stack
+(:func:`stack_array`).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from numba.core import caching, cgutils, types
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
-__all__ = ["njit", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels", "compiled_on_disk"]
+__all__ = ["njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels", "compiled_on_disk"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -155,6 +157,23 @@ class _Dispatcher(CPUDispatcher):
         )
 
 
+class _HelperDispatcher(_Dispatcher):
+    """A kernel that only other kernels call: compiled without the wrapper
+    that converts Python objects to its arguments and back.
+
+    That wrapper is most of a small helper's code, and numba generates,
+    optimises and compiles it to machine code for every helper of every
+    kernel: about a fifth of a cold start.  Called from Python, such a helper
+    raises instead of reaching code that is not there.
+    """
+
+    def add_overload(self, cres) -> None:
+        self.overloads[tuple(cres.signature.args)] = cres  # not in the table Python calls dispatch on
+
+    def _compile_for_args(self, *args, **kws):
+        raise TypeError(f"{self.py_func.__qualname__} is called only from kernels (it has no entry point from Python)")
+
+
 class _StaleProofIndex(caching.IndexDataCacheFile):
     """A kernel's cache index that reads as empty when it cannot be unpickled.
 
@@ -182,14 +201,23 @@ class _FunctionCache(caching.FunctionCache):
                                             source_stamp=self._impl.locator.get_source_stamp())
 
 
-def _compiler(**options):
-    """A decorator compiling with meshcore's settings (see the module's docstring) and ``options``."""
-    targetoptions = {"nopython": True, "nogil": True, "error_model": "numpy", **options}
+def _compiler(helper: bool = False, **options):
+    """A decorator compiling with meshcore's settings (see the module's
+    docstring) and ``options``; ``helper``: for calls from kernels only.
+
+    No kernel is compiled with the wrapper that C code calls it through
+    (numba's ``cfunc``): none is passed to C, or to another kernel as a
+    first-class function.
+    """
+    targetoptions = {"nopython": True, "nogil": True, "error_model": "numpy", "no_cfunc_wrapper": True, **options}
+    if helper:
+        targetoptions["no_cpython_wrapper"] = True
+    dispatcher_type = _HelperDispatcher if helper else _Dispatcher
 
     def compile_(function):
         if numba.config.DISABLE_JIT:
             return function
-        dispatcher = _Dispatcher(py_func=function, locals={}, targetoptions=targetoptions)
+        dispatcher = dispatcher_type(py_func=function, locals={}, targetoptions=targetoptions)
         dispatcher._cache = _FunctionCache(function)  # numba's enable_caching(), with an index robust to old types
         return dispatcher
 
@@ -197,6 +225,9 @@ def _compiler(**options):
 
 
 njit = _compiler()
+
+#: for a helper that only other kernels call (:class:`_HelperDispatcher`)
+njit_helper = _compiler(helper=True)
 
 
 def kernel(function):
@@ -215,7 +246,7 @@ def kernel(function):
 #: array it is given, two atomic operations each per call, which the compiler
 #: cannot remove from a helper with loops and calls: a third of the Delaunay
 #: sweep's time went there.
-njit_borrowing = _compiler(_nrt=False)
+njit_borrowing = _compiler(helper=True, _nrt=False)
 
 
 @intrinsic(prefer_literal=True)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
@@ -112,7 +112,7 @@ def block_order(xy: ArrayLike, side: float, box: tuple[float, float, float, floa
     return _block_order_kernel(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), x0, y0, float(side), nx, ny)
 
 
-@njit
+@njit_helper
 def _block_cell(v: float, origin: float, side: float, n: int) -> int:
     t = (v - origin) / side
     if not t >= 0.0:
@@ -151,7 +151,7 @@ def sortable_keys(values: NDArray[np.float64]) -> NDArray[np.uint64]:
     return np.where(bits >> np.uint64(63), ~bits, bits | (np.uint64(1) << np.uint64(63)))
 
 
-@njit
+@njit_helper
 def _bit_length(v: np.uint64) -> int:
     """Number of bits of ``v`` up to its highest set bit (0 for 0)."""
     bits = 0
@@ -196,7 +196,7 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return key, uy
 
 
-@njit
+@njit_helper
 def _spread(v: np.uint64) -> np.uint64:
     """The low 32 bits of ``v`` moved to the even bit positions of a 64-bit word."""
     v &= np.uint64(0x00000000FFFFFFFF)
@@ -208,7 +208,7 @@ def _spread(v: np.uint64) -> np.uint64:
     return v
 
 
-@njit
+@njit_helper
 def _sortable(u: np.uint64) -> np.uint64:
     """A float64's bits ``u`` as an integer whose order is the floats' order."""
     if u >> np.uint64(63):

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_borrowing
+from ._jit import njit, njit_borrowing, njit_helper
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
@@ -90,7 +90,7 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     return active
 
 
-@njit
+@njit_helper
 def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
     """True when the whole box lies clearly right of the directed line p -> q."""
     dx = qx - px

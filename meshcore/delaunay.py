@@ -34,30 +34,30 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit, njit_borrowing
+from ._jit import njit, njit_borrowing, njit_helper
 from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
 
 
-@njit
+@njit_helper
 def _next(e: int) -> int:
     return e - 2 if e % 3 == 2 else e + 1
 
 
-@njit
+@njit_helper
 def _prev(e: int) -> int:
     return e + 2 if e % 3 == 0 else e - 1
 
 
-@njit
+@njit_helper
 def _link(halfedges: np.ndarray, a: int, b: int) -> None:
     halfedges[a] = b
     if b != -1:
         halfedges[b] = a
 
 
-@njit
+@njit_helper
 def circumcenter_terms(ax, ay, bx, by, cx, cy) -> tuple[float, float, float, float, float, float, float]:
     """What the circumcentre of ``a, b, c`` is made of: ``b - a``, ``c - a``,
     their squared lengths and their cross product (twice the signed area)."""
@@ -68,14 +68,14 @@ def circumcenter_terms(ax, ay, bx, by, cx, cy) -> tuple[float, float, float, flo
     return dx, dy, ex, ey, dx * dx + dy * dy, ex * ex + ey * ey, dx * ey - dy * ex
 
 
-@njit
+@njit_helper
 def circumcenter_offset(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
     """Circumcentre of ``a, b, c`` relative to ``a`` (infinite or NaN when collinear)."""
     dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
     return (ey * bl - dy * cl) * 0.5 / d, (dx * cl - ex * bl) * 0.5 / d
 
 
-@njit
+@njit_helper
 def _circumradius2(ax, ay, bx, by, cx, cy) -> float:
     if (ax == bx and ay == by) or (ax == cx and ay == cy) or (bx - ax) * (cy - ay) == (by - ay) * (cx - ax):
         return math.inf
@@ -89,7 +89,7 @@ def _circumcenter(ax, ay, bx, by, cx, cy) -> tuple[float, float]:
     return ax + x, ay + y
 
 
-@njit
+@njit_helper
 def _pseudo_angle_key(dx: float, dy: float, size: int) -> int:
     s = abs(dx) + abs(dy)
     if s == 0.0:
@@ -100,7 +100,7 @@ def _pseudo_angle_key(dx: float, dy: float, size: int) -> int:
     return k % size
 
 
-@njit
+@njit_helper
 def _less(i: int, j: int, dist: np.ndarray, x: np.ndarray, y: np.ndarray) -> bool:
     """Sort order of the sweep: distance, then x, then y, then input index."""
     if dist[i] != dist[j]:
@@ -112,7 +112,7 @@ def _less(i: int, j: int, dist: np.ndarray, x: np.ndarray, y: np.ndarray) -> boo
     return i < j
 
 
-@njit
+@njit_helper
 def _merge_sort_run(ids: np.ndarray, lo: int, hi: int, dist, x, y) -> None:
     """Sort ``ids[lo:hi]`` by ``_less`` (bottom-up merge sort, stable, O(k log k))."""
     n = hi - lo
@@ -257,7 +257,7 @@ def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack) ->
     return ar
 
 
-@njit
+@njit_helper
 def _add_triangle(tri, he, nt, i0, i1, i2, a, b, c) -> int:
     t = 3 * nt
     tri[t] = i0
@@ -291,7 +291,7 @@ def _flip(tri: np.ndarray, he: np.ndarray, e: int) -> None:
     _link(he, ne, nf)
 
 
-@njit
+@njit_helper
 def _push(stack: np.ndarray, n: int, value: int) -> np.ndarray:
     if n == stack.shape[0]:
         grown = np.empty(2 * stack.shape[0], dtype=stack.dtype)
@@ -302,7 +302,7 @@ def _push(stack: np.ndarray, n: int, value: int) -> np.ndarray:
     return stack
 
 
-@njit
+@njit_helper
 def _legalize_around(tri, he, x, y, stack, n) -> np.ndarray:
     """Lawson flips of the edges on ``stack[:n]``; each edge has the new point opposite."""
     while n > 0:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
@@ -26,7 +26,7 @@ _S1 = 1
 _S3 = 3
 
 
-@njit
+@njit_helper
 def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
     """Score of the triangle with these corners: S1, or S3 cubed."""
     if measure == _S1:
@@ -34,14 +34,14 @@ def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx:
     return s3_cubed_kernel(ax, ay, bx, by, cx, cy)
 
 
-@njit
+@njit_helper
 def flippable(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float) -> bool:
     """True when the triangles (a, b, c) and (b, a, d) sharing the diagonal ab
     form a strictly convex quadrangle: a and b lie strictly on either side of cd."""
     return orient2d(cx, cy, dx, dy, ax, ay) < 0 and orient2d(cx, cy, dx, dy, bx, by) > 0
 
 
-@njit
+@njit_helper
 def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
     """Score of every triangle of a half-edge triangulation."""
     nt = tri.shape[0] // 3

@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface, parse_option
@@ -93,7 +93,7 @@ def _quadratic_roots(a: float, b: float, c: float) -> tuple[float, float]:
     return c / q, r2
 
 
-@njit
+@njit_helper
 def _other_coordinate(
     hx: float, hy: float, ax: float, ay: float, bx: float, by: float,
     gx: float, gy: float, t: float,
@@ -107,7 +107,7 @@ def _other_coordinate(
     return ((hx - t * ax) * wx + (hy - t * ay) * wy) / ww
 
 
-@njit
+@njit_helper
 def _out_of_unit(t: float) -> float:
     """Distance of ``t`` from ``[0, 1]``; infinite for NaN."""
     if t >= 0.0:
@@ -198,7 +198,7 @@ def _bilinear_inverse(
     return u, v
 
 
-@njit
+@njit_helper
 def _triangle_value_and_gradient(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float,
     za: float, zb: float, zc: float, px: float, py: float,
@@ -219,7 +219,7 @@ def _triangle_value_and_gradient(
     return value, (dzb * cay - dzc * bay) / d, (dzc * bax - dzb * cax) / d
 
 
-@njit
+@njit_helper
 def _quad_value_and_gradient(
     x0: float, y0: float, x1: float, y1: float,
     x2: float, y2: float, x3: float, y3: float,
@@ -257,7 +257,7 @@ def _surface_at(
     return _quad_value_and_gradient(ax, ay, bx, by, cx, cy, dx, dy, z[a], z[b], z[c], z[d], px, py)
 
 
-@njit
+@njit_helper
 def _grow_bbox(
     xmin: float, ymin: float, xmax: float, ymax: float
 ) -> tuple[float, float, float, float]:
@@ -266,7 +266,7 @@ def _grow_bbox(
     return xmin - margin, ymin - margin, xmax + margin, ymax + margin
 
 
-@njit
+@njit_helper
 def _face_bbox(
     vertices: np.ndarray, faces: np.ndarray, f: int
 ) -> tuple[float, float, float, float]:
@@ -286,13 +286,13 @@ def _face_bbox(
     return _grow_bbox(xmin, ymin, xmax, ymax)
 
 
-@njit
+@njit_helper
 def _edge_turn(ax: float, ay: float, bx: float, by: float, px: float, py: float) -> float:
     """``cross(b - a, p - a)``: positive when ``p`` is left of ``a -> b``."""
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
-@njit
+@njit_helper
 def _triangle_contains(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float, px: float, py: float
 ) -> bool:
@@ -312,7 +312,7 @@ def _triangle_contains(
     )
 
 
-@njit
+@njit_helper
 def _quad_contains(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float,
     dx: float, dy: float, px: float, py: float,
@@ -334,7 +334,7 @@ def _quad_contains(
     )
 
 
-@njit
+@njit_helper
 def _face_contains(vertices: np.ndarray, faces: np.ndarray, f: int, px: float, py: float) -> bool:
     """True when ``p`` is inside face ``f`` or on its boundary (the bounding box is not tested)."""
     a = faces[f, 0]
@@ -363,7 +363,7 @@ def _face_bboxes_kernel(vertices: np.ndarray, faces: np.ndarray, bbox: np.ndarra
         bbox[f, 0], bbox[f, 1], bbox[f, 2], bbox[f, 3] = _face_bbox(vertices, faces, f)
 
 
-@njit
+@njit_helper
 def _bucket_range(
     lo: float, hi: float, origin: float, inv_size: float, n: int
 ) -> tuple[int, int]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from ._order import order_ties_by, sortable_keys
 from .delaunay import Triangulation, _next, _prev
 from .flip import flippable, triangle_score, triangle_scores
@@ -30,7 +30,7 @@ _PAIRED_TRIANGLE_MEASURE = {"s2": 1, "s4": 3}
 _QUAD_CODE = {"s2": 2, "s4": 4}
 
 
-@njit
+@njit_helper
 def _quad_score(measure: int, ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """Score of the quadrangle with these corners: S2, or S4 cubed (paired with the
     triangle scores S1, S3 cubed)."""
@@ -39,7 +39,7 @@ def _quad_score(measure: int, ax, ay, bx, by, cx, cy, dx, dy) -> float:
     return s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy)
 
 
-@njit
+@njit_helper
 def _score_to_measure(measure: int, score: float) -> float:
     return score if measure == 2 else np.cbrt(score)
 

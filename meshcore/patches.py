@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 
 __all__ = ["NODES_PER_FACE", "linear_nodes", "node_deviations", "nodes_from_deviations"]
@@ -45,7 +45,7 @@ _THIRD = 1.0 / 3.0
 _TWO_THIRDS = 2.0 / 3.0
 
 
-@njit
+@njit_helper
 def _cubic_basis(t: float) -> tuple[float, float, float, float]:
     """The four cubic Lagrange polynomials on the nodes ``0, 1/3, 2/3, 1`` at ``t``."""
     a = 3.0 * t
@@ -57,7 +57,7 @@ def _cubic_basis(t: float) -> tuple[float, float, float, float]:
     )
 
 
-@njit
+@njit_helper
 def _cubic_basis_derivative(t: float) -> tuple[float, float, float, float]:
     """The derivatives in ``t`` of :func:`_cubic_basis`."""
     a = 3.0 * t
@@ -69,7 +69,7 @@ def _cubic_basis_derivative(t: float) -> tuple[float, float, float, float]:
     )
 
 
-@njit
+@njit_helper
 def triangle_patch(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float,
     za: float, zb: float, zc: float, nodes: np.ndarray, px: float, py: float,
@@ -131,7 +131,7 @@ def triangle_patch(
     return value, gx, gy
 
 
-@njit
+@njit_helper
 def _quad_node(nodes: np.ndarray, z0: float, z1: float, z2: float, z3: float, i: int, j: int) -> float:
     """The value of the quadrangle's node ``(u, v) = (i / 3, j / 3)``."""
     if j == 0:
@@ -155,7 +155,7 @@ def _quad_node(nodes: np.ndarray, z0: float, z1: float, z2: float, z3: float, i:
     return nodes[12 - i]  # inner3 (1/3, 2/3), inner2 (2/3, 2/3)
 
 
-@njit
+@njit_helper
 def bilinear_gradient(
     x0: float, y0: float, x1: float, y1: float, x2: float, y2: float, x3: float, y3: float,
     u: float, v: float, zu: float, zv: float,
@@ -169,7 +169,7 @@ def bilinear_gradient(
     return (yv * zu - yu * zv) / det, (xu * zv - xv * zu) / det
 
 
-@njit
+@njit_helper
 def quad_patch(
     x0: float, y0: float, x1: float, y1: float, x2: float, y2: float, x3: float, y3: float,
     z0: float, z1: float, z2: float, z3: float, nodes: np.ndarray, u: float, v: float,
@@ -195,7 +195,7 @@ def quad_patch(
     return value, gx, gy
 
 
-@njit
+@njit_helper
 def _face_linear_nodes(faces: np.ndarray, z: np.ndarray, f: int, row: np.ndarray) -> None:
     """The linear surface's values at face ``f``'s nodes, into ``row`` (its unused columns untouched)."""
     nc = 4 if faces[f, 3] >= 0 else 3

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit, stack_array
+from ._jit import njit, njit_helper, stack_array
 
 __all__ = ["orient2d", "incircle", "incircle_sos", "cross_rounded"]
 
@@ -43,7 +43,7 @@ _CCW_ERRBOUND_A = (3.0 + 16.0 * _EPS) * _EPS
 _ICC_ERRBOUND_A = (10.0 + 96.0 * _EPS) * _EPS
 
 
-@njit
+@njit_helper
 def _two_sum(a: float, b: float) -> tuple[float, float]:
     x = a + b
     bv = x - a
@@ -51,13 +51,13 @@ def _two_sum(a: float, b: float) -> tuple[float, float]:
     return x, (a - av) + (b - bv)
 
 
-@njit
+@njit_helper
 def _fast_two_sum(a: float, b: float) -> tuple[float, float]:
     x = a + b
     return x, b - (x - a)
 
 
-@njit
+@njit_helper
 def _two_diff(a: float, b: float) -> tuple[float, float]:
     x = a - b
     bv = a - x
@@ -65,7 +65,7 @@ def _two_diff(a: float, b: float) -> tuple[float, float]:
     return x, (a - av) + (bv - b)
 
 
-@njit
+@njit_helper
 def _split(a: float) -> tuple[float, float]:
     c = _SPLITTER * a
     abig = c - a
@@ -73,7 +73,7 @@ def _split(a: float) -> tuple[float, float]:
     return hi, a - hi
 
 
-@njit
+@njit_helper
 def _two_product(a: float, b: float) -> tuple[float, float]:
     x = a * b
     ahi, alo = _split(a)
@@ -84,7 +84,7 @@ def _two_product(a: float, b: float) -> tuple[float, float]:
     return x, alo * blo - err
 
 
-@njit
+@njit_helper
 def _diff_into(a: float, b: float, out: np.ndarray) -> int:
     """``a - b`` exactly, as an expansion in ``out`` (increasing magnitude,
     zeros removed); returns its length (1 or 2)."""
@@ -97,7 +97,7 @@ def _diff_into(a: float, b: float, out: np.ndarray) -> int:
     return 2
 
 
-@njit
+@njit_helper
 def _scale_into(e: np.ndarray, elen: int, b: float, h: np.ndarray) -> int:
     """``e[:elen] * b`` exactly into ``h`` (room for ``2 elen``); returns its
     length (Shewchuk's scale_expansion_zeroelim)."""
@@ -122,7 +122,7 @@ def _scale_into(e: np.ndarray, elen: int, b: float, h: np.ndarray) -> int:
     return n
 
 
-@njit
+@njit_helper
 def _sum_into(e: np.ndarray, elen: int, f: np.ndarray, flen: int, h: np.ndarray) -> int:
     """``e[:elen] + f[:flen]`` exactly into ``h`` (room for ``elen + flen``);
     returns its length (Shewchuk's fast_expansion_sum_zeroelim)."""
@@ -179,7 +179,7 @@ def _sum_into(e: np.ndarray, elen: int, f: np.ndarray, flen: int, h: np.ndarray)
     return n
 
 
-@njit
+@njit_helper
 def _product_into(
     e: np.ndarray, elen: int, f: np.ndarray, flen: int, h: np.ndarray, scaled: np.ndarray, acc: np.ndarray
 ) -> int:
@@ -194,13 +194,13 @@ def _product_into(
     return n
 
 
-@njit
+@njit_helper
 def _negate(e: np.ndarray, elen: int) -> None:
     for i in range(elen):
         e[i] = -e[i]
 
 
-@njit
+@njit_helper
 def _sign(value: float) -> int:
     if value > 0.0:
         return 1
@@ -209,7 +209,7 @@ def _sign(value: float) -> int:
     return 0
 
 
-@njit
+@njit_helper
 def _two_products_into(a, na, b, nb, c, nc, d, nd, sign, h, small) -> int:
     """``a b + sign c d`` (``sign`` +1 or -1) of expansions of at most 2 terms,
     exactly into ``h`` (room for 16); ``small`` (28) is scratch."""
@@ -221,7 +221,7 @@ def _two_products_into(a, na, b, nb, c, nc, d, nd, sign, h, small) -> int:
     return _sum_into(left, nl, right, nr, h)
 
 
-@njit
+@njit_helper
 def _orient2d_into(ax, ay, bx, by, cx, cy, buf) -> int:
     """The orientation determinant exactly, as an expansion in ``buf[8:24]``
     (``buf``: 52 doubles of scratch); returns its length."""
@@ -233,7 +233,7 @@ def _orient2d_into(ax, ay, bx, by, cx, cy, buf) -> int:
     return _two_products_into(acx, n_acx, bcy, n_bcy, acy, n_acy, bcx, n_bcx, -1, det, small)
 
 
-@njit
+@njit_helper
 def _orient2d_exact(ax, ay, bx, by, cx, cy) -> int:
     buf = stack_array(64)
     n = _orient2d_into(ax, ay, bx, by, cx, cy, buf)
@@ -294,7 +294,7 @@ def orient2d(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -
 _INCIRCLE_WORK = 4800
 
 
-@njit
+@njit_helper
 def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     # every expansion has a fixed largest length (differences 2, lifts and
     # cross products 16, their products 512), so one buffer on the stack
@@ -328,7 +328,7 @@ def _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     return _sign(det[n - 1])
 
 
-@njit
+@njit_helper
 def _incircle_estimate(ax, ay, bx, by, cx, cy, dx, dy) -> tuple[float, float]:
     """The in-circle determinant in floating point and its error bound (stage A)."""
     adx = ax - dx
@@ -378,7 +378,7 @@ def incircle(
     return _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
 
 
-@njit
+@njit_helper
 def lex_before(ax: float, ay: float, bx: float, by: float) -> bool:
     """True when point a comes before point b in lexicographic (x, then y) order."""
     return ax < bx or (ax == bx and ay < by)
@@ -416,7 +416,7 @@ def incircle_sos(
     return _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy)
 
 
-@njit
+@njit_helper
 def _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
     s = _incircle_exact(ax, ay, bx, by, cx, cy, dx, dy)
     if s != 0:

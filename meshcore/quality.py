@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 
 __all__ = [
@@ -43,7 +43,7 @@ _TWO_OVER_SQRT3 = 2.0 / math.sqrt(3.0)
 _S3_CUBE_FACTOR = _TWO_OVER_SQRT3**3
 
 
-@njit
+@njit_helper
 def _angle_score(ux: float, uy: float, vx: float, vy: float) -> float:
     """sin(theta) for theta <= 90 deg, 1 + cos(theta) above; theta = angle(u, v)."""
     lu = math.sqrt(ux * ux + uy * uy)
@@ -59,7 +59,7 @@ def _angle_score(ux: float, uy: float, vx: float, vy: float) -> float:
     return cross * cross / (luv * (luv - dot))
 
 
-@njit
+@njit_helper
 def _normalised(ax, ay, bx, by, cx, cy):
     """b - a and c - a divided by their largest component (zeros when all vanish).
 
@@ -100,7 +100,7 @@ def s3_cubed_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: f
     return min(_S3_CUBE_FACTOR * cross * cross * cross / denom, 1.0)
 
 
-@njit
+@njit_helper
 def _cross_and_sides(ux: float, uy: float, vx: float, vy: float) -> tuple[float, float]:
     """|u x v| and the product of the squared sides of the triangle with edge
     vectors u and v from one corner: S3 cubed is their ratio, scaled."""
@@ -127,13 +127,13 @@ def s3_cubed_below(ax: float, ay: float, bx: float, by: float, cx: float, cy: fl
     return _S3_CUBE_FACTOR * cross * cross * cross < limit * denom * (1.0 - 1e-9)
 
 
-@njit
+@njit_helper
 def s3_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
     """S3 of the triangle ``a, b, c`` = 4/sqrt(3) A / (l1 l2 l3)^(2/3)."""
     return np.cbrt(s3_cubed_kernel(ax, ay, bx, by, cx, cy))
 
 
-@njit
+@njit_helper
 def _quad_turns_ok(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     """True when the quadrangle a, b, c, d is strictly convex (either orientation)."""
     t0 = (bx - ax) * (cy - by) - (by - ay) * (cx - bx)
@@ -145,7 +145,7 @@ def _quad_turns_ok(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
     return t0 < 0.0 and t1 < 0.0 and t2 < 0.0 and t3 < 0.0
 
 
-@njit
+@njit_helper
 def _quad_frame(ax, ay, bx, by, cx, cy, dx, dy):
     """The quadrangle translated to a = 0 and scaled to unit largest coordinate."""
     s = max(
@@ -160,7 +160,7 @@ def _quad_frame(ax, ay, bx, by, cx, cy, dx, dy):
     return (bx - ax) / s, (by - ay) / s, (cx - ax) / s, (cy - ay) / s, (dx - ax) / s, (dy - ay) / s, True
 
 
-@njit
+@njit_helper
 def s2_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """S2 of the quadrangle ``a, b, c, d`` (vertices in boundary order)."""
     bx, by, cx, cy, dx, dy, ok = _quad_frame(ax, ay, bx, by, cx, cy, dx, dy)
@@ -173,7 +173,7 @@ def s2_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     return min(min(sa, sb), min(sc, sd))
 
 
-@njit
+@njit_helper
 def _cross_over_lengths(ax, ay, bx, by, cx, cy) -> float:
     """cross^2 / (la lb lc) = 1 / (4 R^2) of the triangle a, b, c."""
     cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
@@ -186,7 +186,7 @@ def _cross_over_lengths(ax, ay, bx, by, cx, cy) -> float:
     return cross * cross / denom
 
 
-@njit
+@njit_helper
 def s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """S4 ** 3 of the quadrangle ``a, b, c, d``: the same order as S4 without a cube root."""
     bx, by, cx, cy, dx, dy, ok = _quad_frame(ax, ay, bx, by, cx, cy, dx, dy)
@@ -207,7 +207,7 @@ def s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     return min(2.0 * area * inv4r2, 1.0)
 
 
-@njit
+@njit_helper
 def s4_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """S4 of the quadrangle ``a, b, c, d`` (vertices in boundary order)."""
     return np.cbrt(s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy))

@@ -27,7 +27,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 from .interpolate import (
     _bilinear_inverse,
@@ -53,13 +53,13 @@ _RANGE_SLACK = 16.0 * 2.0**-52
 """Relative widening of the estimated cell range, larger than its rounding error."""
 
 
-@njit
+@njit_helper
 def _centre(origin: float, i: int, resolution: float) -> float:
     """Coordinate of the centre of cell ``i`` (the one formula used everywhere)."""
     return origin + (i + 0.5) * resolution
 
 
-@njit
+@njit_helper
 def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> tuple[int, int]:
     """Inclusive range ``first .. last`` of the cells whose centres may lie in ``[lo, hi]``.
 
@@ -80,12 +80,12 @@ def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> 
     return first, last
 
 
-@njit
+@njit_helper
 def _squared_length(ax: float, ay: float, bx: float, by: float) -> float:
     return (bx - ax) * (bx - ax) + (by - ay) * (by - ay)
 
 
-@njit
+@njit_helper
 def _gather_chunk(
     vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, start: int, m: int,
     xy: np.ndarray, zs: np.ndarray,

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays
 
@@ -58,7 +58,7 @@ MAX_PIECES = 64
 longer: an edge to an outlier kilometres away is no ground to follow)."""
 
 
-@njit
+@njit_helper
 def _first_end(vertices: np.ndarray, s: int, e: int) -> bool:
     """Whether ``s`` comes before ``e`` in coordinate order (x, then y)."""
     sx = vertices[s, 0]
@@ -66,7 +66,7 @@ def _first_end(vertices: np.ndarray, s: int, e: int) -> bool:
     return sx < ex or (sx == ex and vertices[s, 1] < vertices[e, 1])
 
 
-@njit
+@njit_helper
 def _pieces(vertices: np.ndarray, a: int, b: int, longest: float, piece: float) -> int:
     """How many pieces edge ``a b`` is split into (1: not split), the same from either end."""
     s, e = (a, b) if _first_end(vertices, a, b) else (b, a)
@@ -78,12 +78,12 @@ def _pieces(vertices: np.ndarray, a: int, b: int, longest: float, piece: float) 
     return int(min(math.ceil(math.sqrt(d2) / piece), MAX_PIECES))
 
 
-@njit
+@njit_helper
 def _cross(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
     return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
 
 
-@njit
+@njit_helper
 def _on_edge(edge: np.ndarray, corner: np.ndarray, p: int, k: int, nc: int) -> bool:
     """Whether polygon point ``p`` lies on the face's edge ``k`` (a corner lies on two)."""
     if corner[p]:
@@ -91,7 +91,7 @@ def _on_edge(edge: np.ndarray, corner: np.ndarray, p: int, k: int, nc: int) -> b
     return edge[p] == k
 
 
-@njit
+@njit_helper
 def _share_edge(edge: np.ndarray, corner: np.ndarray, a: int, b: int, nc: int) -> bool:
     """Whether polygon points ``a`` and ``b`` lie on one edge of the face."""
     if _on_edge(edge, corner, b, edge[a], nc):
@@ -99,7 +99,7 @@ def _share_edge(edge: np.ndarray, corner: np.ndarray, a: int, b: int, nc: int) -
     return corner[a] and _on_edge(edge, corner, b, (edge[a] + nc - 1) % nc, nc)
 
 
-@njit
+@njit_helper
 def _cut_face(px: np.ndarray, py: np.ndarray, ids: np.ndarray, edge: np.ndarray, corner: np.ndarray, m: int, nc: int,
               out: np.ndarray) -> int:
     """Triangulate the face's polygon ``(px, py)[:m]`` (counter-clockwise: its ``nc``

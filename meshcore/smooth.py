@@ -53,7 +53,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
@@ -166,7 +166,7 @@ def _correlation(h: NDArray[np.float64], range_: float, model: int) -> NDArray[n
 # --------------------------------------------------------------------------
 
 
-@njit
+@njit_helper
 def _before(d2a: float, xa: float, ya: float, d2b: float, xb: float, yb: float) -> bool:
     """The order of neighbours: by squared distance, then x, then y."""
     if d2a != d2b:
@@ -176,7 +176,7 @@ def _before(d2a: float, xa: float, ya: float, d2b: float, xb: float, yb: float) 
     return ya < yb
 
 
-@njit
+@njit_helper
 def _scan_bucket(sxy: np.ndarray, items: np.ndarray, start: np.ndarray, b: int, qx: float, qy: float, k: int,
                  count: int, bi: np.ndarray, bd: np.ndarray, bx: np.ndarray, by: np.ndarray) -> int:
     """Offer bucket ``b``'s points to the best ``count`` so far (kept in :func:`_before` order); returns the new count."""
@@ -331,7 +331,7 @@ _EXP_TABLE = np.exp(-np.arange(64 * _EXP_STEPS) / _EXP_STEPS)
 """``exp(-n / 16)`` for ``n < 1024``: :func:`_exp_neg` starts from the nearest below."""
 
 
-@njit
+@njit_helper
 def _exp_neg(a: float) -> float:
     """``exp(-a)`` for ``a >= 0``, within a few ulp; 0 from ``a >= 64`` on (``exp(-64) = 1.6e-28``).
 
@@ -349,7 +349,7 @@ def _exp_neg(a: float) -> float:
     return _EXP_TABLE[n] * p if a < 64.0 else 0.0
 
 
-@njit
+@njit_helper
 def _model_covariance(a: float, model: int) -> float:
     """The covariance per unit sill of ``MODELS[model]`` at the scaled lag ``a`` (:data:`_LAG_SCALE`)."""
     e = _exp_neg(a)
@@ -360,13 +360,13 @@ def _model_covariance(a: float, model: int) -> float:
     return (1.0 + a + a * a * (1.0 / 3.0)) * e
 
 
-@njit
+@njit_helper
 def _covariance(h: float, inv_range: float, model: int) -> float:
     """The covariance per unit sill at lag ``h > 0`` of model ``MODELS[model]``."""
     return _model_covariance(h * (_LAG_SCALE[model] * inv_range), model)
 
 
-@njit
+@njit_helper
 def _covariances(xs: np.ndarray, ys: np.ndarray, count: int, px: float, py: float, scale: float, model: int,
                  out: np.ndarray) -> None:
     """``out[j]``: the covariance between ``(xs[j], ys[j])`` and ``p`` for ``j < count``.
@@ -438,7 +438,7 @@ def _dual_systems(
     _dual_solve(z, neighbours, first, lanes, k, nugget_ratio, room)
 
 
-@njit
+@njit_helper
 def _dual_setup(
     xy: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int,
     scale: float, model: int, room: _KrigingScratch,
@@ -470,7 +470,7 @@ def _dual_setup(
         _covariances(pairs[0], pairs[1], m, 0.0, 0.0, scale, model, cov[b])
 
 
-@njit
+@njit_helper
 def _dual_solve(
     z: np.ndarray, neighbours: np.ndarray, first: int, lanes: int, k: int, nugget_ratio: float, room: _KrigingScratch,
 ) -> None:
@@ -629,7 +629,7 @@ def _dual_solve(
             radius[b] = math.nan
 
 
-@njit
+@njit_helper
 def _dual_values(
     xs: np.ndarray, ys: np.ndarray, k: int, coef: np.ndarray, radius: float, scale: float, model: int,
     qx: np.ndarray, qy: np.ndarray, m: int, block: np.ndarray, out: np.ndarray,
@@ -658,7 +658,7 @@ def _dual_values(
         out[t] = coef[k] + (coef[k + 1] * qx[t] + coef[k + 2] * qy[t]) / radius + ((s0 + s1) + (s2 + s3))
 
 
-@njit
+@njit_helper
 def _one_sided(xs: np.ndarray, ys: np.ndarray, count: int) -> bool:
     """Whether the points ``(xs, ys)[:count]`` leave three neighbouring eighths of
     the plane around the origin empty: a gap of at least 135 degrees, as at the
@@ -683,7 +683,7 @@ def _one_sided(xs: np.ndarray, ys: np.ndarray, count: int) -> bool:
     return False
 
 
-@njit
+@njit_helper
 def _count(neighbours: np.ndarray) -> int:
     """The neighbours present in a padded row (``-1`` pads the end)."""
     if neighbours.shape[0] == 0 or neighbours[neighbours.shape[0] - 1] >= 0:
@@ -694,7 +694,7 @@ def _count(neighbours: np.ndarray) -> int:
     return k
 
 
-@njit
+@njit_helper
 def _lanes(neighbours: np.ndarray, first: int) -> tuple[int, int]:
     """How many systems from ``first`` on (at most :data:`_LANES`) have as many neighbours as it, and that count."""
     k = neighbours.shape[1]
@@ -960,7 +960,7 @@ def _layout(vertices: NDArray[np.float64], faces: NDArray[np.int64]):
                           _PATTERN_WEIGHTS)
 
 
-@njit
+@njit_helper
 def _cell_key(x: float, y: float, cell: float, i0: int, j0: int, blocks_x: int) -> int:
     """The sort key of the cell holding ``(x, y)``: blocks of 8 x 8 cells in rows, cells in rows within a block."""
     ri = np.int64(math.floor(x / cell)) - i0

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import njit, njit_helper
 from .delaunay import bbox_origin
 from .errors import InvalidInputError, InvalidMeshError
 from .mesh import Mesh
@@ -80,7 +80,7 @@ def _hull_kernel(x, y, order) -> np.ndarray:
     return hull
 
 
-@njit
+@njit_helper
 def _strictly_inside(x, y, poly, m, px, py) -> bool:
     """Whether (px, py) lies strictly inside the convex polygon ``poly[:m]``
     (counter-clockwise, m >= 3; exact)."""
@@ -93,7 +93,7 @@ def _strictly_inside(x, y, poly, m, px, py) -> bool:
     return True
 
 
-@njit
+@njit_helper
 def _inner_box(x, y, poly, m):
     """An axis-aligned box strictly inside the convex polygon ``poly[:m]`` (CCW):
     its bounding box shrunk about its centre until all four corners are inside.

@@ -72,3 +72,36 @@ def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monke
     assert not _jit.compiled_on_disk(kernel)
     assert kernel(4) == 8
     assert _jit.compiled_on_disk(kernel) and any(tmp_path.rglob("*.nbi"))
+
+
+
+def _scaled(a, k):
+    return a * k
+
+
+def _sum_scaled(values, k):
+    total = 0.0
+    for v in values:
+        total += _scaled_helper(v, k)  # noqa: F821 - set by the test
+    return total
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    helper = _jit.njit_helper(_scaled)
+    monkeypatch.setitem(globals(), "_scaled_helper", helper)
+    kernel = _jit.njit(_sum_scaled)
+    assert kernel(np.array([1.0, 2.0, 3.0]), 2.0) == 12.0
+    assert helper.signatures == [(numba.float64, numba.float64)]  # compiled, for the kernel
+    # the same types from Python: no entry point to reach, an error instead of a crash
+    with pytest.raises(TypeError, match="called only from kernels"):
+        helper(1.0, 2.0)
+    with pytest.raises(TypeError, match="called only from kernels"):
+        helper(1, 2)
+    assert _jit.compiled_on_disk(helper) and _jit.compiled_on_disk(kernel)
+    # another process's dispatchers load both from the cache and still run
+    monkeypatch.setitem(globals(), "_scaled_helper", _jit.njit_helper(_scaled))
+    fresh = _jit.njit(_sum_scaled)
+    assert fresh(np.array([4.0]), 0.5) == 2.0
+    assert fresh.stats.cache_hits and not fresh.stats.cache_misses

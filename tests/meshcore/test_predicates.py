@@ -93,7 +93,7 @@ def test_the_exact_path_runs_inside_kernels_without_reference_counting():
     kernel compiled without reference counting can call it; its signs still
     match rational arithmetic where the filter cannot decide (cocircular and
     collinear lattice points far from the origin)."""
-    from meshcore._jit import njit_borrowing
+    from meshcore._jit import njit, njit_borrowing
     from meshcore.predicates import incircle_sos
 
     @njit_borrowing
@@ -104,10 +104,14 @@ def test_the_exact_path_runs_inside_kernels_without_reference_counting():
             out[k, 1] = incircle(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7])
             out[k, 2] = incircle_sos(r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7])
 
+    @njit
+    def kernel(p, out):  # a helper without reference counting is called from kernels only
+        signs(p, out)
+
     rng = np.random.default_rng(3)
     p = (rng.integers(-2, 3, (3000, 8)) * 0.25 + 6.5e5).astype(np.float64)
     out = np.zeros((3000, 3), dtype=np.int64)
-    signs(p, out)
+    kernel(p, out)
     rows = p.reshape(-1, 4, 2).tolist()
     expected_orient = [exact_orient(*r[:3]) for r in rows]
     expected_incircle = [exact_incircle(*r) for r in rows]
