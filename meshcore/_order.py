@@ -15,6 +15,40 @@ from .errors import InvalidInputError
 __all__ = ["order_ties_by", "sortable_keys", "morton_keys", "geometric_order", "lexicographic_order", "block_order"]
 
 
+@njit_helper
+def _merge_sort_ties(order: np.ndarray, tie: np.ndarray, lo: int, hi: int) -> None:
+    """Sort ``order[lo:hi]`` and ``tie[lo:hi]`` by increasing ``tie``: a
+    stable bottom-up merge sort (numba's ``argsort(kind="mergesort")`` takes
+    a second to compile)."""
+    n = hi - lo
+    src_o = order[lo:hi].copy()
+    src_t = tie[lo:hi].copy()
+    buf_o = np.empty_like(src_o)
+    buf_t = np.empty_like(src_t)
+    width = 1
+    while width < n:
+        for start in range(0, n, 2 * width):
+            mid = min(start + width, n)
+            end = min(start + 2 * width, n)
+            i = start
+            j = mid
+            for k in range(start, end):
+                if j < end and (i >= mid or src_t[j] < src_t[i]):
+                    buf_o[k] = src_o[j]
+                    buf_t[k] = src_t[j]
+                    j += 1
+                else:
+                    buf_o[k] = src_o[i]
+                    buf_t[k] = src_t[i]
+                    i += 1
+        src_o, buf_o = buf_o, src_o
+        src_t, buf_t = buf_t, src_t
+        width *= 2
+    for k in range(n):  # element by element: see delaunay._merge_sort_run
+        order[lo + k] = src_o[k]
+        tie[lo + k] = src_t[k]
+
+
 @njit
 def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
     """Within runs of equal ``key``, reorder ``order`` (and ``tie``) by increasing ``tie``.
@@ -34,12 +68,7 @@ def order_ties_by(order: np.ndarray, key: np.ndarray, tie: np.ndarray) -> None:
         while m < n and key[m] == key[k]:
             m += 1
         if m - k > 32:
-            perm = np.argsort(tie[k:m], kind="mergesort")
-            run_order = order[k:m].copy()
-            run_tie = tie[k:m].copy()
-            for i in range(m - k):  # element by element: see delaunay._merge_sort_run
-                order[k + i] = run_order[perm[i]]
-                tie[k + i] = run_tie[perm[i]]
+            _merge_sort_ties(order, tie, k, m)
             k = m
             continue
         for i in range(k + 1, m):
@@ -183,10 +212,15 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     key = np.empty(n, dtype=np.uint64)
     if n == 0:
         return key, uy
-    x_lo = ux.min()
-    y_lo = uy.min()
-    x_bits = _bit_length(ux.max() - x_lo)
-    y_bits = _bit_length(uy.max() - y_lo)
+    x_lo = x_hi = ux[0]  # a loop, not ux.min(): numba compiles a reduction per array type
+    y_lo = y_hi = uy[0]
+    for i in range(1, n):
+        x_lo = min(x_lo, ux[i])
+        x_hi = max(x_hi, ux[i])
+        y_lo = min(y_lo, uy[i])
+        y_hi = max(y_hi, uy[i])
+    x_bits = _bit_length(x_hi - x_lo)
+    y_bits = _bit_length(y_hi - y_lo)
     room = 64 - x_bits  # bits of the key below x's
     drop = max(0, y_bits - room)  # trailing bits of y that do not fit
     for i in range(n):

@@ -453,10 +453,17 @@ def _seed_triangle(xy, ox, oy) -> tuple[int, int, int]:
     """Seed of the sweep: a point near the centre, its nearest neighbour, and the
     point making the smallest circumcircle with them (-1 where none exists)."""
     n = xy.shape[0]
-    minx = xy[:, 0].min() - ox
-    maxx = xy[:, 0].max() - ox
-    miny = xy[:, 1].min() - oy
-    maxy = xy[:, 1].max() - oy
+    minx = maxx = xy[0, 0]  # a loop, not xy[:, 0].min(): numba compiles a reduction per array type
+    miny = maxy = xy[0, 1]
+    for i in range(1, n):
+        minx = min(minx, xy[i, 0])
+        maxx = max(maxx, xy[i, 0])
+        miny = min(miny, xy[i, 1])
+        maxy = max(maxy, xy[i, 1])
+    minx -= ox
+    maxx -= ox
+    miny -= oy
+    maxy -= oy
     bx = 0.5 * (minx + maxx)
     by = 0.5 * (miny + maxy)
     i0 = 0
