@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numba
 import numpy as np
-from numba.core import caching, cgutils, types
+from numba.core import caching, cgutils, compiler, types
+from numba.core.codegen import JITCodeLibrary
+from numba.core.compiler_lock import require_global_compiler_lock
 from numba.core.registry import CPUDispatcher
 from numba.extending import intrinsic
 
@@ -157,15 +159,78 @@ class _Dispatcher(CPUDispatcher):
         )
 
 
+class _HelperLibrary(JITCodeLibrary):
+    """The compiled code of a helper: what its callers link in, and nothing more.
+
+    numba optimises each compiled function's module as a whole and turns it
+    into machine code, then does both again in every caller that links it
+    in.  Only the callers' copies ever run, so a helper's module stops after
+    its functions are optimised one by one (as every function is) and its own
+    helpers are linked in: its callers optimise and compile it with
+    themselves.  That was a seventh of the mesh kernels' compilation.  Its
+    cache entry is that module (from which another process compiles the
+    callers it needs), not machine code.
+    """
+
+    def finalize(self) -> None:
+        require_global_compiler_lock()
+        self._raise_if_finalized()
+        linked = set()
+        for library in self._linking_libraries:
+            if library not in linked:
+                linked.add(library)
+                self._reload_init.update(library._reload_init)
+                self._final_module.link_in(library._get_module_for_linking(), preserve=True)
+        self._finalize_dynamic_globals()
+        self._finalized = True
+
+    def serialize_using_object_code(self):
+        return self.serialize_using_bitcode()
+
+    @property
+    def codegen(self):
+        return _NoEnvironment(self._codegen)
+
+
+class _NoEnvironment:
+    """A helper's codegen, as numba's compiler sees it: the address of the
+    helper's environment (the Python objects its Python entry point would
+    use) is not set, since neither its module nor that entry point is
+    compiled to machine code."""
+
+    def __init__(self, codegen) -> None:
+        self._codegen = codegen
+
+    def __getattr__(self, name: str):
+        return getattr(self._codegen, name)
+
+    def set_env(self, env_name, env) -> None:
+        pass
+
+
+class _HelperCompiler(compiler.Compiler):
+    """numba's compiler, with a :class:`_HelperLibrary` for the code."""
+
+    def compile_extra(self, func):
+        if self.state.library is None:
+            self.state.library = _HelperLibrary(self.state.targetctx.codegen(), func.__qualname__)
+            self.state.library.enable_object_caching()
+        return super().compile_extra(func)
+
+
 class _HelperDispatcher(_Dispatcher):
     """A kernel that only other kernels call: compiled without the wrapper
-    that converts Python objects to its arguments and back.
+    that converts Python objects to its arguments and back, into a
+    :class:`_HelperLibrary`.
 
     That wrapper is most of a small helper's code, and numba generates,
     optimises and compiles it to machine code for every helper of every
     kernel: about a fifth of a cold start.  Called from Python, such a helper
     raises instead of reaching code that is not there.
     """
+
+    def __init__(self, py_func, locals, targetoptions) -> None:
+        super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions, pipeline_class=_HelperCompiler)
 
     def add_overload(self, cres) -> None:
         self.overloads[tuple(cres.signature.args)] = cres  # not in the table Python calls dispatch on

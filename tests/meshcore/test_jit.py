@@ -86,6 +86,13 @@ def _sum_scaled(values, k):
     return total
 
 
+def _largest_scaled(values, k):
+    best = -np.inf
+    for v in values:
+        best = max(best, _scaled_helper(v, k))  # noqa: F821 - set by the test
+    return best
+
+
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
 def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, monkeypatch):
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
@@ -94,6 +101,7 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
     kernel = _jit.njit(_sum_scaled)
     assert kernel(np.array([1.0, 2.0, 3.0]), 2.0) == 12.0
     assert helper.signatures == [(numba.float64, numba.float64)]  # compiled, for the kernel
+    assert isinstance(helper.overloads[(numba.float64, numba.float64)].library, _jit._HelperLibrary)
     # the same types from Python: no entry point to reach, an error instead of a crash
     with pytest.raises(TypeError, match="called only from kernels"):
         helper(1.0, 2.0)
@@ -101,7 +109,12 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
         helper(1, 2)
     assert _jit.compiled_on_disk(helper) and _jit.compiled_on_disk(kernel)
     # another process's dispatchers load both from the cache and still run
-    monkeypatch.setitem(globals(), "_scaled_helper", _jit.njit_helper(_scaled))
+    fresh_helper = _jit.njit_helper(_scaled)
+    monkeypatch.setitem(globals(), "_scaled_helper", fresh_helper)
     fresh = _jit.njit(_sum_scaled)
     assert fresh(np.array([4.0]), 0.5) == 2.0
     assert fresh.stats.cache_hits and not fresh.stats.cache_misses
+    # and a kernel of its own compiles with the helper as the cache holds it
+    largest = _jit.njit(_largest_scaled)
+    assert largest(np.array([1.0, -3.0, 2.5]), -2.0) == 6.0
+    assert fresh_helper.stats.cache_hits and not fresh_helper.stats.cache_misses
