@@ -2,12 +2,12 @@
 
 numba compiles a kernel in the thread that first calls it, holding the GIL,
 so a run on this process's threads compiles its kernels one after another:
-about 25 s of the demo's first run on two cores (its later runs take 6 s).
+about 26 s of kernels for the demo's first run (its later runs take 7 s).
 When the kernel cache holds no mesh kernels compiled from these sources
 (:func:`meshcore.kernels_compiled`: the first run after an install or an
 upgrade), :func:`compile_aside` starts a process for each part of them
 (:data:`~pipeline.meshing.tiles.MESH_KERNEL_PARTS`: the Delaunay sweep's,
-the kernels after it, the smooth surface's; about 9 s each on one core)
+the kernels after it, the smooth surface's; 8-10 s each on one core)
 while this one creates the store, reads and routes the points and compiles
 the DEM's kernels; the tiles wait for them (:meth:`KernelCompile.wait`) and
 load their kernels from the cache.  Nothing depends on them: had one failed,
