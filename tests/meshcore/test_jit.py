@@ -76,6 +76,8 @@ def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monke
 
 
 def _scaled(a, k):
+    if k == 0.0:
+        raise ValueError("a helper's error reaches Python")
     return a * k
 
 
@@ -118,3 +120,5 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
     largest = _jit.njit(_largest_scaled)
     assert largest(np.array([1.0, -3.0, 2.5]), -2.0) == 6.0
     assert fresh_helper.stats.cache_hits and not fresh_helper.stats.cache_misses
+    with pytest.raises(ValueError, match="a helper's error reaches Python"):  # through its caller
+        largest(np.array([1.0]), 0.0)
