@@ -16,6 +16,25 @@ __all__ = ["order_ties_by", "sortable_keys", "morton_keys", "geometric_order", "
 
 
 @njit_helper
+def _merge_runs(src_o: np.ndarray, src_t: np.ndarray, dst_o: np.ndarray, dst_t: np.ndarray, lo: int, mid: int,
+                hi: int) -> None:
+    """Merge the sorted runs ``[lo, mid)`` and ``[mid, hi)`` of ``src_t`` (and
+    ``src_o`` alongside) into ``dst_t`` (``dst_o``); on equal ties the first
+    run's element comes first."""
+    i = lo
+    j = mid
+    for k in range(lo, hi):
+        if j < hi and (i >= mid or src_t[j] < src_t[i]):
+            dst_o[k] = src_o[j]
+            dst_t[k] = src_t[j]
+            j += 1
+        else:
+            dst_o[k] = src_o[i]
+            dst_t[k] = src_t[i]
+            i += 1
+
+
+@njit_helper
 def _merge_sort_ties(order: np.ndarray, tie: np.ndarray, lo: int, hi: int) -> None:
     """Sort ``order[lo:hi]`` and ``tie[lo:hi]`` by increasing ``tie``: a
     stable bottom-up merge sort (numba's ``argsort(kind="mergesort")`` takes
@@ -23,26 +42,14 @@ def _merge_sort_ties(order: np.ndarray, tie: np.ndarray, lo: int, hi: int) -> No
     n = hi - lo
     src_o = order[lo:hi].copy()
     src_t = tie[lo:hi].copy()
-    buf_o = np.empty_like(src_o)
-    buf_t = np.empty_like(src_t)
+    dst_o = np.empty_like(src_o)
+    dst_t = np.empty_like(src_t)
     width = 1
     while width < n:
         for start in range(0, n, 2 * width):
-            mid = min(start + width, n)
-            end = min(start + 2 * width, n)
-            i = start
-            j = mid
-            for k in range(start, end):
-                if j < end and (i >= mid or src_t[j] < src_t[i]):
-                    buf_o[k] = src_o[j]
-                    buf_t[k] = src_t[j]
-                    j += 1
-                else:
-                    buf_o[k] = src_o[i]
-                    buf_t[k] = src_t[i]
-                    i += 1
-        src_o, buf_o = buf_o, src_o
-        src_t, buf_t = buf_t, src_t
+            _merge_runs(src_o, src_t, dst_o, dst_t, start, min(start + width, n), min(start + 2 * width, n))
+        src_o, dst_o = dst_o, src_o
+        src_t, dst_t = dst_t, src_t
         width *= 2
     for k in range(n):  # element by element: see delaunay._merge_sort_run
         order[lo + k] = src_o[k]

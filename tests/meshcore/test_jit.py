@@ -61,6 +61,19 @@ def test_order_ties_by_sorts_each_run_of_equal_keys_by_its_ties():
     np.testing.assert_array_equal(order, expected)
 
 
+def test_order_ties_by_keeps_equal_ties_in_their_order_in_long_runs():
+    rng = np.random.default_rng(9)
+    for n in (33, 64, 65, 1000):  # runs past the insertion sort's 32, of lengths round and odd
+        key = np.sort(rng.integers(0, 2, n)).astype(np.uint64)
+        tie = rng.integers(0, 4, n).astype(np.uint64)  # many equal ties: the merge must be stable
+        order = rng.permutation(n)
+        by = np.lexsort((tie, key))  # lexsort is stable
+        expected_order, expected_tie = order[by], tie[by]
+        order_ties_by(order, key, tie)
+        np.testing.assert_array_equal(order, expected_order)
+        np.testing.assert_array_equal(tie, expected_tie)
+
+
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
 def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monkeypatch):
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))  # an empty cache of our own
