@@ -355,7 +355,11 @@ def points_in_box(
     points: NDArray[np.float64], box: tuple[float, float, float, float]
 ) -> NDArray[np.bool_]:
     """Mask of the points (n, 2 or more: x, y, ...) inside a closed box."""
-    return _in_box(points, float(box[0]), float(box[1]), float(box[2]), float(box[3]))
+    # always a read-only view, as the points loaded from the scratch folder
+    # are: one compiled kernel, not one per flag
+    view = points.view()
+    view.flags.writeable = False
+    return _in_box(view, float(box[0]), float(box[1]), float(box[2]), float(box[3]))
 
 
 @meshcore.kernel
