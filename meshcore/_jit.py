@@ -142,20 +142,32 @@ if _ArrayFunctionsFinder.name not in sys.modules and not any(
 ):
     sys.meta_path.insert(0, _ArrayFunctionsFinder())
 
+def _call_type(arg):
+    """The type a kernel is compiled for when another kernel passes it ``arg``:
+    not a constant's value, and a signed integer as ``int64``."""
+    arg = types.unliteral(arg)
+    if isinstance(arg, types.Integer) and arg.signed and arg.bitwidth < 64:
+        return types.int64
+    return arg
+
+
 class _Dispatcher(CPUDispatcher):
     """A kernel that another kernel calls is compiled for its arguments'
-    types, not for their constant values.
+    types, not for their constant values, and for ``int64`` where it is
+    passed a narrower signed integer.
 
     numba types a constant argument of a call between kernels as a literal
     (``Literal[int](0)``), compiles the callee for it, and again for
     ``int64`` where a variable is passed: the Delaunay helpers alone were
-    compiled twice or three times over, a quarter of the cold start.  No
-    kernel here dispatches on a constant's value.
+    compiled twice or three times over, a quarter of the cold start.  The
+    same went for an index read from an ``int32`` array beside a loop's
+    ``int64`` one (``_add_triangle`` five times).  No kernel here dispatches
+    on a constant's value or relies on an ``int32`` overflowing.
     """
 
     def get_call_template(self, args, kws):
         return super().get_call_template(
-            tuple(types.unliteral(a) for a in args), {k: types.unliteral(v) for k, v in kws.items()}
+            tuple(_call_type(a) for a in args), {k: _call_type(v) for k, v in kws.items()}
         )
 
 

@@ -41,6 +41,27 @@ def test_a_helper_called_with_a_constant_and_with_a_variable_is_compiled_once():
     assert _add.signatures == [(numba.int64, numba.int64)]
 
 
+def _sum_of(a, k):
+    return a + k
+
+
+_sum_of = _kernel(_sum_of)
+
+
+def _sum_of_elements(small, wide):
+    return _sum_of(small[0], wide[0]) + _sum_of(wide[0], small[0]) + _sum_of(small[0], small[0])
+
+
+_sum_of_elements = _kernel(_sum_of_elements)
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_a_helper_passed_narrower_signed_integers_is_compiled_once_for_int64():
+    small = np.array([-2_000_000_000], dtype=np.int32)  # twice this overflows an int32
+    assert _sum_of_elements(small, np.array([5], dtype=np.int64)) == 2 * (5 - 2_000_000_000) - 4_000_000_000
+    assert _sum_of.signatures == [(numba.int64, numba.int64)]
+
+
 def test_sortable_keys_order_and_equality_are_the_floats():
     rng = np.random.default_rng(5)
     values = np.concatenate([rng.normal(size=200) * 10.0 ** rng.integers(-300, 300, 200),
