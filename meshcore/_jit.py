@@ -142,6 +142,7 @@ if _ArrayFunctionsFinder.name not in sys.modules and not any(
 ):
     sys.meta_path.insert(0, _ArrayFunctionsFinder())
 
+
 def _call_type(arg):
     """The type a kernel is compiled for when another kernel passes it ``arg``:
     not a constant's value, and a signed integer as ``int64``."""
