@@ -1094,9 +1094,9 @@ class _CopcFile:
         from laspy.copc import HierarchyPage
 
         out = []
-        todo = [(0, 0, 0, 0)]
-        while todo:
-            key = todo.pop()
+        unvisited = [(0, 0, 0, 0)]
+        while unvisited:
+            key = unvisited.pop()
             bounds = self._bounds(key)
             if window is not None and not _meets(bounds, window):
                 continue
@@ -1111,13 +1111,13 @@ class _CopcFile:
                     self._add_page(page)
                     if self.entries.get(key, entry)[2] == -1:
                         self.entries[key] = (0, 0, 0)  # a page that does not describe its own root
-                todo.append(key)
+                unvisited.append(key)
                 continue
             if count > 0:
                 out.append(_Node(key, offset, byte_size, count, bounds))
             level, x, y, z = key
             if count >= 0:
-                todo.extend((level + 1, 2 * x + (d & 1), 2 * y + ((d >> 1) & 1), 2 * z + ((d >> 2) & 1))
+                unvisited.extend((level + 1, 2 * x + (d & 1), 2 * y + ((d >> 1) & 1), 2 * z + ((d >> 2) & 1))
                             for d in range(8))
         return out
 

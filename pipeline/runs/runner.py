@@ -322,7 +322,8 @@ def _execute(
         try:
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
         except _NoDefaultClasses as no_surface:
-            # a survey never classified: every point but noise, rather than no surface
+            # the default classes made no surface (a survey never classified, or a ground point or
+            # two): every point but noise, rather than no surface
             resume.keep_all_but_noise(work, config.output, no_surface.points)
             report = before
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)

@@ -108,7 +108,6 @@ def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monke
     assert _jit.compiled_on_disk(kernel) and any(tmp_path.rglob("*.nbi"))
 
 
-
 def _scaled(a, k):
     if k == 0.0:
         raise ValueError("a helper's error reaches Python")
