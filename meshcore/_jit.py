@@ -21,6 +21,7 @@ import pickle
 import sys
 from pathlib import Path
 
+import llvmlite.binding as llvm
 import numba
 import numpy as np
 from numba.core import caching, cgutils, compiler, types
@@ -200,6 +201,26 @@ class _HelperLibrary(JITCodeLibrary):
     def serialize_using_object_code(self):
         return self.serialize_using_bitcode()
 
+    @classmethod
+    def from_cache(cls, codegen, state) -> _HelperLibrary:
+        """A helper's cache entry (:meth:`serialize_using_object_code`) read
+        back as what its callers link in, and nothing more.
+
+        numba reads a module from the cache into its JIT engine, where its
+        functions are compiled to machine code as they are (not optimised)
+        and, being defined there first, take the place of the optimised
+        copies that kernels compiled later in the process link in: a kernel
+        compiled beside a cached helper ran that helper four times slower.
+        """
+        name, kind, data = state
+        if kind != "bitcode":
+            raise ValueError(f"a helper's cache entry is a module's bitcode, not {kind!r}")
+        library = cls(codegen, name)
+        library._final_module = llvm.parse_bitcode(data)
+        library._finalize_dynamic_globals()
+        library._finalized = True
+        return library
+
     @property
     def codegen(self):
         return _NoEnvironment(self._codegen)
@@ -219,6 +240,40 @@ class _NoEnvironment:
 
     def set_env(self, env_name, env) -> None:
         pass
+
+
+class _HelperTarget:
+    """numba's target context, as it rebuilds a helper from the cache: its
+    module is read into a :class:`_HelperLibrary`."""
+
+    def __init__(self, context) -> None:
+        self._context = context
+
+    def __getattr__(self, name: str):
+        return getattr(self._context, name)
+
+    def codegen(self) -> _HelperCodegen:
+        return _HelperCodegen(self._context.codegen())
+
+
+class _HelperCodegen:
+    """numba's code generator, reading a library back as :meth:`_HelperLibrary.from_cache`."""
+
+    def __init__(self, codegen) -> None:
+        self._codegen = codegen
+
+    def __getattr__(self, name: str):
+        return getattr(self._codegen, name)
+
+    def unserialize_library(self, state) -> _HelperLibrary:
+        return _HelperLibrary.from_cache(self._codegen, state)
+
+
+class _HelperResults(caching.CompileResultCacheImpl):
+    """How a helper's compiled code is read from the cache (see :meth:`_HelperLibrary.from_cache`)."""
+
+    def rebuild(self, target_context, payload):
+        return super().rebuild(_HelperTarget(target_context), payload)._replace(target_context=target_context)
 
 
 class _HelperCompiler(compiler.Compiler):
@@ -279,6 +334,12 @@ class _FunctionCache(caching.FunctionCache):
                                             source_stamp=self._impl.locator.get_source_stamp())
 
 
+class _HelperCache(_FunctionCache):
+    """A helper's cache (:class:`_HelperResults`)."""
+
+    _impl_class = _HelperResults
+
+
 def _compiler(helper: bool = False, **options):
     """A decorator compiling with meshcore's settings (see the module's
     docstring) and ``options``; ``helper``: for calls from kernels only.
@@ -296,7 +357,8 @@ def _compiler(helper: bool = False, **options):
         if numba.config.DISABLE_JIT:
             return function
         dispatcher = dispatcher_type(py_func=function, locals={}, targetoptions=targetoptions)
-        dispatcher._cache = _FunctionCache(function)  # numba's enable_caching(), with an index robust to old types
+        # numba's enable_caching(), with an index robust to old types
+        dispatcher._cache = (_HelperCache if helper else _FunctionCache)(function)
         return dispatcher
 
     return compile_

@@ -153,5 +153,10 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
     largest = _jit.njit(_largest_scaled)
     assert largest(np.array([1.0, -3.0, 2.5]), -2.0) == 6.0
     assert fresh_helper.stats.cache_hits and not fresh_helper.stats.cache_misses
+    # read back as a module to link in, not compiled as it is into the process's
+    # code, where it would stand in for the optimised copies the kernels link in
+    cached = fresh_helper.overloads[(numba.float64, numba.float64)]
+    assert isinstance(cached.library, _jit._HelperLibrary)
+    assert not cached.library.codegen._engine.is_symbol_defined(cached.fndesc.mangled_name)
     with pytest.raises(ValueError, match="a helper's error reaches Python"):  # through its caller
         largest(np.array([1.0]), 0.0)
