@@ -637,23 +637,29 @@ def _dual_values(
     """``out[:m]``: the kriging estimates at the points ``(qx, qy)[:m]`` (relative to the
     centre) of a system from :func:`_dual_systems`.
 
-    ``block`` is room for ``m`` rows of ``k`` covariances, computed first (a
-    loop that vectorises); each row is then summed in four interleaved partial
-    sums, in a fixed order.
+    ``block`` is room for three rows of ``m * k``: the lags from every point to
+    every neighbour, then their covariances, computed in one long loop (the
+    rows of ``k`` alone were too short to vectorise well); each point's row
+    is then summed in four interleaved partial sums, in a fixed order.
     """
+    lag_x, lag_y, cov = block[0], block[1], block[2]
     for t in range(m):
-        _covariances(xs, ys, k, qx[t], qy[t], scale, model, block[t])
+        for i in range(k):
+            lag_x[t * k + i] = xs[i] - qx[t]
+            lag_y[t * k + i] = ys[i] - qy[t]
+    _covariances(lag_x, lag_y, m * k, 0.0, 0.0, scale, model, cov)
     for t in range(m):
+        row = t * k
         s0 = s1 = s2 = s3 = 0.0
         i = 0
         while i + 4 <= k:
-            s0 += coef[i] * block[t, i]
-            s1 += coef[i + 1] * block[t, i + 1]
-            s2 += coef[i + 2] * block[t, i + 2]
-            s3 += coef[i + 3] * block[t, i + 3]
+            s0 += coef[i] * cov[row + i]
+            s1 += coef[i + 1] * cov[row + i + 1]
+            s2 += coef[i + 2] * cov[row + i + 2]
+            s3 += coef[i + 3] * cov[row + i + 3]
             i += 4
         while i < k:
-            s0 += coef[i] * block[t, i]
+            s0 += coef[i] * cov[row + i]
             i += 1
         out[t] = coef[k] + (coef[k + 1] * qx[t] + coef[k + 2] * qy[t]) / radius + ((s0 + s1) + (s2 + s3))
 
@@ -750,7 +756,7 @@ def _nodes_kriged_kernel(
     qx = np.empty(most)
     qy = np.empty(most)
     values = np.empty(most)
-    block = np.empty((most, k))
+    block = np.empty((3, most * k))
     scale = _LAG_SCALE[model] * inv_range
     s0 = 0
     while s0 < centres.shape[0]:
@@ -1564,7 +1570,7 @@ def _loo_errors_kernel(
         centres[s, 1] = xy[sample[s], 1]
     origin = np.zeros(1)
     value = np.empty(1)
-    block = np.empty((1, k))
+    block = np.empty((3, k))
     scale = _LAG_SCALE[model] * inv_range
     s0 = 0
     while s0 < sample.shape[0]:
