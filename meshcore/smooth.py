@@ -206,6 +206,17 @@ def _scan_bucket(sxy: np.ndarray, items: np.ndarray, start: np.ndarray, b: int, 
     return count
 
 
+@njit_helper
+def _bucket_near(i: int, j: int, x0: float, y0: float, cell: float, qx: float, qy: float, d2: float) -> bool:
+    """Whether bucket ``(i, j)`` may hold a point within squared distance ``d2``
+    of ``q``: its box, grown by a millionth of a bucket against rounding (a
+    point's bucket is found by a division), reaches that near."""
+    margin = 1e-6 * cell
+    dx = max(max((x0 + i * cell - margin) - qx, qx - (x0 + (i + 1) * cell + margin)), 0.0)
+    dy = max(max((y0 + j * cell - margin) - qy, qy - (y0 + (j + 1) * cell + margin)), 0.0)
+    return dx * dx + dy * dy <= d2
+
+
 @njit
 def _knn_kernel(
     sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
@@ -246,12 +257,15 @@ def _knn_kernel(
                 if j >= 0 and j < nby:
                     if j == cj - ring or j == cj + ring:
                         for i in range(i_lo, i_hi + 1):
-                            count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
+                            if count < k or _bucket_near(i, j, x0, y0, cell, qx, qy, bd[k - 1]):
+                                count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
                     else:
-                        if ci - ring >= 0:
-                            count = _scan_bucket(sxy, items, start, j * nbx + ci - ring, qx, qy, k, count, bi, bd, bx, by)
-                        if ci + ring < nbx:
-                            count = _scan_bucket(sxy, items, start, j * nbx + ci + ring, qx, qy, k, count, bi, bd, bx, by)
+                        i = ci - ring
+                        if i >= 0 and (count < k or _bucket_near(i, j, x0, y0, cell, qx, qy, bd[k - 1])):
+                            count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
+                        i = ci + ring
+                        if i < nbx and (count < k or _bucket_near(i, j, x0, y0, cell, qx, qy, bd[k - 1])):
+                            count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
                 j += 1 if sides else max(2 * ring, 1)
             covers = ci - ring <= 0 and cj - ring <= 0 and ci + ring >= nbx - 1 and cj + ring >= nby - 1
             if covers:
