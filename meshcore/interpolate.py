@@ -236,22 +236,21 @@ def _quad_value_and_gradient(
 
 @njit
 def _surface_at(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, f: int, px: float, py: float
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray | None, f: int, px: float, py: float
 ) -> tuple[float, float, float]:
     """Value and ``(dz/dx, dz/dy)`` of face ``f``'s formula at ``p`` (no inside test):
-    linear/bilinear when ``nodes`` has no rows, else the face's cubic patch."""
+    linear/bilinear when ``nodes`` is None (compiled without the patches), else the face's cubic patch."""
     a = faces[f, 0]
     b = faces[f, 1]
     c = faces[f, 2]
     d = faces[f, 3]
-    smooth = nodes.shape[0] > 0
     ax, ay, bx, by, cx, cy = vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1], vertices[c, 0], vertices[c, 1]
     if d < 0:
-        if smooth:
+        if nodes is not None:
             return triangle_patch(ax, ay, bx, by, cx, cy, z[a], z[b], z[c], nodes[f], px, py)
         return _triangle_value_and_gradient(ax, ay, bx, by, cx, cy, z[a], z[b], z[c], px, py)
     dx, dy = vertices[d, 0], vertices[d, 1]
-    if smooth:
+    if nodes is not None:
         u, v = _bilinear_inverse(ax, ay, bx, by, cx, cy, dx, dy, px, py)
         return quad_patch(ax, ay, bx, by, cx, cy, dx, dy, z[a], z[b], z[c], z[d], nodes[f], u, v)
     return _quad_value_and_gradient(ax, ay, bx, by, cx, cy, dx, dy, z[a], z[b], z[c], z[d], px, py)
@@ -433,7 +432,7 @@ def _locate_kernel(
 
 @njit
 def _evaluate_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray | None,
     px: np.ndarray, py: np.ndarray, face: np.ndarray, out: np.ndarray,
 ) -> None:
     for k in range(px.shape[0]):
@@ -446,7 +445,7 @@ def _evaluate_kernel(
 
 @njit
 def _gradient_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray | None,
     px: np.ndarray, py: np.ndarray, face: np.ndarray, out_x: np.ndarray, out_y: np.ndarray,
 ) -> None:
     for k in range(px.shape[0]):
@@ -546,8 +545,8 @@ class SurfaceArrays(NamedTuple):
     vertices: NDArray[np.float64]
     faces: NDArray[np.int64]
     z: NDArray[np.float64]
-    nodes: NDArray[np.float64]
-    """No rows for the linear surface."""
+    nodes: NDArray[np.float64] | None
+    """None for the linear surface (its kernels are compiled without the patches)."""
     parent: NDArray[np.int64] | None
     """The mesh's face of each face (a refined smooth surface), or None: the mesh's own faces."""
 
@@ -587,7 +586,7 @@ def surface_arrays(
     if kind is Surface.LINEAR:
         if nodes is not None:
             raise InvalidInputError("nodes are the smooth surface's: give them with surface='smooth'")
-        return SurfaceArrays(vertices, faces, z, np.empty((0, NODES_PER_FACE)), None)
+        return SurfaceArrays(vertices, faces, z, None, None)
     if nodes is None:
         smooth = smooth_surface(mesh, z, variogram)
         return SurfaceArrays(*mesh_arrays(smooth.mesh), smooth.z, smooth.nodes, smooth.parent)

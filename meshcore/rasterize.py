@@ -108,11 +108,11 @@ def _gather_chunk(
 
 @njit
 def _rasterize_kernel(
-    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray,
+    vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray | None,
     x0: float, y0: float, resolution: float, max_edge2: float, out: np.ndarray,
 ) -> None:
-    """Fill ``out`` face by face; cubic patches when ``nodes`` has rows, else linear."""
-    smooth = nodes.shape[0] > 0
+    """Fill ``out`` face by face; cubic patches with ``nodes``, else linear
+    (compiled apart: a linear surface's kernel holds no patch)."""
     ny, nx = out.shape
     inv_res = 1.0 / resolution
     n_f = faces.shape[0]
@@ -159,7 +159,7 @@ def _rasterize_kernel(
                         continue
                     if not is_quad:
                         if _triangle_contains(ax, ay, bx, by, cx, cy, qx, qy):
-                            if smooth:
+                            if nodes is not None:
                                 out[j, i] = triangle_patch(
                                     ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2],
                                     nodes[start + k], qx, qy,
@@ -169,7 +169,7 @@ def _rasterize_kernel(
                                     ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2], qx, qy
                                 )[0]
                     elif _quad_contains(ax, ay, bx, by, cx, cy, dx, dy, qx, qy):
-                        if smooth:
+                        if nodes is not None:
                             u, v = _bilinear_inverse(ax, ay, bx, by, cx, cy, dx, dy, qx, qy)
                             out[j, i] = quad_patch(
                                 ax, ay, bx, by, cx, cy, dx, dy,

@@ -922,7 +922,8 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
     mesh = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
     z = vertices[:, 0] * 0.1 + np.sin(vertices[:, 1])
-    meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
+    if surface != "smooth" or "face_kind" in layers:  # the linear surface's kernel: the DEM's, or the face kinds'
+        meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
     if surface == "smooth":  # the run's variogram is fitted (its sample merged) before the tiles
         meshcore.lexicographic_order(vertices)
         grid = _grid_mesh(8).vertices

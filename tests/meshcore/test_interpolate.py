@@ -307,7 +307,7 @@ def test_continuous_across_shared_edge(edge, face_a, face_b, rng):
     expected = (1 - t) * z[edge[0]] + t * z[edge[1]]
     for f in (face_a, face_b):
         values = [
-            _surface_at(mesh.vertices, mesh.faces, z, np.empty((0, 12)), f, x, y)[0] for x, y in on_edge
+            _surface_at(mesh.vertices, mesh.faces, z, None, f, x, y)[0] for x, y in on_edge
         ]
         assert_allclose(values, expected, rtol=1e-12, atol=1e-12)
     # approached from both sides the surface tends to the same edge values
