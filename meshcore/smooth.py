@@ -209,9 +209,11 @@ def _scan_bucket(sxy: np.ndarray, items: np.ndarray, start: np.ndarray, b: int, 
 @njit_helper
 def _bucket_near(i: int, j: int, x0: float, y0: float, cell: float, qx: float, qy: float, d2: float) -> bool:
     """Whether bucket ``(i, j)`` may hold a point within squared distance ``d2``
-    of ``q``: its box, grown by a millionth of a bucket against rounding (a
-    point's bucket is found by a division), reaches that near."""
-    margin = 1e-6 * cell
+    of ``q``: its box, grown against rounding (a point's bucket is found by a
+    division, the box's sides by a sum at the coordinates' scale) by a
+    millionth of a bucket and a millionth of a millionth of the coordinates,
+    reaches that near."""
+    margin = 1e-6 * cell + 1e-12 * (abs(qx) + abs(qy))
     dx = max(max((x0 + i * cell - margin) - qx, qx - (x0 + (i + 1) * cell + margin)), 0.0)
     dy = max(max((y0 + j * cell - margin) - qy, qy - (y0 + (j + 1) * cell + margin)), 0.0)
     return dx * dx + dy * dy <= d2
