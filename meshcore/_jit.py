@@ -223,23 +223,7 @@ class _HelperLibrary(JITCodeLibrary):
 
     @property
     def codegen(self):
-        return _NoEnvironment(self._codegen)
-
-
-class _NoEnvironment:
-    """A helper's codegen, as numba's compiler sees it: the address of the
-    helper's environment (the Python objects its Python entry point would
-    use) is not set, since neither its module nor that entry point is
-    compiled to machine code."""
-
-    def __init__(self, codegen) -> None:
-        self._codegen = codegen
-
-    def __getattr__(self, name: str):
-        return getattr(self._codegen, name)
-
-    def set_env(self, env_name, env) -> None:
-        pass
+        return _HelperCodegen(self._codegen)
 
 
 class _HelperTarget:
@@ -257,13 +241,20 @@ class _HelperTarget:
 
 
 class _HelperCodegen:
-    """numba's code generator, reading a library back as :meth:`_HelperLibrary.from_cache`."""
+    """numba's code generator, as it serves a helper: the address of the
+    helper's environment (the Python objects its Python entry point would
+    use) is not set, since neither its module nor that entry point is
+    compiled to machine code; and a library is read back from the cache as
+    :meth:`_HelperLibrary.from_cache`."""
 
     def __init__(self, codegen) -> None:
         self._codegen = codegen
 
     def __getattr__(self, name: str):
         return getattr(self._codegen, name)
+
+    def set_env(self, env_name, env) -> None:
+        pass
 
     def unserialize_library(self, state) -> _HelperLibrary:
         return _HelperLibrary.from_cache(self._codegen, state)
