@@ -38,7 +38,7 @@ _add_a_variable = _kernel(_add_a_variable)
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
 def test_a_helper_called_with_a_constant_and_with_a_variable_is_compiled_once():
     assert _add_a_constant(2) == 3 and _add_a_variable(2, 5) == 7
-    assert _add.signatures == [(numba.int64, numba.int64)]
+    assert _add.as_helper().signatures == [(numba.int64, numba.int64)]
 
 
 def _sum_of(a, k):
@@ -59,7 +59,7 @@ _sum_of_elements = _kernel(_sum_of_elements)
 def test_a_helper_passed_narrower_signed_integers_is_compiled_once_for_int64():
     small = np.array([-2_000_000_000], dtype=np.int32)  # twice this overflows an int32
     assert _sum_of_elements(small, np.array([5], dtype=np.int64)) == 2 * (5 - 2_000_000_000) - 4_000_000_000
-    assert _sum_of.signatures == [(numba.int64, numba.int64)]
+    assert _sum_of.as_helper().signatures == [(numba.int64, numba.int64)]
 
 
 def test_sortable_keys_order_and_equality_are_the_floats():
@@ -160,3 +160,41 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
     assert not cached.library.codegen._engine.is_symbol_defined(cached.fndesc.mangled_name)
     with pytest.raises(ValueError, match="a helper's error reaches Python"):  # through its caller
         largest(np.array([1.0]), 0.0)
+
+
+def _cubed(a):
+    return a * a * a
+
+
+def _sum_cubed(values):
+    total = 0.0
+    for v in values:
+        total += _cubed_kernel(v)  # noqa: F821 - set by the test
+    return total
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_a_kernel_that_kernels_call_is_compiled_for_them_as_a_helper(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    cubed = _jit.njit(_cubed)
+    monkeypatch.setitem(globals(), "_cubed_kernel", cubed)
+    total = _jit.njit(_sum_cubed)
+    assert total(np.array([1.0, 2.0])) == 9.0
+    # its callers link in the helper's code: no entry point from Python was compiled
+    assert cubed.signatures == [] and cubed.as_helper().signatures == [(numba.float64,)]
+    assert isinstance(cubed.as_helper().overloads[(numba.float64,)].library, _jit._HelperLibrary)
+    # Python's first call compiles the kernel itself, cached in files of its own
+    assert cubed(3.0) == 27.0 and cubed.signatures == [(numba.float64,)]
+    assert _jit.compiled_on_disk(cubed) and _jit.compiled_on_disk(cubed.as_helper())
+    assert len({p.name.split(".")[-2] for p in tmp_path.rglob("*_cubed*.nbi")}) == 2
+    # a kernel compiled after that links in the kernel's own code
+    again = _jit.njit(_sum_cubed)
+    assert again(np.array([2.0], dtype=np.float64)) == 8.0
+    assert again.stats.cache_hits  # from the cache: the same code either way
+    # another process: the caller and its helper come from the cache
+    fresh = _jit.njit(_cubed)
+    monkeypatch.setitem(globals(), "_cubed_kernel", fresh)
+    fresh_total = _jit.njit(_sum_cubed)
+    assert fresh_total(np.array([1.0, 1.0])) == 2.0
+    assert fresh_total.stats.cache_hits and not fresh_total.stats.cache_misses
+    assert fresh.signatures == []
