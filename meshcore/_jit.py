@@ -27,10 +27,16 @@ import numpy as np
 from numba.core import caching, cgutils, compiler, sigutils, types
 from numba.core.codegen import JITCodeLibrary
 from numba.core.compiler_lock import require_global_compiler_lock
+from numba.core.imputils import impl_ret_new_ref, lower_builtin
 from numba.core.registry import CPUDispatcher
-from numba.extending import intrinsic
+from numba.core.typing.npydecl import parse_dtype, parse_shape
+from numba.extending import intrinsic, type_callable
+from numba.np.arrayobj import _empty_nd_impl, _parse_shape
 
-__all__ = ["njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "drop_stale_kernels", "compiled_on_disk"]
+__all__ = [
+    "njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "empty", "zeros", "full", "empty_like",
+    "drop_stale_kernels", "compiled_on_disk",
+]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -444,6 +450,117 @@ def _heap_array(count: int) -> np.ndarray:
 
 #: kernels running as Python (``NUMBA_DISABLE_JIT``) take their scratch from the heap
 stack_array = _heap_array if numba.config.DISABLE_JIT else _stack_array
+
+
+# New arrays in kernels.  numba compiles ``np.empty`` (and ``np.zeros``,
+# ``np.full``, ``np.empty_like``) as a function of its own for every
+# combination of shape and dtype a process meets, each a compilation of its
+# own (50-70 ms), some twenty-five per part of a cold start: an eighth of the
+# kernels after the Delaunay sweep.  These functions are numpy's when called
+# from Python and, in a kernel, the same allocation written in place.
+
+
+def empty(shape, dtype=np.float64) -> np.ndarray:
+    """``np.empty(shape, dtype)``, in place in a kernel."""
+    return np.empty(shape, dtype)
+
+
+def zeros(shape, dtype=np.float64) -> np.ndarray:
+    """``np.zeros(shape, dtype)``, in place in a kernel."""
+    return np.zeros(shape, dtype)
+
+
+def full(shape, value, dtype=np.float64) -> np.ndarray:
+    """``np.full(shape, value, dtype)``, in place in a kernel."""
+    return np.full(shape, value, dtype)
+
+
+def empty_like(array: np.ndarray) -> np.ndarray:
+    """``np.empty_like(array)``, in place in a kernel."""
+    return np.empty_like(array)
+
+
+def _new_array_type(shape, dtype) -> types.Array | None:
+    element = types.float64 if dtype is None else parse_dtype(dtype)
+    ndim = parse_shape(shape)
+    if element is None or ndim is None:
+        return None
+    return types.Array(element, ndim, "C")
+
+
+@type_callable(empty)
+@type_callable(zeros)
+def _type_new_array(context):
+    def typer(shape, dtype=None):
+        return _new_array_type(shape, dtype)
+
+    return typer
+
+
+@type_callable(full)
+def _type_full(context):
+    def typer(shape, value, dtype=None):
+        if not isinstance(value, (types.Number, types.Boolean)):
+            return None
+        return _new_array_type(shape, dtype)
+
+    return typer
+
+
+@type_callable(empty_like)
+def _type_empty_like(context):
+    def typer(array):
+        if isinstance(array, types.Array):
+            return types.Array(array.dtype, array.ndim, "F" if array.layout == "F" else "C")
+        return None
+
+    return typer
+
+
+def _allocate(context, builder, array_type, shape):
+    """A new array of ``array_type`` and ``shape`` (LLVM values), as numba's ``np.empty`` allocates it."""
+    return _empty_nd_impl(context, builder, array_type, shape)
+
+
+def _new_reference(context, builder, array_type, array):
+    return impl_ret_new_ref(context, builder, array_type, array._getvalue())
+
+
+@lower_builtin(empty, types.Any)
+@lower_builtin(empty, types.Any, types.Any)
+def _lower_empty(context, builder, signature, args):
+    array_type = signature.return_type
+    array = _allocate(context, builder, array_type, _parse_shape(context, builder, signature.args[0], args[0]))
+    return _new_reference(context, builder, array_type, array)
+
+
+@lower_builtin(zeros, types.Any)
+@lower_builtin(zeros, types.Any, types.Any)
+def _lower_zeros(context, builder, signature, args):
+    array_type = signature.return_type
+    array = _allocate(context, builder, array_type, _parse_shape(context, builder, signature.args[0], args[0]))
+    cgutils.memset(builder, array.data, builder.mul(array.itemsize, array.nitems), 0)
+    return _new_reference(context, builder, array_type, array)
+
+
+@lower_builtin(full, types.Any, types.Any)
+@lower_builtin(full, types.Any, types.Any, types.Any)
+def _lower_full(context, builder, signature, args):
+    array_type = signature.return_type
+    array = _allocate(context, builder, array_type, _parse_shape(context, builder, signature.args[0], args[0]))
+    value = context.cast(builder, args[1], signature.args[1], array_type.dtype)
+    value = context.get_value_as_data(builder, array_type.dtype, value)
+    with cgutils.for_range(builder, array.nitems) as loop:
+        builder.store(value, builder.gep(array.data, [loop.index]))
+    return _new_reference(context, builder, array_type, array)
+
+
+@lower_builtin(empty_like, types.Array)
+def _lower_empty_like(context, builder, signature, args):
+    array_type = signature.return_type
+    source = context.make_array(signature.args[0])(context, builder, value=args[0])
+    array = _allocate(context, builder, array_type, cgutils.unpack_tuple(builder, source.shape))
+    return _new_reference(context, builder, array_type, array)
 
 
 #: the name of the file, beside the cached kernels, that says which sources they were compiled from

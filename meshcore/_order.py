@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, empty_like, njit, njit_helper, zeros
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
@@ -42,8 +42,8 @@ def _merge_sort_ties(order: np.ndarray, tie: np.ndarray, lo: int, hi: int) -> No
     n = hi - lo
     src_o = order[lo:hi].copy()
     src_t = tie[lo:hi].copy()
-    dst_o = np.empty_like(src_o)
-    dst_t = np.empty_like(src_t)
+    dst_o = empty_like(src_o)
+    dst_t = empty_like(src_t)
     width = 1
     while width < n:
         for start in range(0, n, 2 * width):
@@ -164,8 +164,8 @@ def _block_order_kernel(x: np.ndarray, y: np.ndarray, x0: float, y0: float, side
     n = x.shape[0]
     blocks_x = (nx + 7) // 8
     blocks_y = (ny + 7) // 8
-    key = np.empty(n, dtype=np.int64)
-    start = np.zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
+    key = empty(n, dtype=np.int64)
+    start = zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
     for p in range(n):
         i = _block_cell(x[p], x0, side, nx)
         j = _block_cell(y[p], y0, side, ny)
@@ -173,7 +173,7 @@ def _block_order_kernel(x: np.ndarray, y: np.ndarray, x0: float, y0: float, side
         start[key[p] + 1] += 1
     for b in range(start.shape[0] - 1):
         start[b + 1] += start[b]
-    order = np.empty(n, dtype=np.int64)
+    order = empty(n, dtype=np.int64)
     for p in range(n):
         order[start[key[p]]] = p
         start[key[p]] += 1
@@ -211,12 +211,12 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     y agree to well under a millimetre, in practice never.
     """
     n = x.shape[0]
-    ux = np.empty(n, dtype=np.uint64)
-    uy = np.empty(n, dtype=np.uint64)
+    ux = empty(n, dtype=np.uint64)
+    uy = empty(n, dtype=np.uint64)
     for i in range(n):
         ux[i] = _sortable(np.float64(x[i] + 0.0).view(np.uint64))
         uy[i] = _sortable(np.float64(y[i] + 0.0).view(np.uint64))
-    key = np.empty(n, dtype=np.uint64)
+    key = empty(n, dtype=np.uint64)
     if n == 0:
         return key, uy
     x_lo = x_hi = ux[0]  # a loop, not ux.min(): numba compiles a reduction per array type
@@ -261,8 +261,8 @@ def _sortable(u: np.uint64) -> np.uint64:
 def morton_keys(x_bits: np.ndarray, y_bits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The 128-bit Z-curve key (high, low words) of points given by their float64 bits."""
     n = x_bits.shape[0]
-    high = np.empty(n, dtype=np.uint64)
-    low = np.empty(n, dtype=np.uint64)
+    high = empty(n, dtype=np.uint64)
+    low = empty(n, dtype=np.uint64)
     half = np.uint64(32)
     for k in range(n):
         ux = _sortable(x_bits[k])
@@ -309,10 +309,10 @@ def _renumber_kernel(tri, he, rank):
     numbered by rank."""
     nt = tri.shape[0] // 3
     n = rank.shape[0]
-    first = np.empty(nt, dtype=np.int8)  # rotation of each triangle
-    lowest = np.empty(nt, dtype=np.int32)  # rank of its lowest corner
-    after = np.empty(nt, dtype=np.int32)  # rank of the corner after the lowest
-    start = np.zeros(n + 1, dtype=np.int32)
+    first = empty(nt, dtype=np.int8)  # rotation of each triangle
+    lowest = empty(nt, dtype=np.int32)  # rank of its lowest corner
+    after = empty(nt, dtype=np.int32)  # rank of the corner after the lowest
+    start = zeros(n + 1, dtype=np.int32)
     for t in range(nt):
         r0 = rank[tri[3 * t]]
         r1 = rank[tri[3 * t + 1]]
@@ -333,8 +333,8 @@ def _renumber_kernel(tri, he, rank):
     for r in range(n):
         start[r + 1] += start[r]
     base = start.copy()  # where each corner's run begins
-    slot = np.empty(nt, dtype=np.int32)  # new position -> old triangle
-    second = np.empty(nt, dtype=np.int32)
+    slot = empty(nt, dtype=np.int32)  # new position -> old triangle
+    second = empty(nt, dtype=np.int32)
     for t in range(nt):
         lo = lowest[t]
         nxt = after[t]
@@ -349,14 +349,14 @@ def _renumber_kernel(tri, he, rank):
             k -= 1
         slot[k] = t
         second[k] = nxt
-    new_of_old = np.empty(3 * nt, dtype=np.int32)
+    new_of_old = empty(3 * nt, dtype=np.int32)
     for k in range(nt):
         t = slot[k]
         j = first[t]
         for i in range(3):
             new_of_old[3 * t + (j + i) % 3] = 3 * k + i
-    new_tri = np.empty_like(tri)
-    new_he = np.empty_like(he)
+    new_tri = empty_like(tri)
+    new_he = empty_like(he)
     for e in range(3 * nt):
         g = new_of_old[e]
         new_tri[g] = rank[tri[e]]
@@ -390,10 +390,10 @@ def geometric_order(triangulation: Triangulation) -> Triangulation:
 @njit
 def _renumber_points(x, y, order, rep, rank):
     n = x.shape[0]
-    new_x = np.empty_like(x)
-    new_y = np.empty_like(y)
-    new_order = np.empty_like(order)
-    new_rep = np.empty_like(rep)
+    new_x = empty_like(x)
+    new_y = empty_like(y)
+    new_order = empty_like(order)
+    new_rep = empty_like(rep)
     for k in range(n):
         r = rank[k]
         new_x[r] = x[k]

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_borrowing, njit_helper
+from ._jit import empty, njit, njit_borrowing, njit_helper, zeros
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
@@ -61,7 +61,7 @@ def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
 def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
     nt = tri.shape[0] // 3
-    active = np.zeros(nt, dtype=np.uint8)
+    active = zeros(nt, dtype=np.uint8)
     # a triangle well inside the window (its corners farther from the edges
     # than the rounding of the centroid and of the shift) is in it; the
     # others take the exact test
@@ -167,7 +167,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
     """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
     that meet the window (the window's piece is exact once all of these are).
     ``active`` marks triangles known to meet it (their centroid is inside)."""
-    out = np.empty((16, 3))
+    out = empty((16, 3))
     n = 0
     slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
     for t in range(tri.shape[0] // 3):
@@ -186,7 +186,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         if n == out.shape[0]:
-            grown = np.empty((2 * n, 3))
+            grown = empty((2 * n, 3))
             for i in range(n):  # element by element: see delaunay._merge_sort_run
                 for j in range(3):
                     grown[i, j] = out[i, j]
@@ -240,7 +240,7 @@ def _faces_kernel(tri, he, partner, vertex_of, active, x, y) -> np.ndarray:
         e = partner[t]
         if active[t] and (e == -1 or t < he[e] // 3):
             count += 1
-    faces = np.empty((count, 4), dtype=np.int64)
+    faces = empty((count, 4), dtype=np.int64)
     k = 0
     for t in range(nt):
         if not active[t]:
@@ -266,7 +266,7 @@ def _vertex_numbering(order, rep):
     vertex of every input point).
     """
     n = order.shape[0]
-    is_vertex = np.zeros(n, dtype=np.bool_)
+    is_vertex = zeros(n, dtype=np.bool_)
     for k in range(n):
         r = rep[k]
         while rep[r] != r:  # chains appear only through points merged after the sweep
@@ -274,17 +274,17 @@ def _vertex_numbering(order, rep):
         rep[k] = r
         if r == k:
             is_vertex[order[k]] = True
-    input_to_vertex = np.empty(n, dtype=np.int64)  # first holds the vertex id of each vertex input
+    input_to_vertex = empty(n, dtype=np.int64)  # first holds the vertex id of each vertex input
     count = 0
     for i in range(n):
         if is_vertex[i]:
             input_to_vertex[i] = count
             count += 1
-    vertex_input = np.empty(count, dtype=np.int64)
+    vertex_input = empty(count, dtype=np.int64)
     for i in range(n):
         if is_vertex[i]:
             vertex_input[input_to_vertex[i]] = i
-    vertex_of_sorted = np.empty(n, dtype=np.int32)
+    vertex_of_sorted = empty(n, dtype=np.int32)
     for k in range(n):
         vertex_of_sorted[k] = input_to_vertex[order[rep[k]]]
     for k in range(n):

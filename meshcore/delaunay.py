@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit, njit_borrowing, njit_helper
+from ._jit import empty, full, njit, njit_borrowing, njit_helper
 from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
@@ -127,7 +127,7 @@ def _merge_sort_run(ids: np.ndarray, lo: int, hi: int, dist, x, y) -> None:
                 j -= 1
             ids[j + 1] = v
         return
-    buf = np.empty(n, dtype=ids.dtype)
+    buf = empty(n, dtype=ids.dtype)
     src = ids[lo:hi].copy()
     width = 1
     while width < n:
@@ -165,9 +165,9 @@ def _merge_sort_run(ids: np.ndarray, lo: int, hi: int, dist, x, y) -> None:
 def _local_distances(xy, ox, oy, cx, cy):
     """Local coordinates of every point and its squared distance to (cx, cy)."""
     n = xy.shape[0]
-    dist = np.empty(n)
-    x = np.empty(n)
-    y = np.empty(n)
+    dist = empty(n)
+    x = empty(n)
+    y = empty(n)
     for i in range(n):
         x[i] = xy[i, 0] - ox
         y[i] = xy[i, 1] - oy
@@ -294,7 +294,7 @@ def _flip(tri: np.ndarray, he: np.ndarray, e: int) -> None:
 @njit_helper
 def _push(stack: np.ndarray, n: int, value: int) -> np.ndarray:
     if n == stack.shape[0]:
-        grown = np.empty(2 * stack.shape[0], dtype=stack.dtype)
+        grown = empty(2 * stack.shape[0], dtype=stack.dtype)
         for i in range(n):  # element by element: see _merge_sort_run
             grown[i] = stack[i]
         stack = grown
@@ -529,10 +529,10 @@ def _delaunay_driver(xy: np.ndarray, ox: float, oy: float):
 @njit
 def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
     n = xy.shape[0]
-    empty = np.empty(0, dtype=np.int32)
-    x = np.empty(n)
-    y = np.empty(n)
-    rep = np.empty(n, dtype=np.int32)
+    no_faces = empty(0, dtype=np.int32)
+    x = empty(n)
+    y = empty(n)
+    rep = empty(n, dtype=np.int32)
     for k in range(n):
         i = order[k]
         x[k] = xy[i, 0] - ox
@@ -541,7 +541,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
         if k > 0 and x[k] == x[k - 1] and y[k] == y[k - 1]:
             rep[k] = rep[k - 1]
     if i2 < 0:
-        return x, y, order, rep, empty, empty
+        return x, y, order, rep, no_faces, no_faces
 
     # seeds in sorted positions (their first duplicate stands for them)
     s0 = -1
@@ -560,15 +560,15 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
         s1, s2 = s2, s1
 
     hash_size = max(1, int(math.ceil(math.sqrt(n))))
-    hull_prev = np.empty(n, dtype=np.int32)
-    hull_next = np.empty(n, dtype=np.int32)
-    hull_tri = np.empty(n, dtype=np.int32)
-    hull_hash = np.full(hash_size, -1, dtype=np.int32)
+    hull_prev = empty(n, dtype=np.int32)
+    hull_next = empty(n, dtype=np.int32)
+    hull_tri = empty(n, dtype=np.int32)
+    hull_hash = full(hash_size, -1, dtype=np.int32)
     max_tri = max(2 * n - 5, 1)
-    tri = np.empty(3 * max_tri, dtype=np.int32)
-    he = np.empty(3 * max_tri, dtype=np.int32)
-    stack = np.empty(n + 16, dtype=np.int32)  # see _legalize_sweep
-    deferred = np.empty(16, dtype=np.int32)
+    tri = empty(3 * max_tri, dtype=np.int32)
+    he = empty(3 * max_tri, dtype=np.int32)
+    stack = empty(n + 16, dtype=np.int32)  # see _legalize_sweep
+    deferred = empty(16, dtype=np.int32)
     n_deferred = 0
 
     hull_start = s0
@@ -668,8 +668,8 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
             he[e] = h - h % 3 + (2 - h % 3)
 
     if n_deferred > 0:
-        grown_tri = np.empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
-        grown_he = np.empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
+        grown_tri = empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
+        grown_he = empty(3 * (nt + 2 * n_deferred), dtype=np.int32)
         for i in range(m):
             grown_tri[i] = tri[i]
             grown_he[i] = he[i]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import njit, njit_helper
+from ._jit import empty, njit, njit_helper, zeros
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
@@ -45,7 +45,7 @@ def flippable(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, 
 def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
     """Score of every triangle of a half-edge triangulation."""
     nt = tri.shape[0] // 3
-    q = np.empty(nt)
+    q = empty(nt)
     for t in range(nt):
         a = tri[3 * t]
         b = tri[3 * t + 1]
@@ -58,8 +58,8 @@ def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
 def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
     q = triangle_scores(measure, x, y, tri)
     m = tri.shape[0]
-    queued = np.zeros(m, dtype=np.uint8)
-    stack = np.empty(m, dtype=np.int32)
+    queued = zeros(m, dtype=np.uint8)
+    stack = empty(m, dtype=np.int32)
     n = 0
     for e in range(m - 1, -1, -1):  # the stack pops the first edge first
         if he[e] > e and active[e // 3] and active[he[e] // 3]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, full, njit, njit_helper
 from ._order import order_ties_by, sortable_keys
 from .delaunay import Triangulation, _next, _prev
 from .flip import flippable, triangle_score, triangle_scores
@@ -49,8 +49,8 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
     q = triangle_scores(triangle_measure, x, y, tri)
     m = tri.shape[0]
     capacity = m // 8 + 16
-    edges = np.empty(capacity, dtype=np.int32)
-    gains = np.empty(capacity)
+    edges = empty(capacity, dtype=np.int32)
+    gains = empty(capacity)
     n = 0
     for e in range(m):
         f = he[e]
@@ -79,8 +79,8 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
         if gain > 0.0:
             if n == capacity:
                 capacity *= 2
-                grown_edges = np.empty(capacity, dtype=np.int32)
-                grown_gains = np.empty(capacity)
+                grown_edges = empty(capacity, dtype=np.int32)
+                grown_gains = empty(capacity)
                 for i in range(n):  # element by element: see delaunay._merge_sort_run
                     grown_edges[i] = edges[i]
                     grown_gains[i] = gains[i]
@@ -94,7 +94,7 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
 
 @njit
 def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
-    partner = np.full(nt, -1, dtype=np.int32)
+    partner = full(nt, -1, dtype=np.int32)
     for k in range(order.shape[0]):
         e = edges[order[k]]
         f = he[e]

@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, njit, njit_helper
 from .errors import InvalidInputError
 
 __all__ = ["NODES_PER_FACE", "linear_nodes", "node_deviations", "nodes_from_deviations"]
@@ -226,7 +226,7 @@ def _linear_nodes_kernel(faces: np.ndarray, z: np.ndarray, out: np.ndarray) -> N
 
 @njit
 def _deviations_kernel(faces: np.ndarray, z: np.ndarray, nodes: np.ndarray, out: np.ndarray) -> None:
-    row = np.empty(NODES_PER_FACE)
+    row = empty(NODES_PER_FACE)
     for f in range(faces.shape[0]):
         for j in range(NODES_PER_FACE):
             row[j] = np.nan

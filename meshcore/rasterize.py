@@ -27,7 +27,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, njit, njit_helper
 from .errors import InvalidInputError
 from .interpolate import (
     _bilinear_inverse,
@@ -116,8 +116,8 @@ def _rasterize_kernel(
     ny, nx = out.shape
     inv_res = 1.0 / resolution
     n_f = faces.shape[0]
-    xy = np.empty((_CHUNK, 8))
-    zs = np.empty((_CHUNK, 4))
+    xy = empty((_CHUNK, 8))
+    zs = empty((_CHUNK, 4))
     for start in range(0, n_f, _CHUNK):
         m = min(_CHUNK, n_f - start)
         _gather_chunk(vertices, faces, z, start, m, xy, zs)
@@ -280,7 +280,7 @@ def rasterize(
 @njit
 def _within_max_edge(vertices: np.ndarray, faces: np.ndarray, max_edge2: float) -> np.ndarray:
     """Whether each face's longest edge passes :func:`_rasterize_kernel`'s test (the same arithmetic)."""
-    out = np.empty(faces.shape[0], dtype=np.bool_)
+    out = empty(faces.shape[0], dtype=np.bool_)
     for f in range(faces.shape[0]):
         a = faces[f, 0]
         b = faces[f, 1]

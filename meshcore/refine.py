@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, full, njit, njit_helper, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays
 
@@ -114,9 +114,9 @@ def _cut_face(px: np.ndarray, py: np.ndarray, ids: np.ndarray, edge: np.ndarray,
     does not can only come from rounding on a face thinner than it).  The
     polygon left stays convex.
     """
-    alive = np.ones(m, dtype=np.bool_)
-    nxt = np.empty(m, dtype=np.int64)
-    prv = np.empty(m, dtype=np.int64)
+    alive = full(m, True, dtype=np.bool_)
+    nxt = empty(m, dtype=np.int64)
+    prv = empty(m, dtype=np.int64)
     for i in range(m):
         nxt[i] = (i + 1) % m
         prv[i] = (i - 1) % m
@@ -160,7 +160,7 @@ def _long_faces(vertices: np.ndarray, faces: np.ndarray, longest: float) -> np.n
     """The faces with an edge longer than ``longest`` (one pass; the squared length is
     the same bits from either end, so no order is needed to decide)."""
     limit = longest * longest
-    mark = np.zeros(faces.shape[0], dtype=np.bool_)
+    mark = zeros(faces.shape[0], dtype=np.bool_)
     count = 0
     for f in range(faces.shape[0]):
         nc = 4 if faces[f, 3] >= 0 else 3
@@ -173,7 +173,7 @@ def _long_faces(vertices: np.ndarray, faces: np.ndarray, longest: float) -> np.n
                 mark[f] = True
         if mark[f]:
             count += 1
-    out = np.empty(count, dtype=np.int64)
+    out = empty(count, dtype=np.int64)
     m = 0
     for f in range(faces.shape[0]):
         if mark[f]:
@@ -187,7 +187,7 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
     """The new points and the triangles of the faces ``cut`` (their parents alongside)."""
     n_v = vertices.shape[0]
     # each cut face's edges' pieces, once: the passes below take them from here
-    pieces = np.ones((cut.shape[0], 4), dtype=np.int64)
+    pieces = full((cut.shape[0], 4), 1, dtype=np.int64)
     extra = 0
     most = 0
     n_tris = 0
@@ -201,16 +201,16 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
             size += pieces[c, k] - 1
         most = max(most, size)
         n_tris += size - 2
-    new_xy = np.empty((extra, 2))
-    new_ends = np.empty((extra, 2), dtype=np.int64)
-    new_t = np.empty(extra)
+    new_xy = empty((extra, 2))
+    new_ends = empty((extra, 2), dtype=np.int64)
+    new_t = empty(extra)
     # each split edge once: (first end, other end) -> its first new point, in a small open-addressed table
     size_table = 1
     while size_table < 4 * max(extra, 1):
         size_table *= 2
-    key_s = np.full(size_table, -1, dtype=np.int64)
-    key_e = np.empty(size_table, dtype=np.int64)
-    value = np.empty(size_table, dtype=np.int64)
+    key_s = full(size_table, -1, dtype=np.int64)
+    key_e = empty(size_table, dtype=np.int64)
+    value = empty(size_table, dtype=np.int64)
     used = 0
     for c in range(cut.shape[0]):
         f = cut[c]
@@ -236,14 +236,14 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
                         new_ends[used, 1] = e
                         new_t[used] = t
                         used += 1
-    out = np.empty((n_tris, 4), dtype=np.int64)
-    parent = np.empty(n_tris, dtype=np.int64)
-    px = np.empty(most)
-    py = np.empty(most)
-    ids = np.empty(most, dtype=np.int64)
-    edge = np.empty(most, dtype=np.int64)
-    corner = np.empty(most, dtype=np.bool_)
-    tris = np.empty((max(most - 2, 1), 3), dtype=np.int64)
+    out = empty((n_tris, 4), dtype=np.int64)
+    parent = empty(n_tris, dtype=np.int64)
+    px = empty(most)
+    py = empty(most)
+    ids = empty(most, dtype=np.int64)
+    edge = empty(most, dtype=np.int64)
+    corner = empty(most, dtype=np.bool_)
+    tris = empty((max(most - 2, 1), 3), dtype=np.int64)
     m_out = 0
     failed = 0
     for c in range(cut.shape[0]):

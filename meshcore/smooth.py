@@ -53,7 +53,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, full, njit, njit_helper, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
@@ -231,10 +231,10 @@ def _knn_kernel(
     coordinates beside them, so a candidate farther than the last is dropped
     without a load and ties compare without one.
     """
-    bx = np.empty(k)
-    by = np.empty(k)
-    bd = np.empty(k)
-    bi = np.empty(k, dtype=np.int64)
+    bx = empty(k)
+    by = empty(k)
+    bd = empty(k)
+    bi = empty(k, dtype=np.int64)
     for q in range(queries.shape[0]):
         qx = queries[q, 0]
         qy = queries[q, 1]
@@ -292,7 +292,7 @@ def _bucket_items(key: np.ndarray, start: np.ndarray, xy: np.ndarray, sxy: np.nd
     """The points bucket by bucket, in input order within each (a stable counting
     sort); their coordinates copied to ``sxy`` in that order."""
     fill = start[:-1].copy()
-    items = np.empty(key.shape[0], dtype=np.int64)
+    items = empty(key.shape[0], dtype=np.int64)
     for p in range(key.shape[0]):
         t = fill[key[p]]
         items[t] = p
@@ -438,9 +438,9 @@ class _KrigingScratch(NamedTuple):
 @njit
 def _kriging_scratch(k: int) -> _KrigingScratch:
     return _KrigingScratch(
-        np.empty((_LANES, k)), np.empty((_LANES, k)), np.empty((_LANES, k + 3)), np.empty(_LANES),
-        np.empty((k, k, _LANES)), np.empty((k, 4, _LANES)), np.empty((k, _LANES)), np.empty((16, _LANES)),
-        np.empty((2, k * k)), np.empty((_LANES, k * k)), np.empty(_LANES),
+        empty((_LANES, k)), empty((_LANES, k)), empty((_LANES, k + 3)), empty(_LANES),
+        empty((k, k, _LANES)), empty((k, 4, _LANES)), empty((k, _LANES)), empty((16, _LANES)),
+        empty((2, k * k)), empty((_LANES, k * k)), empty(_LANES),
     )
 
 
@@ -769,10 +769,10 @@ def _nodes_kriged_kernel(
     most = 0
     for s in range(centres.shape[0]):
         most = max(most, first[s + 1] - first[s])
-    qx = np.empty(most)
-    qy = np.empty(most)
-    values = np.empty(most)
-    block = np.empty((3, most * k))
+    qx = empty(most)
+    qy = empty(most)
+    values = empty(most)
+    block = empty((3, most * k))
     scale = _LAG_SCALE[model] * inv_range
     s0 = 0
     while s0 < centres.shape[0]:
@@ -877,7 +877,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
     """:func:`_layout`: every edge found once by bucketing its slots by their first end."""
     n_f = faces.shape[0]
     n_v = vertices.shape[0]
-    start = np.zeros(n_v + 1, dtype=np.int64)
+    start = zeros(n_v + 1, dtype=np.int64)
     n_tri = 0
     for f in range(n_f):
         nc = 4 if faces[f, 3] >= 0 else 3
@@ -890,8 +890,8 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
     for v in range(n_v):
         start[v + 1] += start[v]
     fill = start[:-1].copy()
-    other = np.empty(start[n_v], dtype=np.int64)
-    slot = np.empty(start[n_v], dtype=np.int64)
+    other = empty(start[n_v], dtype=np.int64)
+    slot = empty(start[n_v], dtype=np.int64)
     for f in range(n_f):
         nc = 4 if faces[f, 3] >= 0 else 3
         for k in range(nc):
@@ -902,7 +902,7 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
             other[fill[a]] = e if forward else s
             slot[fill[a]] = f * 4 + k
             fill[a] += 1
-    edge = np.full(start[n_v], -1, dtype=np.int64)
+    edge = full(start[n_v], -1, dtype=np.int64)
     n_e = 0
     for v in range(n_v):
         for i in range(start[v], start[v + 1]):
@@ -914,10 +914,10 @@ def _layout_kernel(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray)
                 n_e += 1
     n_quad = n_f - n_tri
     n_nodes = 2 * n_e + n_tri + 4 * n_quad
-    positions = np.empty((n_nodes, 2))
-    corners = np.empty((n_nodes, 4), dtype=np.int32)
-    pattern = np.empty(n_nodes, dtype=np.uint8)
-    take = np.empty((n_f, 12), dtype=np.int32)  # every slot written: a node, or -1 past a triangle's
+    positions = empty((n_nodes, 2))
+    corners = empty((n_nodes, 4), dtype=np.int32)
+    pattern = empty(n_nodes, dtype=np.uint8)
+    take = empty((n_f, 12), dtype=np.int32)  # every slot written: a node, or -1 past a triangle's
     third = 1.0 / 3.0
     placed = 0  # the edges numbered below this have their nodes (edges are numbered in slot order)
     for v in range(n_v):
@@ -997,8 +997,8 @@ def _cells_kernel(positions: np.ndarray, cell: float, i0: int, j0: int, blocks_x
     by a counting sort; returns the cells' ``(i, j)`` and their first nodes.
     ``(i0, j0)``: the lowest cell of any node (keys count from it)."""
     n = positions.shape[0]
-    key = np.empty(n, dtype=np.int64)
-    start = np.zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
+    key = empty(n, dtype=np.int64)
+    start = zeros(blocks_x * blocks_y * 64 + 1, dtype=np.int64)
     for p in range(n):
         kp = _cell_key(positions[p, 0], positions[p, 1], cell, i0, j0, blocks_x)
         key[p] = kp
@@ -1008,7 +1008,7 @@ def _cells_kernel(positions: np.ndarray, cell: float, i0: int, j0: int, blocks_x
         if start[b + 1] > 0:
             cells += 1
         start[b + 1] += start[b]
-    out = np.empty((cells, 3), dtype=np.int64)  # i, j, first node
+    out = empty((cells, 3), dtype=np.int64)  # i, j, first node
     pos = start[:-1].copy()
     for p in range(n):
         order[pos[key[p]]] = p
@@ -1070,10 +1070,10 @@ def _sparse_cells(positions: NDArray[np.float64], cell: float):
 def _gather_nodes(order: np.ndarray, positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, take: np.ndarray):
     """The nodes in ``order`` (their positions, corners and patterns), and ``take`` renumbered to it in place."""
     n = order.shape[0]
-    renumber = np.empty(n, dtype=np.int32)
-    out_positions = np.empty((n, 2))
-    out_corners = np.empty((n, 4), dtype=np.int32)
-    out_pattern = np.empty(n, dtype=np.uint8)
+    renumber = empty(n, dtype=np.int32)
+    out_positions = empty((n, 2))
+    out_corners = empty((n, 4), dtype=np.int32)
+    out_pattern = empty(n, dtype=np.uint8)
     for t in range(n):
         p = order[t]
         renumber[p] = t
@@ -1268,9 +1268,9 @@ def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -
     size = 1
     while size < 36 * centres.shape[0]:
         size *= 2
-    key_i = np.empty(size, dtype=np.int64)
-    key_j = np.empty(size, dtype=np.int64)
-    full = np.zeros(size, dtype=np.bool_)
+    key_i = empty(size, dtype=np.int64)
+    key_j = empty(size, dtype=np.int64)
+    full = zeros(size, dtype=np.bool_)
     for c in range(centres.shape[0]):
         ci = np.int64(math.floor(centres[c, 0] / side))
         cj = np.int64(math.floor(centres[c, 1] / side))
@@ -1284,7 +1284,7 @@ def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -
                 full[h] = True
                 key_i[h] = i
                 key_j[h] = j
-    take = np.empty(vertices.shape[0], dtype=np.int64)
+    take = empty(vertices.shape[0], dtype=np.int64)
     m = 0
     for v in range(vertices.shape[0]):
         i = np.int64(math.floor(vertices[v, 0] / side))
@@ -1580,13 +1580,13 @@ def _loo_errors_kernel(
     as the smooth surface does (:func:`_dual_solve`)."""
     k = neighbours.shape[1]
     room = _kriging_scratch(k)
-    centres = np.empty((sample.shape[0], 2))
+    centres = empty((sample.shape[0], 2))
     for s in range(sample.shape[0]):
         centres[s, 0] = xy[sample[s], 0]
         centres[s, 1] = xy[sample[s], 1]
-    origin = np.zeros(1)
-    value = np.empty(1)
-    block = np.empty((3, k))
+    origin = zeros(1)
+    value = empty(1)
+    block = empty((3, k))
     scale = _LAG_SCALE[model] * inv_range
     s0 = 0
     while s0 < sample.shape[0]:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import empty, full, njit, njit_helper, zeros
 from .delaunay import bbox_origin
 from .errors import InvalidInputError, InvalidMeshError
 from .mesh import Mesh
@@ -37,14 +37,14 @@ def _hull_kernel(x, y, order) -> np.ndarray:
     make every later turn test zero, so nothing behind them could be popped);
     each place on the hull then lists every point there, side by side."""
     n0 = order.shape[0]
-    run = np.empty(n0 + 1, dtype=np.int64)  # run[j]: where the j-th distinct place starts in ``order``
+    run = empty(n0 + 1, dtype=np.int64)  # run[j]: where the j-th distinct place starts in ``order``
     n = 0
     for i in range(n0):
         if i == 0 or x[order[i]] != x[order[i - 1]] or y[order[i]] != y[order[i - 1]]:
             run[n] = i
             n += 1
     run[n] = n0
-    out = np.empty(2 * n + 1, dtype=np.int64)  # places, as indices into ``run``
+    out = empty(2 * n + 1, dtype=np.int64)  # places, as indices into ``run``
     k = 0
     for j in range(n):  # lower chain
         p = order[run[j]]
@@ -71,7 +71,7 @@ def _hull_kernel(x, y, order) -> np.ndarray:
     total = 0
     for t in range(m):
         total += run[out[t] + 1] - run[out[t]]
-    hull = np.empty(total, dtype=np.int64)
+    hull = empty(total, dtype=np.int64)
     h = 0
     for t in range(m):
         for i in range(run[out[t]], run[out[t] + 1]):
@@ -129,9 +129,9 @@ def _hull_filter(x, y) -> np.ndarray:
     in eight directions (Akl-Toussaint): a superset of the hull, found in one pass."""
     n = x.shape[0]
     if n == 0:
-        return np.empty(0, dtype=np.int64)
-    ext = np.zeros(8, dtype=np.int64)
-    best = np.full(8, -np.inf)
+        return empty(0, dtype=np.int64)
+    ext = zeros(8, dtype=np.int64)
+    best = full(8, -np.inf)
     for i in range(n):
         xi = x[i]
         yi = y[i]
@@ -140,7 +140,7 @@ def _hull_filter(x, y) -> np.ndarray:
             if v > best[k]:
                 best[k] = v
                 ext[k] = i
-    poly = np.empty(8, dtype=np.int64)
+    poly = empty(8, dtype=np.int64)
     m = 0
     for k in range(8):
         if m == 0 or (ext[k] != poly[m - 1] and ext[k] != poly[0]):
@@ -152,9 +152,9 @@ def _hull_filter(x, y) -> np.ndarray:
     # the edges' inward unit normals, in coordinates about the first vertex
     ox = x[poly[0]]
     oy = y[poly[0]]
-    normal_x = np.empty(m)
-    normal_y = np.empty(m)
-    offset = np.empty(m)
+    normal_x = empty(m)
+    normal_y = empty(m)
+    offset = empty(m)
     size = 0.0
     for k in range(m):
         a = poly[k - 1 if k else m - 1]
@@ -171,7 +171,7 @@ def _hull_filter(x, y) -> np.ndarray:
         normal_y[k] = ex / length
         offset[k] = normal_x[k] * (x[a] - ox) + normal_y[k] * (y[a] - oy)
     margin = 1e-6 * size + 1e-12 * (abs(ox) + abs(oy) + size)
-    keep = np.empty(n, dtype=np.int64)
+    keep = empty(n, dtype=np.int64)
     count = 0
     for i in range(n):
         if bx_lo <= x[i] <= bx_hi and by_lo <= y[i] <= by_hi:

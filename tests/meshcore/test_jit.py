@@ -198,3 +198,33 @@ def test_a_kernel_that_kernels_call_is_compiled_for_them_as_a_helper(tmp_path, m
     assert fresh_total(np.array([1.0, 1.0])) == 2.0
     assert fresh_total.stats.cache_hits and not fresh_total.stats.cache_misses
     assert fresh.signatures == []
+
+
+def _new_arrays(n, like):
+    a = _jit.empty(n, dtype=np.int32)
+    for i in range(n):
+        a[i] = 3 * i
+    b = _jit.zeros((n, 3))
+    c = _jit.full(n, -1, dtype=np.int64)
+    d = _jit.full((2, n), True, dtype=np.bool_)
+    e = _jit.empty_like(like)
+    e[:] = like
+    f = _jit.full(n, 0.5)
+    return a, b, c, d, e, f
+
+
+def test_arrays_created_in_kernels_are_numpys(tmp_path, monkeypatch):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    new_arrays = _jit.njit(_new_arrays)
+    like = np.arange(6.0).reshape(2, 3)
+    a, b, c, d, e, f = new_arrays(4, np.asfortranarray(like))
+    np.testing.assert_array_equal(a, np.array([0, 3, 6, 9], dtype=np.int32))
+    assert a.dtype == np.int32 and b.dtype == np.float64 and c.dtype == np.int64 and d.dtype == np.bool_
+    np.testing.assert_array_equal(b, np.zeros((4, 3)))
+    np.testing.assert_array_equal(c, np.full(4, -1))
+    assert d.shape == (2, 4) and d.all()
+    np.testing.assert_array_equal(e, like)
+    assert e.flags.f_contiguous and e.dtype == like.dtype
+    np.testing.assert_array_equal(f, np.full(4, 0.5))
+    empties = new_arrays(0, like)
+    assert [x.shape for x in empties] == [(0,), (0, 3), (0,), (2, 0), (2, 3), (0,)]
