@@ -17,6 +17,7 @@ import functools
 import hashlib
 import importlib.abc
 import importlib.util
+import operator
 import pickle
 import sys
 from pathlib import Path
@@ -30,12 +31,13 @@ from numba.core.compiler_lock import require_global_compiler_lock
 from numba.core.imputils import impl_ret_new_ref, lower_builtin
 from numba.core.registry import CPUDispatcher
 from numba.core.typing.npydecl import parse_dtype, parse_shape
+from numba.cpython.builtins import do_minmax
 from numba.extending import intrinsic, type_callable
 from numba.np.arrayobj import _empty_nd_impl, _parse_shape
 
 __all__ = [
-    "njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "empty", "zeros", "full", "empty_like",
-    "drop_stale_kernels", "compiled_on_disk",
+    "njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "empty", "zeros", "full", "empty_like", "smaller",
+    "larger", "drop_stale_kernels", "compiled_on_disk",
 ]
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -561,6 +563,43 @@ def _lower_empty_like(context, builder, signature, args):
     source = context.make_array(signature.args[0])(context, builder, value=args[0])
     array = _allocate(context, builder, array_type, cgutils.unpack_tuple(builder, source.shape))
     return _new_reference(context, builder, array_type, array)
+
+
+# The smaller and the larger of numbers in kernels.  numba compiles ``min``
+# and ``max`` as functions of their own for each combination of types, as it
+# does ``np.empty``: some ten per compiling process.
+
+
+def smaller(a, b):
+    """``min(a, b)`` of two numbers, in place in a kernel: ``b`` if it is
+    smaller, else ``a`` (a NaN ``a`` stays, as with ``min``)."""
+    return min(a, b)
+
+
+def larger(a, b):
+    """``max(a, b)`` of two numbers, in place in a kernel."""
+    return max(a, b)
+
+
+@type_callable(smaller)
+@type_callable(larger)
+def _type_extreme(context):
+    def typer(a, b):
+        if isinstance(a, types.Number) and isinstance(b, types.Number):
+            return context.unify_types(a, b)
+        return None
+
+    return typer
+
+
+@lower_builtin(smaller, types.Number, types.Number)
+def _lower_smaller(context, builder, signature, args):
+    return do_minmax(context, builder, list(signature.args), list(args), operator.lt)
+
+
+@lower_builtin(larger, types.Number, types.Number)
+def _lower_larger(context, builder, signature, args):
+    return do_minmax(context, builder, list(signature.args), list(args), operator.gt)
 
 
 #: the name of the file, beside the cached kernels, that says which sources they were compiled from

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, empty_like, njit, njit_helper, zeros
+from ._jit import empty, empty_like, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
@@ -47,7 +47,7 @@ def _merge_sort_ties(order: np.ndarray, tie: np.ndarray, lo: int, hi: int) -> No
     width = 1
     while width < n:
         for start in range(0, n, 2 * width):
-            _merge_runs(src_o, src_t, dst_o, dst_t, start, min(start + width, n), min(start + 2 * width, n))
+            _merge_runs(src_o, src_t, dst_o, dst_t, start, smaller(start + width, n), smaller(start + 2 * width, n))
         src_o, dst_o = dst_o, src_o
         src_t, dst_t = dst_t, src_t
         width *= 2
@@ -155,7 +155,7 @@ def _block_cell(v: float, origin: float, side: float, n: int) -> int:
         return 0
     if t >= n:
         return n - 1
-    return int(t)
+    return np.int64(t)
 
 
 @njit
@@ -222,14 +222,14 @@ def _lexicographic_keys(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     x_lo = x_hi = ux[0]  # a loop, not ux.min(): numba compiles a reduction per array type
     y_lo = y_hi = uy[0]
     for i in range(1, n):
-        x_lo = min(x_lo, ux[i])
-        x_hi = max(x_hi, ux[i])
-        y_lo = min(y_lo, uy[i])
-        y_hi = max(y_hi, uy[i])
+        x_lo = smaller(x_lo, ux[i])
+        x_hi = larger(x_hi, ux[i])
+        y_lo = smaller(y_lo, uy[i])
+        y_hi = larger(y_hi, uy[i])
     x_bits = _bit_length(x_hi - x_lo)
     y_bits = _bit_length(y_hi - y_lo)
     room = 64 - x_bits  # bits of the key below x's
-    drop = max(0, y_bits - room)  # trailing bits of y that do not fit
+    drop = larger(0, y_bits - room)  # trailing bits of y that do not fit
     for i in range(n):
         high = (ux[i] - x_lo) << np.uint64(room) if room < 64 else np.uint64(0)
         low = (uy[i] - y_lo) >> np.uint64(drop) if room > 0 else np.uint64(0)

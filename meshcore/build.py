@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, njit, njit_borrowing, njit_helper, zeros
+from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zeros
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
@@ -67,7 +67,7 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     # others take the exact test
     largest = 0.0
     for i in range(x.shape[0]):
-        largest = max(largest, max(abs(x[i]), abs(y[i])))
+        largest = larger(largest, larger(abs(x[i]), abs(y[i])))
     margin = 1e-12 * (largest + abs(ox) + abs(oy) + 1.0)
     in_x_lo = x_lo - ox + margin
     in_x_hi = x_hi - ox - margin
@@ -79,8 +79,8 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
         k = tri[3 * t + 2]
         ax, ay, bx, by, cx, cy = x[i], y[i], x[j], y[j], x[k], y[k]
         if (
-            min(ax, min(bx, cx)) > in_x_lo and max(ax, max(bx, cx)) < in_x_hi
-            and min(ay, min(by, cy)) > in_y_lo and max(ay, max(by, cy)) < in_y_hi
+            smaller(ax, smaller(bx, cx)) > in_x_lo and larger(ax, larger(bx, cx)) < in_x_hi
+            and smaller(ay, smaller(by, cy)) > in_y_lo and larger(ay, larger(by, cy)) < in_y_hi
         ):
             active[t] = 1
             continue
@@ -106,10 +106,10 @@ def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
 def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
     """Whether the counter-clockwise triangle abc meets the closed box (conservative:
     near misses within ``slack`` count as meeting).  Infinite box sides are fine."""
-    x_lo = max(x_lo, min(ax, min(bx, cx)) - slack)
-    x_hi = min(x_hi, max(ax, max(bx, cx)) + slack)
-    y_lo = max(y_lo, min(ay, min(by, cy)) - slack)
-    y_hi = min(y_hi, max(ay, max(by, cy)) + slack)
+    x_lo = larger(x_lo, smaller(ax, smaller(bx, cx)) - slack)
+    x_hi = smaller(x_hi, larger(ax, larger(bx, cx)) + slack)
+    y_lo = larger(y_lo, smaller(ay, smaller(by, cy)) - slack)
+    y_hi = smaller(y_hi, larger(ay, larger(by, cy)) + slack)
     if x_lo > x_hi or y_lo > y_hi:
         return False
     # the box is now finite: separated only when it lies right of an edge

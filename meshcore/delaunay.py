@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, njit, njit_borrowing, njit_helper
+from ._jit import empty, full, larger, njit, njit_borrowing, njit_helper, smaller
 from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
@@ -96,7 +96,7 @@ def _pseudo_angle_key(dx: float, dy: float, size: int) -> int:
         return 0
     p = dx / s
     a = (3.0 - p) / 4.0 if dy > 0.0 else (1.0 + p) / 4.0
-    k = int(math.floor(a * size))
+    k = np.int64(math.floor(a * size))
     return k % size
 
 
@@ -132,8 +132,8 @@ def _merge_sort_run(ids: np.ndarray, lo: int, hi: int, dist, x, y) -> None:
     width = 1
     while width < n:
         for start in range(0, n, 2 * width):
-            mid = min(start + width, n)
-            end = min(start + 2 * width, n)
+            mid = smaller(start + width, n)
+            end = smaller(start + 2 * width, n)
             i = start
             j = mid
             k = start
@@ -456,10 +456,10 @@ def _seed_triangle(xy, ox, oy) -> tuple[int, int, int]:
     minx = maxx = xy[0, 0]  # a loop, not xy[:, 0].min(): numba compiles a reduction per array type
     miny = maxy = xy[0, 1]
     for i in range(1, n):
-        minx = min(minx, xy[i, 0])
-        maxx = max(maxx, xy[i, 0])
-        miny = min(miny, xy[i, 1])
-        maxy = max(maxy, xy[i, 1])
+        minx = smaller(minx, xy[i, 0])
+        maxx = larger(maxx, xy[i, 0])
+        miny = smaller(miny, xy[i, 1])
+        maxy = larger(maxy, xy[i, 1])
     minx -= ox
     maxx -= ox
     miny -= oy
@@ -559,12 +559,12 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
     if orient2d(x[s0], y[s0], x[s1], y[s1], x[s2], y[s2]) > 0:
         s1, s2 = s2, s1
 
-    hash_size = max(1, int(math.ceil(math.sqrt(n))))
+    hash_size = larger(1, np.int64(math.ceil(math.sqrt(n))))
     hull_prev = empty(n, dtype=np.int32)
     hull_next = empty(n, dtype=np.int32)
     hull_tri = empty(n, dtype=np.int32)
     hull_hash = full(hash_size, -1, dtype=np.int32)
-    max_tri = max(2 * n - 5, 1)
+    max_tri = larger(2 * n - 5, 1)
     tri = empty(3 * max_tri, dtype=np.int32)
     he = empty(3 * max_tri, dtype=np.int32)
     stack = empty(n + 16, dtype=np.int32)  # see _legalize_sweep

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import empty, njit, njit_helper, zeros
+from ._jit import empty, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
@@ -69,7 +69,7 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
     flips = 0
     while n > 0:
         n -= 1
-        e = int(stack[n])
+        e = np.int64(stack[n])
         queued[e] = 0
         f = he[e]
         # a queued slot may hold another edge by now (flips around it move
@@ -78,7 +78,7 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
             continue
         t1 = e // 3
         t2 = f // 3
-        current = min(q[t1], q[t2])
+        current = smaller(q[t1], q[t2])
         a = tri[e]
         b = tri[_next(e)]
         c = tri[_prev(e)]
@@ -108,7 +108,7 @@ def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
             h = he[g]
             if h < 0 or not (active[g // 3] and active[h // 3]):
                 continue
-            k = min(g, h)
+            k = smaller(g, h)
             if queued[k] == 0:
                 queued[k] = 1
                 stack[n] = k

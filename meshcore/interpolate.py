@@ -52,7 +52,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface, parse_option
@@ -193,8 +193,8 @@ def _bilinear_inverse(
             break
         u -= (jvy * rx - jvx * ry) / det
         v -= (jux * ry - juy * rx) / det
-    u = min(max(u, 0.0), 1.0)
-    v = min(max(v, 0.0), 1.0)
+    u = smaller(larger(u, 0.0), 1.0)
+    v = smaller(larger(v, 0.0), 1.0)
     return u, v
 
 
@@ -278,10 +278,10 @@ def _face_bbox(
     ymax = ymin
     for k in range(1, n):
         v = faces[f, k]
-        xmin = min(xmin, vertices[v, 0])
-        xmax = max(xmax, vertices[v, 0])
-        ymin = min(ymin, vertices[v, 1])
-        ymax = max(ymax, vertices[v, 1])
+        xmin = smaller(xmin, vertices[v, 0])
+        xmax = larger(xmax, vertices[v, 0])
+        ymin = smaller(ymin, vertices[v, 1])
+        ymax = larger(ymax, vertices[v, 1])
     return _grow_bbox(xmin, ymin, xmax, ymax)
 
 
@@ -370,8 +370,8 @@ def _bucket_range(
     top = n - 1.0
     a = (lo - origin) * inv_size
     b = (hi - origin) * inv_size
-    i = int(min(a, top)) if a > 0.0 else 0
-    j = int(min(b, top)) if b > 0.0 else 0
+    i = np.int64(smaller(a, top)) if a > 0.0 else 0
+    j = np.int64(smaller(b, top)) if b > 0.0 else 0
     return i, j
 
 
@@ -417,8 +417,8 @@ def _locate_kernel(
         out_face[k] = -1
         if not (x >= xmin and x <= xmax and y >= ymin and y <= ymax):
             continue  # also NaN
-        i = min(int((x - xmin) * inv_dx), nbx - 1)
-        j = min(int((y - ymin) * inv_dy), nby - 1)
+        i = smaller(np.int64((x - xmin) * inv_dx), nbx - 1)
+        j = smaller(np.int64((y - ymin) * inv_dy), nby - 1)
         b = j * nbx + i
         for s in range(start[b], start[b + 1]):
             f = items[s]

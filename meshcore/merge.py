@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, njit, njit_helper
+from ._jit import empty, full, larger, njit, njit_helper, smaller
 from ._order import order_ties_by, sortable_keys
 from .delaunay import Triangulation, _next, _prev
 from .flip import flippable, triangle_score, triangle_scores
@@ -63,12 +63,12 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
         # each corner's coordinates read once (every score and the convexity test share them)
         xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
         sq = _quad_score(quad_measure, xa, ya, xd, yd, xb, yb, xc, yc)
-        best = min(q[e // 3], q[f // 3])
+        best = smaller(q[e // 3], q[f // 3])
         if sq <= best:
             continue
-        best = max(
+        best = larger(
             best,
-            min(
+            smaller(
                 triangle_score(triangle_measure, xa, ya, xd, yd, xc, yc),
                 triangle_score(triangle_measure, xb, yb, xc, yc, xd, yd),
             ),

@@ -423,9 +423,12 @@ def _incircle_sos_exact(ax, ay, bx, by, cx, cy, dx, dy) -> int:
         return s
     # the points in lexicographic order, equal points in argument order: the
     # rank of each is how many come before it
-    ra = int(lex_before(bx, by, ax, ay)) + int(lex_before(cx, cy, ax, ay)) + int(lex_before(dx, dy, ax, ay))
-    rb = int(not lex_before(bx, by, ax, ay)) + int(lex_before(cx, cy, bx, by)) + int(lex_before(dx, dy, bx, by))
-    rc = int(not lex_before(cx, cy, ax, ay)) + int(not lex_before(cx, cy, bx, by)) + int(lex_before(dx, dy, cx, cy))
+    ra = (np.int64(lex_before(bx, by, ax, ay)) + np.int64(lex_before(cx, cy, ax, ay))
+          + np.int64(lex_before(dx, dy, ax, ay)))
+    rb = (np.int64(not lex_before(bx, by, ax, ay)) + np.int64(lex_before(cx, cy, bx, by))
+          + np.int64(lex_before(dx, dy, bx, by)))
+    rc = (np.int64(not lex_before(cx, cy, ax, ay)) + np.int64(not lex_before(cx, cy, bx, by))
+          + np.int64(lex_before(dx, dy, cx, cy)))
     for rank in range(4):
         if rank == ra:
             c = orient2d(bx, by, cx, cy, dx, dy)

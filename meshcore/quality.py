@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 
 __all__ = [
@@ -70,7 +70,7 @@ def _normalised(ax, ay, bx, by, cx, cy):
     uy = by - ay
     vx = cx - ax
     vy = cy - ay
-    s = max(max(abs(ux), abs(uy)), max(abs(vx), abs(vy)))
+    s = larger(larger(abs(ux), abs(uy)), larger(abs(vx), abs(vy)))
     if s == 0.0 or not math.isfinite(s):
         return 0.0, 0.0, 0.0, 0.0
     if s > 1e-290:  # multiply by the inverse: cheaper, and exact enough
@@ -88,7 +88,7 @@ def s1_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) 
     sa = _angle_score(ux, uy, vx, vy)
     sb = _angle_score(vx - ux, vy - uy, -ux, -uy)
     sc = _angle_score(-vx, -vy, ux - vx, uy - vy)
-    return min(_TWO_OVER_SQRT3 * min(sa, min(sb, sc)), 1.0)
+    return smaller(_TWO_OVER_SQRT3 * smaller(sa, smaller(sb, sc)), 1.0)
 
 
 @njit
@@ -97,7 +97,7 @@ def s3_cubed_kernel(ax: float, ay: float, bx: float, by: float, cx: float, cy: f
     cross, denom = _cross_and_sides(*_normalised(ax, ay, bx, by, cx, cy))
     if cross == 0.0 or denom == 0.0:  # an edge shorter than 1e-154 of the longest: degenerate
         return 0.0
-    return min(_S3_CUBE_FACTOR * cross * cross * cross / denom, 1.0)
+    return smaller(_S3_CUBE_FACTOR * cross * cross * cross / denom, 1.0)
 
 
 @njit_helper
@@ -148,9 +148,9 @@ def _quad_turns_ok(ax, ay, bx, by, cx, cy, dx, dy) -> bool:
 @njit_helper
 def _quad_frame(ax, ay, bx, by, cx, cy, dx, dy):
     """The quadrangle translated to a = 0 and scaled to unit largest coordinate."""
-    s = max(
-        max(max(abs(bx - ax), abs(by - ay)), max(abs(cx - ax), abs(cy - ay))),
-        max(abs(dx - ax), abs(dy - ay)),
+    s = larger(
+        larger(larger(abs(bx - ax), abs(by - ay)), larger(abs(cx - ax), abs(cy - ay))),
+        larger(abs(dx - ax), abs(dy - ay)),
     )
     if s == 0.0 or not math.isfinite(s):
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False
@@ -170,7 +170,7 @@ def s2_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     sb = _angle_score(cx - bx, cy - by, -bx, -by)
     sc = _angle_score(dx - cx, dy - cy, bx - cx, by - cy)
     sd = _angle_score(-dx, -dy, cx - dx, cy - dy)
-    return min(min(sa, sb), min(sc, sd))
+    return smaller(smaller(sa, sb), smaller(sc, sd))
 
 
 @njit_helper
@@ -192,19 +192,19 @@ def s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy) -> float:
     bx, by, cx, cy, dx, dy, ok = _quad_frame(ax, ay, bx, by, cx, cy, dx, dy)
     if not ok or not _quad_turns_ok(0.0, 0.0, bx, by, cx, cy, dx, dy):
         return 0.0
-    inv4r2 = min(
-        min(
+    inv4r2 = smaller(
+        smaller(
             _cross_over_lengths(0.0, 0.0, bx, by, cx, cy),
             _cross_over_lengths(bx, by, cx, cy, dx, dy),
         ),
-        min(
+        smaller(
             _cross_over_lengths(cx, cy, dx, dy, 0.0, 0.0),
             _cross_over_lengths(dx, dy, 0.0, 0.0, bx, by),
         ),
     )
     area = 0.5 * abs(cx * (dy - by) - cy * (dx - bx))
     # A / (2 R^2) = A * 2 * (1 / (4 R^2))
-    return min(2.0 * area * inv4r2, 1.0)
+    return smaller(2.0 * area * inv4r2, 1.0)
 
 
 @njit_helper

@@ -27,7 +27,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, njit, njit_helper
+from ._jit import empty, larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 from .interpolate import (
     _bilinear_inverse,
@@ -75,8 +75,8 @@ def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> 
     b += slack
     if not (b >= 0.0 and a <= n - 1.0):  # also NaN
         return 0, -1
-    first = int(math.ceil(a)) if a > 0.0 else 0
-    last = int(b) if b < n - 1.0 else n - 1  # b >= 0: int() is floor
+    first = np.int64(math.ceil(a)) if a > 0.0 else 0
+    last = np.int64(b) if b < n - 1.0 else n - 1  # b >= 0: int() is floor
     return first, last
 
 
@@ -119,7 +119,7 @@ def _rasterize_kernel(
     xy = empty((_CHUNK, 8))
     zs = empty((_CHUNK, 4))
     for start in range(0, n_f, _CHUNK):
-        m = min(_CHUNK, n_f - start)
+        m = smaller(_CHUNK, n_f - start)
         _gather_chunk(vertices, faces, z, start, m, xy, zs)
         for k in range(m):
             is_quad = faces[start + k, 3] >= 0
@@ -133,8 +133,8 @@ def _rasterize_kernel(
             dy = xy[k, 7]
             # the box of _face_bbox (min and max are exact: the order does not matter)
             bx0, by0, bx1, by1 = _grow_bbox(
-                min(min(ax, bx), min(cx, dx)), min(min(ay, by), min(cy, dy)),
-                max(max(ax, bx), max(cx, dx)), max(max(ay, by), max(cy, dy)),
+                smaller(smaller(ax, bx), smaller(cx, dx)), smaller(smaller(ay, by), smaller(cy, dy)),
+                larger(larger(ax, bx), larger(cx, dx)), larger(larger(ay, by), larger(cy, dy)),
             )
             # most faces of a dense survey hold no cell centre: settle them first
             i0, i1 = _cell_range(bx0, bx1, x0, inv_res, nx)
@@ -143,9 +143,9 @@ def _rasterize_kernel(
             j0, j1 = _cell_range(by0, by1, y0, inv_res, ny)
             if j0 > j1:
                 continue
-            longest = max(
-                max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
-                max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
+            longest = larger(
+                larger(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
+                larger(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
             )
             if longest > max_edge2:
                 continue
@@ -290,9 +290,9 @@ def _within_max_edge(vertices: np.ndarray, faces: np.ndarray, max_edge2: float) 
         bx, by = vertices[b, 0], vertices[b, 1]
         cx, cy = vertices[c, 0], vertices[c, 1]
         dx, dy = vertices[d, 0], vertices[d, 1]
-        longest = max(
-            max(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
-            max(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
+        longest = larger(
+            larger(_squared_length(ax, ay, bx, by), _squared_length(bx, by, cx, cy)),
+            larger(_squared_length(cx, cy, dx, dy), _squared_length(dx, dy, ax, ay)),
         )
         out[f] = not longest > max_edge2
     return out

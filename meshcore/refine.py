@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, njit, njit_helper, zeros
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays
 
@@ -75,7 +75,7 @@ def _pieces(vertices: np.ndarray, a: int, b: int, longest: float, piece: float) 
     d2 = dx * dx + dy * dy
     if not d2 > longest * longest:
         return 1
-    return int(min(math.ceil(math.sqrt(d2) / piece), MAX_PIECES))
+    return np.int64(smaller(math.ceil(math.sqrt(d2) / piece), MAX_PIECES))
 
 
 @njit_helper
@@ -199,14 +199,14 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
             pieces[c, k] = _pieces(vertices, faces[f, k], faces[f, (k + 1) % nc], longest, piece)
             extra += pieces[c, k] - 1  # counted from both faces of an inner edge: room enough
             size += pieces[c, k] - 1
-        most = max(most, size)
+        most = larger(most, size)
         n_tris += size - 2
     new_xy = empty((extra, 2))
     new_ends = empty((extra, 2), dtype=np.int64)
     new_t = empty(extra)
     # each split edge once: (first end, other end) -> its first new point, in a small open-addressed table
     size_table = 1
-    while size_table < 4 * max(extra, 1):
+    while size_table < 4 * larger(extra, 1):
         size_table *= 2
     key_s = full(size_table, -1, dtype=np.int64)
     key_e = empty(size_table, dtype=np.int64)
@@ -243,7 +243,7 @@ def _refine_kernel(vertices: np.ndarray, faces: np.ndarray, cut: np.ndarray, lon
     ids = empty(most, dtype=np.int64)
     edge = empty(most, dtype=np.int64)
     corner = empty(most, dtype=np.bool_)
-    tris = empty((max(most - 2, 1), 3), dtype=np.int64)
+    tris = empty((larger(most - 2, 1), 3), dtype=np.int64)
     m_out = 0
     failed = 0
     for c in range(cut.shape[0]):

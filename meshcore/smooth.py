@@ -53,7 +53,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, full, njit, njit_helper, zeros
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
@@ -214,8 +214,8 @@ def _bucket_near(i: int, j: int, x0: float, y0: float, cell: float, qx: float, q
     millionth of a bucket and a millionth of a millionth of the coordinates,
     reaches that near."""
     margin = 1e-6 * cell + 1e-12 * (abs(qx) + abs(qy))
-    dx = max(max((x0 + i * cell - margin) - qx, qx - (x0 + (i + 1) * cell + margin)), 0.0)
-    dy = max(max((y0 + j * cell - margin) - qy, qy - (y0 + (j + 1) * cell + margin)), 0.0)
+    dx = larger(larger((x0 + i * cell - margin) - qx, qx - (x0 + (i + 1) * cell + margin)), 0.0)
+    dy = larger(larger((y0 + j * cell - margin) - qy, qy - (y0 + (j + 1) * cell + margin)), 0.0)
     return dx * dx + dy * dy <= d2
 
 
@@ -242,18 +242,18 @@ def _knn_kernel(
         for s in range(k):
             bi[s] = -1
             bd[s] = math.inf
-        ci = min(max(int((qx - x0) / cell), 0), nbx - 1)
-        cj = min(max(int((qy - y0) / cell), 0), nby - 1)
+        ci = smaller(larger(np.int64((qx - x0) / cell), 0), nbx - 1)
+        cj = smaller(larger(np.int64((qy - y0) / cell), 0), nby - 1)
         ring = 0
         while True:
             # the ring's buckets inside the grid, in rows (an outlier far from a
             # narrow grid crosses thousands of rings: each costs its buckets only)
-            i_lo = max(ci - ring, 0)
-            i_hi = min(ci + ring, nbx - 1)
+            i_lo = larger(ci - ring, 0)
+            i_hi = smaller(ci + ring, nbx - 1)
             sides = ci - ring >= 0 or ci + ring < nbx
             # with no side column in the grid, only the two edge rows (a ring of a thin grid)
-            j_lo = max(cj - ring, 0) if sides else cj - ring
-            j_hi = min(cj + ring, nby - 1) if sides else cj + ring
+            j_lo = larger(cj - ring, 0) if sides else cj - ring
+            j_hi = smaller(cj + ring, nby - 1) if sides else cj + ring
             j = j_lo
             while j <= j_hi:
                 if j >= 0 and j < nby:
@@ -268,15 +268,15 @@ def _knn_kernel(
                         i = ci + ring
                         if i < nbx and (count < k or _bucket_near(i, j, x0, y0, cell, qx, qy, bd[k - 1])):
                             count = _scan_bucket(sxy, items, start, j * nbx + i, qx, qy, k, count, bi, bd, bx, by)
-                j += 1 if sides else max(2 * ring, 1)
+                j += 1 if sides else larger(2 * ring, 1)
             covers = ci - ring <= 0 and cj - ring <= 0 and ci + ring >= nbx - 1 and cj + ring >= nby - 1
             if covers:
                 break
             if count == k:
                 # every point not yet seen is at least this far away
-                gap = min(
-                    min(qx - (x0 + (ci - ring) * cell), (x0 + (ci + ring + 1) * cell) - qx),
-                    min(qy - (y0 + (cj - ring) * cell), (y0 + (cj + ring + 1) * cell) - qy),
+                gap = smaller(
+                    smaller(qx - (x0 + (ci - ring) * cell), (x0 + (ci + ring + 1) * cell) - qx),
+                    smaller(qy - (y0 + (cj - ring) * cell), (y0 + (cj + ring + 1) * cell) - qy),
                 )
                 gap *= 1.0 - 1e-12
                 if gap > 0.0 and gap * gap > bd[k - 1]:
@@ -357,8 +357,8 @@ def _exp_neg(a: float) -> float:
     function at every lag.  The covariances are most of the smooth surface's
     cost (about 190 a point).
     """
-    t = min(a * 16.0, 1023.0)
-    n = int(t)
+    t = smaller(a * 16.0, 1023.0)
+    n = np.int64(t)
     u = (n * 0.0625) - a
     p = 1.0 + u * (1.0 + u * (0.5 + u * (1.0 / 6.0 + u * (1.0 / 24.0 + u * (1.0 / 120.0 + u * (
         1.0 / 720.0 + u * (1.0 / 5040.0 + u * (1.0 / 40320.0))))))))
@@ -473,7 +473,7 @@ def _dual_setup(
             q = neighbours[s, i]
             xs[b, i] = xy[q, 0] - cx
             ys[b, i] = xy[q, 1] - cy
-            r = max(r, math.sqrt(xs[b, i] * xs[b, i] + ys[b, i] * ys[b, i]))
+            r = larger(r, math.sqrt(xs[b, i] * xs[b, i] + ys[b, i] * ys[b, i]))
         reach[b] = r
         # the lags of the pairs below the diagonal, then their covariances in
         # one long loop (row by row, the short rows would not vectorise)
@@ -721,7 +721,7 @@ def _lanes(neighbours: np.ndarray, first: int) -> tuple[int, int]:
     """How many systems from ``first`` on (at most :data:`_LANES`) have as many neighbours as it, and that count."""
     k = neighbours.shape[1]
     count = _count(neighbours[first])
-    end = min(first + _LANES, neighbours.shape[0])
+    end = smaller(first + _LANES, neighbours.shape[0])
     lanes = 1
     if count == k:  # full rows: their last column is set
         while first + lanes < end and neighbours[first + lanes, k - 1] >= 0:
@@ -768,7 +768,7 @@ def _nodes_kriged_kernel(
     room = _kriging_scratch(k)
     most = 0
     for s in range(centres.shape[0]):
-        most = max(most, first[s + 1] - first[s])
+        most = larger(most, first[s + 1] - first[s])
     qx = empty(most)
     qy = empty(most)
     values = empty(most)
@@ -786,8 +786,8 @@ def _nodes_kriged_kernel(
                 zi = z[neighbours[s, i]]
                 if not math.isfinite(zi):
                     finite = False
-                lo = min(lo, zi)
-                hi = max(hi, zi)
+                lo = smaller(lo, zi)
+                hi = larger(hi, zi)
             radius = room.radius[b] if finite else math.nan
             kriged = math.isfinite(radius)
             clamp = kriged and (clamp_inside or _one_sided(room.xs[b], room.ys[b], count))
@@ -804,10 +804,10 @@ def _nodes_kriged_kernel(
                     for j in range(4):
                         v = corners[n, j]
                         if v >= 0 and math.isfinite(z[v]):
-                            low = min(low, z[v])
-                            high = max(high, z[v])
+                            low = smaller(low, z[v])
+                            high = larger(high, z[v])
                     value = values[n - first[s]]
-                    out[n] = min(max(value, low), high) if clamp else value
+                    out[n] = smaller(larger(value, low), high) if clamp else value
                 else:
                     linear = 0.0
                     for j in range(4):

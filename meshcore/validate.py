@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, full, njit, njit_helper, zeros
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import bbox_origin
 from .errors import InvalidInputError, InvalidMeshError
 from .mesh import Mesh
@@ -67,7 +67,7 @@ def _hull_kernel(x, y, order) -> np.ndarray:
             k -= 1
         out[k] = j
         k += 1
-    m = max(k - 1, 1)
+    m = larger(k - 1, 1)
     total = 0
     for t in range(m):
         total += run[out[t] + 1] - run[out[t]]
@@ -102,10 +102,10 @@ def _inner_box(x, y, poly, m):
         x_lo = x_hi = x[poly[0]]
         y_lo = y_hi = y[poly[0]]
         for k in range(1, m):
-            x_lo = min(x_lo, x[poly[k]])
-            x_hi = max(x_hi, x[poly[k]])
-            y_lo = min(y_lo, y[poly[k]])
-            y_hi = max(y_hi, y[poly[k]])
+            x_lo = smaller(x_lo, x[poly[k]])
+            x_hi = larger(x_hi, x[poly[k]])
+            y_lo = smaller(y_lo, y[poly[k]])
+            y_hi = larger(y_hi, y[poly[k]])
         cx = 0.5 * (x_lo + x_hi)
         cy = 0.5 * (y_lo + y_hi)
         for shrink in (0.9, 0.75, 0.5, 0.25):
@@ -162,7 +162,7 @@ def _hull_filter(x, y) -> np.ndarray:
         ex = x[b] - x[a]
         ey = y[b] - y[a]
         length = math.hypot(ex, ey)
-        size = max(size, length)
+        size = larger(size, length)
         if length == 0.0:  # never for distinct extremes; then only the exact test decides
             normal_x[k] = normal_y[k] = 0.0
             offset[k] = math.inf

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 import pytest
@@ -228,3 +230,19 @@ def test_arrays_created_in_kernels_are_numpys(tmp_path, monkeypatch):
     np.testing.assert_array_equal(f, np.full(4, 0.5))
     empties = new_arrays(0, like)
     assert [x.shape for x in empties] == [(0,), (0, 3), (0,), (2, 0), (2, 3), (0,)]
+
+
+def _extremes(a, b):
+    return _jit.smaller(a, b), _jit.larger(a, b)
+
+
+@pytest.mark.parametrize(
+    "a, b", [(1.0, 2.0), (2.0, 1.0), (-0.0, 0.0), (0.0, -0.0), (np.nan, 1.0), (1.0, np.nan), (3, 2.5), (-4, 7)]
+)
+def test_smaller_and_larger_in_kernels_are_min_and_max(tmp_path, monkeypatch, a, b):
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    low, high = _jit.njit(_extremes)(a, b)
+    for got, expected in ((low, min(a, b)), (high, max(a, b))):
+        assert (got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)) or (
+            math.isnan(got) and math.isnan(expected)
+        )
