@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import meshcore
+from meshcore.kernels import empty
 
 from ..errors import SeamError
 from ..tiling.scratch import Scratch
@@ -632,7 +633,7 @@ def _reaching_out(vertices, faces, box) -> NDArray[np.bool_]:
 @meshcore.kernel
 def _corner_outside(outside, faces):
     """Whether any corner of each face (-1: no fourth corner) is ``outside``: one pass over the faces."""
-    out = np.empty(faces.shape[0], dtype=np.bool_)
+    out = empty(faces.shape[0], dtype=np.bool_)
     for i in range(faces.shape[0]):
         d = faces[i, 3]
         out[i] = outside[faces[i, 0]] | outside[faces[i, 1]] | outside[faces[i, 2]] | ((d >= 0) and outside[d])

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import meshcore
+from meshcore.kernels import empty
 
 from . import zarr_store as store
 from ..errors import PipelineError
@@ -79,7 +80,7 @@ def _sorted_rows(table: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[
     """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2 or more: x, y, ...),
     sorted by x then y (a tile's owned vertices), or -1 where it is not there."""
     n = table.shape[0]
-    out = np.empty(x.shape[0], dtype=np.int64)
+    out = empty(x.shape[0], dtype=np.int64)
     for i in range(x.shape[0]):
         lo, hi = 0, n
         while lo < hi:  # the first row not below the point

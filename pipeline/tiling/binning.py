@@ -6,6 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import meshcore
+from meshcore.kernels import empty, larger, smaller
 
 __all__ = ["bins", "bin_of"]
 
@@ -14,7 +15,7 @@ __all__ = ["bins", "bin_of"]
 def bin_of(v: float, origin: float, inv_size: float, below: NDArray[np.float64], above: NDArray[np.float64]) -> int:
     """:meth:`TileGrid.bins` of one value: bin ``k`` is ``[below[k], above[k])``
     (the inner edges with -inf and +inf at the ends); no branch."""
-    k = int(min(max((v - origin) * inv_size, 0.0), float(above.shape[0] - 1)))
+    k = np.int64(smaller(larger((v - origin) * inv_size, 0.0), float(above.shape[0] - 1)))
     k += v >= above[k]
     k -= v < below[k]
     return k
@@ -22,7 +23,7 @@ def bin_of(v: float, origin: float, inv_size: float, below: NDArray[np.float64],
 
 @meshcore.kernel
 def bins(values, origin, inv_size, below, above):
-    out = np.empty(values.shape, dtype=np.intp)
+    out = empty(values.shape, dtype=np.intp)
     for i in range(values.shape[0]):
         out[i] = bin_of(values[i], origin, inv_size, below, above)
     return out

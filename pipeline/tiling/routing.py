@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 import meshcore
+from meshcore.kernels import empty, larger, zeros
 
 from .binning import bin_of
 from .grid import TileGrid, tile_dir
@@ -180,10 +181,10 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     column of their reach come first, then the next column, row, ...; each
     group in input order (a counting sort, stable)."""
     n = x.shape[0]
-    c_lo = np.empty(n, dtype=np.int32)
-    r_lo = np.empty(n, dtype=np.int32)
-    c_span = np.empty(n, dtype=np.int32)
-    r_span = np.empty(n, dtype=np.int32)
+    c_lo = empty(n, dtype=np.int32)
+    r_lo = empty(n, dtype=np.int32)
+    c_span = empty(n, dtype=np.int32)
+    r_span = empty(n, dtype=np.int32)
     span_c = 1
     span_r = 1
     for i in range(n):
@@ -202,10 +203,10 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
         r_lo[i] = r0
         c_span[i] = sc
         r_span[i] = sr
-        span_c = max(span_c, sc)
-        span_r = max(span_r, sr)
+        span_c = larger(span_c, sc)
+        span_r = larger(span_r, sr)
     groups = span_r * span_c
-    start = np.zeros(n_tiles * groups + 1, dtype=np.int64)
+    start = zeros(n_tiles * groups + 1, dtype=np.int64)
     for i in range(n):
         if r_span[i] == 1 and c_span[i] == 1:  # most points: one tile
             start[(r_lo[i] * n_cols + c_lo[i]) * groups + 1] += 1
@@ -215,8 +216,8 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
                 start[((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc + 1] += 1
     for k in range(n_tiles * groups):
         start[k + 1] += start[k]
-    pts = np.empty((start[n_tiles * groups], 3))
-    offsets = np.empty(n_tiles + 1, dtype=np.int64)
+    pts = empty((start[n_tiles * groups], 3))
+    offsets = empty(n_tiles + 1, dtype=np.int64)
     for t in range(n_tiles + 1):
         offsets[t] = start[t * groups]
     for i in range(n):
@@ -365,7 +366,7 @@ def points_in_box(
 @meshcore.kernel
 def _in_box(points, x_min, y_min, x_max, y_max):
     """:func:`points_in_box` in one pass (numpy's takes seven over strided columns)."""
-    out = np.empty(points.shape[0], dtype=np.bool_)
+    out = empty(points.shape[0], dtype=np.bool_)
     for i in range(points.shape[0]):
         x = points[i, 0]
         y = points[i, 1]
