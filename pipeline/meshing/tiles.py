@@ -41,10 +41,11 @@ from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
 from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
 from ..tiling.routing import neighbour_tile_points, points_in_box
+from .kernels import load_mesh_kernels, sample_grid_mesh
 
 __all__ = [
     "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
-    "reached_tiles", "load_kernels", "load_mesh_kernels", "load_surface_kernels", "MESH_KERNEL_PARTS",
+    "reached_tiles", "load_kernels", "load_surface_kernels",
 ]
 
 @dataclass(frozen=True)
@@ -870,50 +871,6 @@ def load_kernels(job: TileJob) -> None:
     load_surface_kernels(job.max_edge, job.surface, job.layers)
 
 
-MESH_KERNEL_PARTS = ("triangulation", "faces", "smooth")
-"""The parts of :func:`load_mesh_kernels` that processes can compile side by side."""
-
-
-def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: str, surface: str,
-                      parts: tuple[str, ...] = MESH_KERNEL_PARTS) -> None:
-    """The mesh kernels of :func:`load_kernels`: a tile's mesh (and its smooth
-    nodes), or those of ``parts`` of it, each compiled without the others:
-    ``"triangulation"`` and ``"faces"`` (the two stages of
-    :func:`meshcore.load_kernels`; with the order of a piece's vertices) and
-    ``"smooth"`` (the nodes and their long faces, on a mesh made here; only
-    with ``surface="smooth"``).  The variogram's fit is left to the caller,
-    which runs it before the tiles."""
-    if "triangulation" in parts:
-        meshcore.load_kernels("triangulation")
-    if "faces" in parts:
-        mesh = meshcore.load_kernels("faces", triangle_measure, quad_measure, merge)
-        meshcore.lexicographic_order(mesh.vertices)
-    if "smooth" in parts and surface == "smooth":
-        mesh = _grid_mesh(8)
-        z = mesh.vertices[:, 0] * 0.1 + np.sin(mesh.vertices[:, 1])
-        meshcore.block_order(np.column_stack([mesh.vertices, z]), 1.0, (0.0, 0.0, 8.0, 8.0))
-        # not fitted: the run fits its variogram itself, before its tiles.  Its
-        # edges are 20 spacings long, split as long faces are: those kernels too
-        variogram = meshcore.Variogram(nugget=0.01, sill=1.0, range=3.0, model="matern52", spacing=0.05)
-        meshcore.smooth_surface(mesh, z, variogram)
-
-
-def _grid_mesh(n: int) -> meshcore.Mesh:
-    """A mesh of an ``n`` x ``n`` grid, slightly jittered: quadrangles, and
-    pairs of triangles on every third square."""
-    k = np.arange(n * n)
-    vertices = np.column_stack([k % n + 0.01 * (k * 7 % 5), k // n + 0.01 * (k * 3 % 7)])
-    faces = []
-    for j in range(n - 1):
-        for i in range(n - 1):
-            a = j * n + i
-            if (i + j) % 3:
-                faces.append([a, a + 1, a + n + 1, a + n])
-            else:
-                faces += [[a, a + 1, a + n + 1, -1], [a, a + n + 1, a + n, -1]]
-    return meshcore.Mesh(vertices, np.array(faces, dtype=np.int64), np.arange(n * n))
-
-
 def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str, ...] = ()) -> None:
     """The DEM kernels of :func:`load_kernels` (and ``layers``'), and those a
     piece's faces reaching its neighbours need, on a mesh of three faces made
@@ -927,7 +884,7 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
         meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
     if surface == "smooth":  # the run's variogram is fitted (its sample merged) before the tiles
         meshcore.lexicographic_order(vertices)
-        grid = _grid_mesh(8).vertices
+        grid = sample_grid_mesh(8).vertices
         meshcore.fit_variogram(grid, grid[:, 0] * 0.1 + np.sin(grid[:, 1]), neighbours=meshcore.DEFAULT_NEIGHBOURS)
     # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them
     table = np.column_stack([vertices, z])

@@ -6,7 +6,7 @@ about 26 s of kernels for the demo's first run (its later runs take 7 s).
 When the kernel cache holds no mesh kernels compiled from these sources
 (:func:`meshcore.kernels_compiled`: the first run after an install or an
 upgrade), :func:`compile_aside` starts a process for each part of them
-(:data:`~pipeline.meshing.tiles.MESH_KERNEL_PARTS`: the Delaunay sweep's,
+(:data:`~pipeline.meshing.kernels.MESH_KERNEL_PARTS`: the Delaunay sweep's,
 the kernels after it, the smooth surface's; 8-10 s each on one core)
 while this one creates the store, reads and routes the points and compiles
 the DEM's kernels; the tiles wait for them (:meth:`KernelCompile.wait`) and
@@ -23,12 +23,13 @@ import sys
 import meshcore
 
 from ..config import RunConfig
-from ..meshing.tiles import MESH_KERNEL_PARTS, TileJob
+from ..meshing.kernels import MESH_KERNEL_PARTS
+from ..meshing.tiles import TileJob
 
 __all__ = ["KernelCompile", "compile_aside"]
 
 _CHILD = (
-    "import json, sys; from pipeline.meshing.tiles import load_mesh_kernels; "
+    "import json, sys; from pipeline.meshing.kernels import load_mesh_kernels; "
     "load_mesh_kernels(**json.loads(sys.argv[1]), parts=(sys.argv[2],))"
 )
 
