@@ -152,6 +152,58 @@ if _ArrayFunctionsFinder.name not in sys.modules and not any(
     sys.meta_path.insert(0, _ArrayFunctionsFinder())
 
 
+class _FasterFlags:
+    """numba's compiler flags (``TargetConfig``), hashed and compared as
+    numba does, faster.
+
+    numba looks up every typed call of one of its own functions in a cache
+    keyed by the compiler's flags.  Their hash is that of the options' names,
+    the same for all flags, so every look-up compares flags, each time
+    building two dictionaries of all 40 options' values: a tenth of a
+    kernel's compilation.  The same hash is now computed once per class, and
+    flags with the same options set to the same values (nearly always) are
+    equal without building those dictionaries; otherwise numba's comparison
+    decides.
+    """
+
+    hash_of_names: dict[type, int] = {}
+
+    @staticmethod
+    def hash(flags) -> int:
+        cls = type(flags)
+        try:
+            return _FasterFlags.hash_of_names[cls]
+        except KeyError:
+            value = _FasterFlags.hash_of_names[cls] = hash(tuple(sorted(flags.options)))
+            return value
+
+    @staticmethod
+    def make_eq(numbas_eq):
+        def eq(flags, other):
+            if flags is other or (type(flags) is type(other) and flags._values == other._values):
+                return True
+            return numbas_eq(flags, other)
+
+        eq._faster = True
+        return eq
+
+
+def _speed_up_flags() -> None:
+    from numba.core.compiler import Flags
+    from numba.core.targetconfig import TargetConfig
+
+    if getattr(TargetConfig.__eq__, "_faster", False):
+        return
+    flags = Flags()
+    if "__eq__" in vars(Flags) or hash(flags) != hash(tuple(sorted(flags.values()))):
+        return  # numba compares or hashes flags otherwise now: leave them be
+    TargetConfig.__eq__ = _FasterFlags.make_eq(TargetConfig.__eq__)
+    TargetConfig.__hash__ = _FasterFlags.hash
+
+
+_speed_up_flags()
+
+
 def _call_type(arg):
     """The type a kernel is compiled for when another kernel passes it ``arg``:
     not a constant's value, and a signed integer as ``int64``."""

@@ -246,3 +246,23 @@ def test_smaller_and_larger_in_kernels_are_min_and_max(tmp_path, monkeypatch, a,
         assert (got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)) or (
             math.isnan(got) and math.isnan(expected)
         )
+
+
+def test_compiler_flags_hash_and_compare_as_numbas_own():
+    from numba.core.compiler import Flags
+
+    rng = np.random.default_rng(5)
+    names = ["nrt", "no_cpython_wrapper", "boundscheck", "release_gil", "fastmath", "error_model", "no_cfunc_wrapper"]
+    values = {"error_model": ["python", "numpy"]}
+    made = []
+    for _ in range(200):
+        flags = Flags()
+        for name in rng.choice(names, size=rng.integers(0, 4), replace=False):
+            choices = values.get(str(name), [False, True])
+            setattr(flags, str(name), choices[int(rng.integers(len(choices)))])
+        made.append(flags)
+    for a in made[:40]:
+        for b in made:
+            assert (a == b) == (a.values() == b.values())  # numba's definition
+            assert a != b or hash(a) == hash(b)
+        assert hash(a) == hash(tuple(sorted(a.values())))
