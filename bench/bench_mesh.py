@@ -1,6 +1,6 @@
 """Benchmarks of the meshcore engine; prints tables (run by hand).
 
-    python bench/bench_mesh.py [--sizes 100000 1000000 4000000] [--repeat 3]
+    python bench/bench_mesh.py [--sizes 100000 1000000 4000000] [--repeat 3] [--rounds 5]
 
 1. build_mesh(xy, "s3", "s4") against Triangle (plain Delaunay, ``-Q``) and
    scipy's Qhull on the same uniform points, side by side in one run; medians.
@@ -12,7 +12,7 @@
    kernel's peak resident set is reset right before the call).
 4. Start-up: the first process compiles the kernels and fills the cache, the
    second loads them from it; and the whole first ``terrain demo`` against
-   its second run.
+   its second run, in ``--rounds`` rounds (each with an empty cache), medians.
 5. Where the time goes: build_mesh of a tile-sized piece (0.5M points, a
    window over all but a 5 m border, as the pipeline builds its tiles), time
    per kernel from the profiler, in nanoseconds per point; median of the runs.
@@ -172,7 +172,7 @@ _STARTUP_PROBE = textwrap.dedent(
 )
 
 
-def bench_startup() -> None:
+def bench_startup(rounds: int) -> None:
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         runs = []
@@ -186,20 +186,34 @@ def bench_startup() -> None:
         ["first process (compile + cache)", "second process (cached)", "third process (cached)"],
         [[f"{runs[0]:.2f}", f"{runs[1]:.2f}", f"{runs[2]:.2f}"]],
     )
-    # the whole first job: `terrain demo` with an empty kernel cache, then again
+    # the whole first job: `terrain demo` with an empty kernel cache, then
+    # again with the cache it filled; rounds interleaved, medians
     terrain = Path(sys.executable).with_name("terrain")
-    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-        walls = []
-        for _ in range(2):
-            t0 = time.perf_counter()
-            subprocess.run([str(terrain), "demo", "--out", out, "--quiet"], capture_output=True, check=True, env=env)
-            walls.append(time.perf_counter() - t0)
+    rows = []
+    for _ in range(rounds):
+        with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+            env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+            walls = []
+            for _ in range(2):
+                t0 = time.perf_counter()
+                subprocess.run([str(terrain), "demo", "--out", out, "--quiet"], capture_output=True, check=True, env=env)
+                walls.append(time.perf_counter() - t0)
+        rows.append([walls[0], walls[1], walls[0] - walls[1]])
+    medians = [statistics.median(column) for column in zip(*rows)]
     table(
-        "terrain demo, wall seconds (kernels compiled by the first run: a second process compiles the mesh kernels)",
-        ["first run (empty cache)", "second run (cached)", "compiling (difference)"],
-        [[f"{walls[0]:.2f}", f"{walls[1]:.2f}", f"{walls[0] - walls[1]:.2f}"]],
+        f"terrain demo, wall seconds (kernels compiled by the first run; {rounds} rounds, load {_load()})",
+        ["round", "first run (empty cache)", "second run (cached)", "compiling (difference)"],
+        [[str(k + 1), *(f"{v:.2f}" for v in row)] for k, row in enumerate(rows)]
+        + [["median", *(f"{v:.2f}" for v in medians)]],
     )
+
+
+def _load() -> str:
+    """The machine's load average over the last minute, and its cores."""
+    try:
+        return f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
+    except OSError:
+        return "unknown"
 
 
 def bench_passes(repeat: int, n: int = 500_000) -> None:
@@ -249,10 +263,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000, 4_000_000])
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=5, help="rounds of the first and second demo runs (default 5)")
     parser.add_argument("--skip", nargs="*", default=[], choices=["build", "rasterize", "memory", "startup", "passes"])
     args = parser.parse_args()
     if "startup" not in args.skip:
-        bench_startup()
+        bench_startup(args.rounds)
     if "build" not in args.skip:
         bench_build(args.sizes, args.repeat)
     if "rasterize" not in args.skip:
