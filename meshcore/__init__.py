@@ -49,7 +49,7 @@ def kernels_compiled() -> bool:
     """Whether this machine's kernel cache holds meshcore's mesh kernels, as
     compiled from these sources (by any job since the install or upgrade).
 
-    When not, the first :func:`build_mesh` compiles them: about 18 s, which a
+    When not, the first :func:`build_mesh` compiles them: about 13 s, which a
     caller may spend in other processes while it does other work (two of
     them, one per stage of :func:`load_kernels`, take half of that).
     """

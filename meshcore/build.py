@@ -428,7 +428,7 @@ def load_kernels(stage: str, triangle_measure: str = "s1", quad_measure: str | N
     (everything after it: the geometric order, the window, flips, merges and
     faces, run on a triangulation of a grid made without the sweep's
     kernels; the measures as ``build_mesh`` takes them).  Each takes about
-    8-10 s to compile on one core, so two processes compile a machine's first
+    6-8 s to compile on one core, so two processes compile a machine's first
     mesh kernels in half the time of one.  Returns the example's mesh
     (``"faces"``) or None.
     """

@@ -2,12 +2,12 @@
 
 numba compiles a kernel in the thread that first calls it, holding the GIL,
 so a run on this process's threads compiles its kernels one after another:
-about 26 s of kernels for the demo's first run (its later runs take 7 s).
+about 20 s of kernels for the demo's first run (its later runs take 7 s).
 When the kernel cache holds no mesh kernels compiled from these sources
 (:func:`meshcore.kernels_compiled`: the first run after an install or an
 upgrade), :func:`compile_aside` starts a process for each part of them
 (:data:`~pipeline.meshing.kernels.MESH_KERNEL_PARTS`: the Delaunay sweep's,
-the kernels after it, the smooth surface's; 8-10 s each on one core)
+the kernels after it, the smooth surface's; 6-8 s each on one core)
 while this one creates the store, reads and routes the points and compiles
 the DEM's kernels; the tiles wait for them (:meth:`KernelCompile.wait`) and
 load their kernels from the cache.  Nothing depends on them: had one failed,
@@ -34,7 +34,7 @@ _CHILD = (
 )
 
 WAIT_SECONDS = 600.0
-"""How long the tiles wait for the other processes at most (they compile in about 10 s)."""
+"""How long the tiles wait for the other processes at most (they compile in 6-8 s)."""
 
 
 class KernelCompile:
