@@ -12,6 +12,13 @@ from meshcore import _jit
 from meshcore._order import order_ties_by, sortable_keys
 
 
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    """An empty kernel cache of the test's own."""
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    return tmp_path
+
+
 def _kernel(function):
     """Compiled as meshcore's kernels are, but not cached (a kernel loaded
     from the cache would not compile the helpers it calls)."""
@@ -98,8 +105,7 @@ def test_order_ties_by_keeps_equal_ties_in_their_order_in_long_runs():
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
-def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monkeypatch):
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))  # an empty cache of our own
+def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(fresh_cache):
 
     def _twice(a):
         return 2 * a
@@ -107,7 +113,7 @@ def test_compiled_on_disk_tells_whether_the_cache_holds_a_kernel(tmp_path, monke
     kernel = _jit.njit(_twice)
     assert not _jit.compiled_on_disk(kernel)
     assert kernel(4) == 8
-    assert _jit.compiled_on_disk(kernel) and any(tmp_path.rglob("*.nbi"))
+    assert _jit.compiled_on_disk(kernel) and any(fresh_cache.rglob("*.nbi"))
 
 
 def _scaled(a, k):
@@ -130,12 +136,16 @@ def _largest_scaled(values, k):
     return best
 
 
+def _calling(monkeypatch, name: str, callee, caller):
+    """``caller`` compiled as a kernel, calling ``callee`` by ``name``."""
+    monkeypatch.setitem(globals(), name, callee)
+    return _jit.njit(caller)
+
+
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
-def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, monkeypatch):
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(fresh_cache, monkeypatch):
     helper = _jit.njit_helper(_scaled)
-    monkeypatch.setitem(globals(), "_scaled_helper", helper)
-    kernel = _jit.njit(_sum_scaled)
+    kernel = _calling(monkeypatch, "_scaled_helper", helper, _sum_scaled)
     assert kernel(np.array([1.0, 2.0, 3.0]), 2.0) == 12.0
     assert helper.signatures == [(numba.float64, numba.float64)]  # compiled, for the kernel
     assert isinstance(helper.overloads[(numba.float64, numba.float64)].library, _jit._HelperLibrary)
@@ -147,8 +157,7 @@ def test_a_helper_runs_inside_kernels_and_refuses_calls_from_python(tmp_path, mo
     assert _jit.compiled_on_disk(helper) and _jit.compiled_on_disk(kernel)
     # another process's dispatchers load both from the cache and still run
     fresh_helper = _jit.njit_helper(_scaled)
-    monkeypatch.setitem(globals(), "_scaled_helper", fresh_helper)
-    fresh = _jit.njit(_sum_scaled)
+    fresh = _calling(monkeypatch, "_scaled_helper", fresh_helper, _sum_scaled)
     assert fresh(np.array([4.0]), 0.5) == 2.0
     assert fresh.stats.cache_hits and not fresh.stats.cache_misses
     # and a kernel of its own compiles with the helper as the cache holds it
@@ -168,37 +177,34 @@ def _cubed(a):
     return a * a * a
 
 
-def _sum_cubed(values):
-    total = 0.0
-    for v in values:
-        total += _cubed_kernel(v)  # noqa: F821 - set by the test
-    return total
+def _cubes(values):
+    out = np.empty_like(values)
+    for i in range(values.shape[0]):
+        out[i] = _cubed_kernel(values[i])  # noqa: F821 - set by the test
+    return out
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
-def test_a_kernel_that_kernels_call_is_compiled_for_them_as_a_helper(tmp_path, monkeypatch):
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+def test_a_kernel_that_kernels_call_is_compiled_for_them_as_a_helper(fresh_cache, monkeypatch):
     cubed = _jit.njit(_cubed)
-    monkeypatch.setitem(globals(), "_cubed_kernel", cubed)
-    total = _jit.njit(_sum_cubed)
-    assert total(np.array([1.0, 2.0])) == 9.0
+    cubes = _calling(monkeypatch, "_cubed_kernel", cubed, _cubes)
+    np.testing.assert_array_equal(cubes(np.array([1.0, 2.0])), [1.0, 8.0])
     # its callers link in the helper's code: no entry point from Python was compiled
     assert cubed.signatures == [] and cubed.as_helper().signatures == [(numba.float64,)]
     assert isinstance(cubed.as_helper().overloads[(numba.float64,)].library, _jit._HelperLibrary)
     # Python's first call compiles the kernel itself, cached in files of its own
     assert cubed(3.0) == 27.0 and cubed.signatures == [(numba.float64,)]
     assert _jit.compiled_on_disk(cubed) and _jit.compiled_on_disk(cubed.as_helper())
-    assert len({p.name.split(".")[-2] for p in tmp_path.rglob("*_cubed*.nbi")}) == 2
+    assert len({p.name.split(".")[-2] for p in fresh_cache.rglob("*_cubed*.nbi")}) == 2
     # a kernel compiled after that links in the kernel's own code
-    again = _jit.njit(_sum_cubed)
-    assert again(np.array([2.0], dtype=np.float64)) == 8.0
+    again = _jit.njit(_cubes)
+    np.testing.assert_array_equal(again(np.array([2.0])), [8.0])
     assert again.stats.cache_hits  # from the cache: the same code either way
     # another process: the caller and its helper come from the cache
     fresh = _jit.njit(_cubed)
-    monkeypatch.setitem(globals(), "_cubed_kernel", fresh)
-    fresh_total = _jit.njit(_sum_cubed)
-    assert fresh_total(np.array([1.0, 1.0])) == 2.0
-    assert fresh_total.stats.cache_hits and not fresh_total.stats.cache_misses
+    fresh_cubes = _calling(monkeypatch, "_cubed_kernel", fresh, _cubes)
+    np.testing.assert_array_equal(fresh_cubes(np.array([-1.0, 3.0])), [-1.0, 27.0])
+    assert fresh_cubes.stats.cache_hits and not fresh_cubes.stats.cache_misses
     assert fresh.signatures == []
 
 
@@ -215,8 +221,7 @@ def _new_arrays(n, like):
     return a, b, c, d, e, f
 
 
-def test_arrays_created_in_kernels_are_numpys(tmp_path, monkeypatch):
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+def test_arrays_created_in_kernels_are_numpys(fresh_cache):
     new_arrays = _jit.njit(_new_arrays)
     like = np.arange(6.0).reshape(2, 3)
     a, b, c, d, e, f = new_arrays(4, np.asfortranarray(like))
@@ -239,8 +244,7 @@ def _extremes(a, b):
 @pytest.mark.parametrize(
     "a, b", [(1.0, 2.0), (2.0, 1.0), (-0.0, 0.0), (0.0, -0.0), (np.nan, 1.0), (1.0, np.nan), (3, 2.5), (-4, 7)]
 )
-def test_smaller_and_larger_in_kernels_are_min_and_max(tmp_path, monkeypatch, a, b):
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+def test_smaller_and_larger_in_kernels_are_min_and_max(fresh_cache, a, b):
     low, high = _jit.njit(_extremes)(a, b)
     for got, expected in ((low, min(a, b)), (high, max(a, b))):
         assert (got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)) or (
