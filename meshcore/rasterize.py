@@ -76,7 +76,7 @@ def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> 
     if not (b >= 0.0 and a <= n - 1.0):  # also NaN
         return 0, -1
     first = np.int64(math.ceil(a)) if a > 0.0 else 0
-    last = np.int64(b) if b < n - 1.0 else n - 1  # b >= 0: int() is floor
+    last = np.int64(b) if b < n - 1.0 else n - 1  # b >= 0: np.int64() is floor
     return first, last
 
 

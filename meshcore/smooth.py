@@ -1270,7 +1270,7 @@ def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -
         size *= 2
     key_i = empty(size, dtype=np.int64)
     key_j = empty(size, dtype=np.int64)
-    full = zeros(size, dtype=np.bool_)
+    occupied = zeros(size, dtype=np.bool_)
     for c in range(centres.shape[0]):
         ci = np.int64(math.floor(centres[c, 0] / side))
         cj = np.int64(math.floor(centres[c, 1] / side))
@@ -1279,9 +1279,9 @@ def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -
                 i = ci + di
                 j = cj + dj
                 h = ((i * 73856093) ^ (j * 19349663)) & (size - 1)
-                while full[h] and not (key_i[h] == i and key_j[h] == j):
+                while occupied[h] and not (key_i[h] == i and key_j[h] == j):
                     h = (h + 1) & (size - 1)
-                full[h] = True
+                occupied[h] = True
                 key_i[h] = i
                 key_j[h] = j
     take = empty(vertices.shape[0], dtype=np.int64)
@@ -1290,7 +1290,7 @@ def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -
         i = np.int64(math.floor(vertices[v, 0] / side))
         j = np.int64(math.floor(vertices[v, 1] / side))
         h = ((i * 73856093) ^ (j * 19349663)) & (size - 1)
-        while full[h]:
+        while occupied[h]:
             if key_i[h] == i and key_j[h] == j:
                 take[m] = v
                 m += 1
