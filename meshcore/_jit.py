@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 import llvmlite.binding as llvm
+import llvmlite.ir as llvmir
 import numba
 import numpy as np
 from numba.core import caching, cgutils, compiler, sigutils, types
@@ -37,7 +38,7 @@ from numba.np.arrayobj import _empty_nd_impl, _parse_shape
 
 __all__ = [
     "njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "empty", "zeros", "full", "empty_like", "smaller",
-    "larger", "drop_stale_kernels", "compiled_on_disk",
+    "larger", "LANES", "lanes_scale", "lanes_subtract_products", "drop_stale_kernels", "compiled_on_disk",
 ]
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -677,6 +678,95 @@ def _lower_smaller(context, builder, signature, args):
 @lower_builtin(larger, types.Number, types.Number)
 def _lower_larger(context, builder, signature, args):
     return do_minmax(context, builder, list(signature.args), list(args), operator.gt)
+
+
+# Lanes: eight numbers side by side, as one vector.  Kernels that solve
+# eight small systems at once keep each system's numbers in a lane (the last
+# axis of their arrays, of length LANES); these operations do one step of all
+# eight at once.  numba vectorises loops, not the eight statements of a loop
+# over lanes that LLVM unrolls (its SLP vectoriser stays off), so such loops
+# ran one number at a time.
+
+LANES = 8
+"""Numbers per lane operation: :func:`lanes_scale`, :func:`lanes_subtract_products`."""
+
+
+def _lanes_scale(out, at, step, scale, scale_at, count) -> None:
+    flat = out.reshape(-1)
+    by = scale.reshape(-1)[scale_at:scale_at + LANES].copy()
+    for t in range(count):
+        row = flat[at + t * step:at + t * step + LANES]
+        row *= by
+
+
+def _lanes_subtract_products(out, at, step, x, x_at, y, y_at, y_step, count) -> None:
+    flat = out.reshape(-1)
+    by = x.reshape(-1)[x_at:x_at + LANES].copy()
+    ys = y.reshape(-1)
+    for t in range(count):
+        row = flat[at + t * step:at + t * step + LANES]
+        row -= by * ys[y_at + t * y_step:y_at + t * y_step + LANES]
+
+
+def _lanes_pointer(context, builder, array_type, array, at):
+    """A pointer to the ``LANES`` numbers of ``array`` (C-contiguous) from flat index ``at`` on, as one vector."""
+    data = context.make_array(array_type)(context, builder, array).data
+    vector = llvmir.VectorType(llvmir.DoubleType(), LANES)
+    return builder.bitcast(builder.gep(data, [at]), vector.as_pointer())
+
+
+def _lanes_arguments(arrays: tuple, integers: tuple) -> bool:
+    return all(isinstance(a, types.Array) and a.dtype == types.float64 and a.layout == "C" for a in arrays) and all(
+        isinstance(i, types.Integer) for i in integers
+    )
+
+
+@intrinsic
+def _lanes_scale_intrinsic(typingctx, out, at, step, scale, scale_at, count):
+    if not _lanes_arguments((out, scale), (at, step, scale_at, count)):
+        return None
+    signature = types.void(out, types.intp, types.intp, scale, types.intp, types.intp)
+
+    def codegen(context, builder, sig, args):
+        out_v, at_v, step_v, scale_v, scale_at_v, count_v = args
+        by = builder.load(_lanes_pointer(context, builder, sig.args[3], scale_v, scale_at_v), align=8)
+        with cgutils.for_range(builder, count_v) as loop:
+            where = _lanes_pointer(context, builder, sig.args[0], out_v, builder.add(at_v, builder.mul(loop.index, step_v)))
+            builder.store(builder.fmul(builder.load(where, align=8), by), where, align=8)
+        return context.get_dummy_value()
+
+    return signature, codegen
+
+
+@intrinsic
+def _lanes_subtract_products_intrinsic(typingctx, out, at, step, x, x_at, y, y_at, y_step, count):
+    if not _lanes_arguments((out, x, y), (at, step, x_at, y_at, y_step, count)):
+        return None
+    signature = types.void(out, types.intp, types.intp, x, types.intp, y, types.intp, types.intp, types.intp)
+
+    def codegen(context, builder, sig, args):
+        out_v, at_v, step_v, x_v, x_at_v, y_v, y_at_v, y_step_v, count_v = args
+        by = builder.load(_lanes_pointer(context, builder, sig.args[3], x_v, x_at_v), align=8)
+        with cgutils.for_range(builder, count_v) as loop:
+            t = loop.index
+            where = _lanes_pointer(context, builder, sig.args[0], out_v, builder.add(at_v, builder.mul(t, step_v)))
+            ys = builder.load(_lanes_pointer(context, builder, sig.args[5], y_v, builder.add(y_at_v, builder.mul(t, y_step_v))),
+                              align=8)
+            builder.store(builder.fsub(builder.load(where, align=8), builder.fmul(by, ys)), where, align=8)
+        return context.get_dummy_value()
+
+    return signature, codegen
+
+
+#: ``out[at + t * step + l] *= scale[scale_at + l]`` for ``t < count`` and
+#: ``l < LANES``, indices into the C-contiguous float64 arrays as flat ones
+#: (unchecked: they must lie inside)
+lanes_scale = _lanes_scale if numba.config.DISABLE_JIT else _lanes_scale_intrinsic
+
+#: ``out[at + t * step + l] -= x[x_at + l] * y[y_at + t * y_step + l]`` for
+#: ``t < count`` and ``l < LANES``, as :data:`lanes_scale` indexes (``x``'s
+#: lanes are read once, first)
+lanes_subtract_products = _lanes_subtract_products if numba.config.DISABLE_JIT else _lanes_subtract_products_intrinsic
 
 
 #: the name of the file, beside the cached kernels, that says which sources they were compiled from

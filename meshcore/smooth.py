@@ -53,7 +53,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
+from ._jit import LANES, empty, full, lanes_scale, lanes_subtract_products, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .patches import NODES_PER_FACE
@@ -415,8 +415,8 @@ def _correlation_kernel(h: np.ndarray, inv_range: float, model: int, out: np.nda
         out[i] = _covariance(h[i], inv_range, model)
 
 
-_LANES = 8
-"""Kriging systems solved side by side (:class:`_KrigingScratch`)."""
+_LANES = LANES
+"""Kriging systems solved side by side (:class:`_KrigingScratch`), one per lane."""
 
 
 class _KrigingScratch(NamedTuple):
@@ -536,8 +536,11 @@ def _dual_solve(
         ok[b] = 1.0 if k >= 3 and reach[b] > 0.0 else 0.0
         radius[b] = reach[b]
     # each column is scaled, then updates the columns right of it: the
-    # operations and their order of a dot-product Cholesky
-    inv_d, g0, g1, g2, g3 = work[0], work[1], work[2], work[3], work[4]
+    # operations and their order of a dot-product Cholesky.  All the lanes at
+    # once (those past ``lanes`` hold an earlier system's numbers, unread)
+    inv_d = work[0]
+    row = c.shape[1] * _LANES  # c[i, m, :] starts at (i * row + m * _LANES)
+    rhs = 4 * _LANES  # g[i, q, :] at i * rhs + q * _LANES
     for j in range(k):
         for b in range(lanes):
             d = c[j, j, b]
@@ -547,29 +550,14 @@ def _dual_solve(
             v = 1.0 / math.sqrt(d) if d > 1e-14 else math.nan
             inv_d[b] = v
             c[j, j, b] = v
-            g0[b] = g[j, 0, b] * v
-            g1[b] = g[j, 1, b] * v
-            g2[b] = g[j, 2, b] * v
-            g3[b] = g[j, 3, b] * v
-            g[j, 0, b] = g0[b]
-            g[j, 1, b] = g1[b]
-            g[j, 2, b] = g2[b]
-            g[j, 3, b] = g3[b]
+        diagonal = j * row + j * _LANES
+        lanes_scale(g, j * rhs, _LANES, inv_d, 0, 4)  # g[j, :, :] *= inv_d
+        lanes_scale(c, diagonal + row, row, inv_d, 0, k - j - 1)  # the column below: l[i] = c[i, j] * inv_d
         for i in range(j + 1, k):
-            for b in range(lanes):
-                v = c[i, j, b] * inv_d[b]
-                col[i, b] = v
-                c[i, j, b] = v
-        for i in range(j + 1, k):
-            for m in range(j + 1, i + 1):
-                for b in range(lanes):
-                    c[i, m, b] -= col[i, b] * col[m, b]
-            for b in range(lanes):
-                l = col[i, b]
-                g[i, 0, b] -= l * g0[b]
-                g[i, 1, b] -= l * g1[b]
-                g[i, 2, b] -= l * g2[b]
-                g[i, 3, b] -= l * g3[b]
+            # c[i, m] -= l[i] l[m] for j < m <= i, and g[i, q] -= l[i] g[j, q]
+            lanes_subtract_products(c, i * row + (j + 1) * _LANES, _LANES, c, i * row + j * _LANES, c, diagonal + row, row,
+                                    i - j)
+            lanes_subtract_products(g, i * rhs, _LANES, c, i * row + j * _LANES, g, j * rhs, _LANES, 4)
     # the drift: (F' C^-1 F) beta = F' C^-1 (z - z0), a 3 x 3 system, with
     # F' C^-1 F = A' A and F' C^-1 (z - z0) = A' b for [A b] = g
     s00, s01, s02, s11, s12, s22 = work[5], work[6], work[7], work[8], work[9], work[10]
@@ -624,13 +612,8 @@ def _dual_solve(
         for b in range(lanes):
             col[i, b] = g[i, 3, b] - r0[b] * g[i, 0, b] - r1[b] * g[i, 1, b] - r2[b] * g[i, 2, b]
     for i in range(k - 1, -1, -1):
-        for b in range(lanes):
-            v = col[i, b] * c[i, i, b]
-            col[i, b] = v
-            inv_d[b] = v
-        for m in range(i):
-            for b in range(lanes):
-                col[m, b] -= c[i, m, b] * inv_d[b]
+        lanes_scale(col, i * _LANES, 0, c, i * row + i * _LANES, 1)  # col[i] *= 1 / L[i, i]
+        lanes_subtract_products(col, 0, _LANES, col, i * _LANES, c, i * row, _LANES, i)  # col[m] -= col[i] L[i, m], m < i
     for b in range(lanes):
         for i in range(k):
             coef[b, i] = col[i, b]

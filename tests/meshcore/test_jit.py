@@ -228,6 +228,36 @@ def test_kernels_and_helpers_may_use_the_widest_vectors_with_the_same_results(fr
         assert _jit._WIDE_VECTORS in code
 
 
+def _lane_steps(c, g, scale, count):
+    # three rows of a (4, 3, LANES) array scaled, then rows of products subtracted from another's
+    _jit.lanes_scale(c, _jit.LANES, 3 * _jit.LANES, scale, 0, count)
+    _jit.lanes_subtract_products(g, 2 * _jit.LANES, _jit.LANES, c, 0, c, _jit.LANES, 3 * _jit.LANES, count)
+
+
+def test_lane_operations_do_each_lanes_operations_as_numpy_does(fresh_cache):
+    lanes = _jit.LANES
+    rng = np.random.default_rng(8)
+    c, g, scale = rng.normal(size=(4, 3, lanes)), rng.normal(size=(6, lanes)), rng.normal(size=lanes)
+    expected_c, expected_g = c.copy(), g.copy()
+    expected_c[:3, 1] *= scale
+    expected_g[2:5] -= expected_c[0, 0] * expected_c[:3, 1]
+    python_c, python_g = c.copy(), g.copy()  # as kernels running as Python do them
+    _jit._lanes_scale(python_c, lanes, 3 * lanes, scale, 0, 3)
+    _jit._lanes_subtract_products(python_g, 2 * lanes, lanes, python_c, 0, python_c, lanes, 3 * lanes, 3)
+    compiled_c, compiled_g = c.copy(), g.copy()
+    if not numba.config.DISABLE_JIT:
+        _jit.njit(_lane_steps)(compiled_c, compiled_g, scale, 3)
+    else:
+        compiled_c, compiled_g = python_c, python_g
+    for got_c, got_g in ((python_c, python_g), (compiled_c, compiled_g)):
+        np.testing.assert_array_equal(got_c, expected_c)  # bit for bit
+        np.testing.assert_array_equal(got_g, expected_g)
+    untouched_c, untouched_g = c.copy(), g.copy()
+    _jit.njit(_lane_steps)(untouched_c, untouched_g, scale, 0)  # no rows
+    np.testing.assert_array_equal(untouched_c, c)
+    np.testing.assert_array_equal(untouched_g, g)
+
+
 def _new_arrays(n, like):
     a = _jit.empty(n, dtype=np.int32)
     for i in range(n):
