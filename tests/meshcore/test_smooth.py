@@ -204,6 +204,24 @@ def test_nearest_neighbours_are_exact_and_break_ties_by_coordinates(rng):
         assert_array_equal(dist, full[order])
 
 
+@pytest.mark.parametrize("layout", ["duplicates", "line", "outlier"])
+def test_nearest_neighbours_are_exact_on_duplicates_lines_and_outliers(rng, layout):
+    """Exact duplicates in their input order; a grid one bucket thick; a point far from the others."""
+    xy = np.round(rng.random((2000, 2)) * 20.0) + OFFSET
+    if layout == "line":
+        xy[:, 1] = OFFSET[1]
+    if layout == "outlier":
+        xy = np.vstack([xy, OFFSET + 1e5])
+    queries = np.vstack([rng.random((150, 2)) * 20.0 + OFFSET, OFFSET + [-30.0, 50.0]])
+    for k in (1, 16, 40):
+        index, d2 = _nearest(xy, queries, k)
+        for q in range(queries.shape[0]):
+            full = ((xy - queries[q]) ** 2).sum(axis=1)
+            order = np.lexsort((np.arange(xy.shape[0]), xy[:, 1], xy[:, 0], full))[:k]
+            assert_array_equal(index[q], order)
+            assert_array_equal(d2[q], full[order])
+
+
 def test_adjacent_window_pieces_get_bit_identical_nodes_on_their_shared_edges(rng):
     """Seamless: each piece krigs from the points it holds, the shared edges agree bit for bit."""
     xy = np.round((rng.random((4000, 2)) * [400.0, 200.0]) / 0.01) * 0.01 + OFFSET
