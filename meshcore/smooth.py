@@ -308,6 +308,34 @@ def _bucket_items(key: np.ndarray, start: np.ndarray, xy: np.ndarray, sxy: np.nd
     return items
 
 
+@njit
+def _bounds_kernel(xy: np.ndarray, out: np.ndarray) -> None:
+    nan_x = nan_y = False
+    x0 = x1 = xy[0, 0]
+    y0 = y1 = xy[0, 1]
+    for i in range(xy.shape[0]):
+        x = xy[i, 0]
+        y = xy[i, 1]
+        nan_x |= x != x
+        nan_y |= y != y
+        x0 = smaller(x0, x)
+        x1 = larger(x1, x)
+        y0 = smaller(y0, y)
+        y1 = larger(y1, y)
+    out[0] = math.nan if nan_x else x0
+    out[1] = math.nan if nan_y else y0
+    out[2] = math.nan if nan_x else x1
+    out[3] = math.nan if nan_y else y1
+
+
+def _bounds(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The lowest and the highest ``(x, y)`` of ``(n >= 1, 2)`` points (a coordinate NaN where
+    any point's is, as numpy's ``min`` and ``max``), in one pass (four of numpy's reductions over the columns took 9 ms of 1M points)."""
+    out = np.empty(4)
+    _bounds_kernel(np.ascontiguousarray(xy, dtype=np.float64), out)
+    return out[:2], out[2:]
+
+
 _BUCKET_POINTS = 3.0
 """Points per bucket of :func:`_nearest`'s grid, on average (measured: 2 or 5 were 10-20% slower)."""
 
@@ -322,8 +350,7 @@ def _nearest(
         return np.full((queries.shape[0], k), -1, dtype=np.int64), np.full((queries.shape[0], k), np.inf)
     out_index = np.empty((queries.shape[0], k), dtype=np.int64)  # every row written, -1 and inf past the points found
     out_d2 = np.empty((queries.shape[0], k))
-    lo = np.array([xy[:, 0].min(), xy[:, 1].min()])  # min(axis=0) is ten times slower here
-    hi = np.array([xy[:, 0].max(), xy[:, 1].max()])
+    lo, hi = _bounds(xy)
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
     # three points a bucket: the 3 x 3 around a query hold about 27, more than the 16 sought
@@ -1028,8 +1055,7 @@ def _cells(positions: NDArray[np.float64], cell: float) -> tuple[NDArray[np.int6
     """
     if positions.shape[0] == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64), np.empty((0, 2))
-    lo = np.array([positions[:, 0].min(), positions[:, 1].min()])  # min(axis=0) is ten times slower here
-    hi = np.array([positions[:, 0].max(), positions[:, 1].max()])
+    lo, hi = _bounds(positions)
     if not max(np.abs(lo).max(), np.abs(hi).max()) / cell < 2.0**52:
         raise InvalidInputError(f"the smooth surface's cell {cell!r} is too small for coordinates up to "
                                 f"{max(np.abs(lo).max(), np.abs(hi).max()):.6g}")
