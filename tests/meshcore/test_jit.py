@@ -216,7 +216,10 @@ def _scaled_sum(a, b):
 
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
-def test_kernels_and_helpers_may_use_the_widest_vectors_with_the_same_results(fresh_cache, monkeypatch):
+@pytest.mark.parametrize("wide", [True, False])
+def test_kernels_of_some_modules_may_use_the_widest_vectors_with_the_same_results(fresh_cache, monkeypatch, wide):
+    modules = _jit._WIDE_VECTOR_MODULES | {__name__} if wide else _jit._WIDE_VECTOR_MODULES - {__name__}
+    monkeypatch.setattr(_jit, "_WIDE_VECTOR_MODULES", modules)
     helper = _jit.njit_helper(_cubed)
     cubes = _calling(monkeypatch, "_cubed_kernel", helper, _cubes)
     np.testing.assert_array_equal(cubes(np.array([2.0])), [8.0])
@@ -225,7 +228,17 @@ def test_kernels_and_helpers_may_use_the_widest_vectors_with_the_same_results(fr
     np.testing.assert_array_equal(scaled_sum(a, b), 0.5 * a + b)  # numpy's operations, bit for bit
     for code in (scaled_sum.inspect_llvm(scaled_sum.signatures[0]), cubes.inspect_llvm(cubes.signatures[0]),
                  str(helper.overloads[(numba.float64,)].library._final_module)):
-        assert _jit._WIDE_VECTORS in code
+        assert (_jit._WIDE_VECTORS in code) == wide
+
+
+@pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
+def test_the_smooth_surfaces_kernels_prefer_the_widest_vectors(fresh_cache):
+    from meshcore import smooth
+
+    correlation = _kernel(smooth._correlation_kernel.py_func)  # compiled here, not read from the cache
+    out = np.empty(3)
+    correlation(np.array([0.5, 1.0, 2.0]), 1.0, 1, out)
+    assert _jit._WIDE_VECTORS in correlation.inspect_llvm(correlation.signatures[0])
 
 
 def _lane_steps(c, g, scale, count):
