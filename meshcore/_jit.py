@@ -700,21 +700,27 @@ LANES = 8
 """Numbers per lane operation: :func:`lanes_scale`, :func:`lanes_subtract_products`."""
 
 
+# As Python, without numpy's warnings: lanes no system uses hold stale numbers
+# (compiled, the same operations raise nothing either)
+
+
 def _lanes_scale(out, at, step, scale, scale_at, count) -> None:
     flat = out.reshape(-1)
     by = scale.reshape(-1)[scale_at:scale_at + LANES].copy()
-    for t in range(count):
-        row = flat[at + t * step:at + t * step + LANES]
-        row *= by
+    with np.errstate(all="ignore"):
+        for t in range(count):
+            row = flat[at + t * step:at + t * step + LANES]
+            row *= by
 
 
 def _lanes_subtract_products(out, at, step, x, x_at, y, y_at, y_step, count) -> None:
     flat = out.reshape(-1)
     by = x.reshape(-1)[x_at:x_at + LANES].copy()
     ys = y.reshape(-1)
-    for t in range(count):
-        row = flat[at + t * step:at + t * step + LANES]
-        row -= by * ys[y_at + t * y_step:y_at + t * y_step + LANES]
+    with np.errstate(all="ignore"):
+        for t in range(count):
+            row = flat[at + t * step:at + t * step + LANES]
+            row -= by * ys[y_at + t * y_step:y_at + t * y_step + LANES]
 
 
 def _lanes_pointer(context, builder, array_type, array, at):
