@@ -466,8 +466,8 @@ class _KrigingScratch(NamedTuple):
     radius: np.ndarray  # (_LANES,) each system's radius, NaN when singular
     c: np.ndarray  # (k, k, _LANES) the covariances, then their Cholesky factors
     g: np.ndarray  # (k, 4, _LANES) the right-hand sides
-    col: np.ndarray  # (k, _LANES)
-    work: np.ndarray  # (16, _LANES)
+    col: np.ndarray  # (k, _LANES) the back substitution's unknowns
+    work: np.ndarray  # (12, _LANES) each lane's 1 / pivot, drift sums, flag and first z
     pairs: np.ndarray  # (2, k * k) the lags of the pairs below the diagonal
     cov: np.ndarray  # (_LANES, k * k) their covariances
     reach: np.ndarray  # (_LANES,) each system's radius
@@ -477,7 +477,7 @@ class _KrigingScratch(NamedTuple):
 def _kriging_scratch(k: int) -> _KrigingScratch:
     return _KrigingScratch(
         empty((_LANES, k)), empty((_LANES, k)), empty((_LANES, k + 3)), empty(_LANES),
-        empty((k, k, _LANES)), empty((k, 4, _LANES)), empty((k, _LANES)), empty((16, _LANES)),
+        empty((k, k, _LANES)), empty((k, 4, _LANES)), empty((k, _LANES)), empty((12, _LANES)),
         empty((2, k * k)), empty((_LANES, k * k)), empty(_LANES),
     )
 
@@ -568,8 +568,8 @@ def _dual_solve(
             g[i, 1, b] = xs[b, i] * inv_r
             g[i, 2, b] = ys[b, i] * inv_r
             g[i, 3, b] = z[neighbours[s, i]] - z0
-        work[15, b] = z0
-    ok = work[14]
+        work[11, b] = z0
+    ok = work[10]
     for b in range(lanes):
         ok[b] = 1.0 if k >= 3 and reach[b] > 0.0 else 0.0
         radius[b] = reach[b]
@@ -598,8 +598,8 @@ def _dual_solve(
             lanes_subtract_products(g, i * rhs, _LANES, c, i * row + j * _LANES, g, j * rhs, _LANES, 4)
     # the drift: (F' C^-1 F) beta = F' C^-1 (z - z0), a 3 x 3 system, with
     # F' C^-1 F = A' A and F' C^-1 (z - z0) = A' b for [A b] = g
-    s00, s01, s02, s11, s12, s22 = work[5], work[6], work[7], work[8], work[9], work[10]
-    r0, r1, r2 = work[11], work[12], work[13]
+    s00, s01, s02, s11, s12, s22 = work[1], work[2], work[3], work[4], work[5], work[6]
+    r0, r1, r2 = work[7], work[8], work[9]
     for b in range(lanes):
         s00[b] = 0.0
         s01[b] = 0.0
@@ -655,7 +655,7 @@ def _dual_solve(
     for b in range(lanes):
         for i in range(k):
             coef[b, i] = col[i, b]
-        coef[b, k] = r0[b] + work[15, b]
+        coef[b, k] = r0[b] + work[11, b]
         coef[b, k + 1] = r1[b]
         coef[b, k + 2] = r2[b]
         good = ok[b] > 0.0
