@@ -335,10 +335,30 @@ def _report(args: argparse.Namespace, report) -> int:
     return EXIT_OK if report.tiles_uncertified == 0 else EXIT_FAILED
 
 
+_COORDINATE_FLAGS = ("--bbox", "--extent")
+
+
+def _with_attached_values(argv: Sequence[str]) -> list[str]:
+    """``--bbox -74.2,40.5,-73.7,40.9`` as ``--bbox=-74.2,40.5,-73.7,40.9``: argparse
+    reads a value that starts with a minus sign (and is not one number) as a
+    flag, so a box west or south of the origin was refused."""
+    out: list[str] = []
+    k = 0
+    while k < len(argv):
+        arg = argv[k]
+        if arg in _COORDINATE_FLAGS and k + 1 < len(argv) and re.match(r"-[\d.]", argv[k + 1]):
+            out.append(f"{arg}={argv[k + 1]}")
+            k += 2
+            continue
+        out.append(arg)
+        k += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``terrain``; returns the exit code (0 ok, 1 failed, 2 usage or input error, 130 interrupted)."""
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_with_attached_values(sys.argv[1:] if argv is None else argv))
     configure(-1 if args.quiet else args.verbose, args.log_json)
     try:
         return _command(args)

@@ -249,3 +249,15 @@ def test_a_header_kilometres_off_within_max_cells_is_measured_too(tmp_path, caps
     with xr.open_zarr(stores["honest"]) as a, xr.open_zarr(stores["lying"]) as b:
         assert a.sizes == b.sizes
         assert a["elevation"].equals(b["elevation"])
+
+
+def test_a_bbox_or_extent_west_or_south_of_the_origin_is_read_as_coordinates(tmp_path):
+    from pipeline.cli import _parser, _run_config, _with_attached_values
+
+    argv = ["run", "in.las", "-o", str(tmp_path / "o.zarr"), "--resolution", "1",
+            "--bbox", "-7481089.5,-20,-7479506,5", "--extent", "-.5e3,-2e3,0,0"]
+    config = _run_config(_parser().parse_args(_with_attached_values(argv)))
+    assert config.bbox == (-7481089.5, -20.0, -7479506.0, 5.0)
+    assert config.extent == (-500.0, -2000.0, 0.0, 0.0)
+    # a flag after --bbox is still a flag
+    assert _with_attached_values(["run", "--bbox", "--resolution", "1"]) == ["run", "--bbox", "--resolution", "1"]
