@@ -19,7 +19,7 @@ from ._order import block_order, lexicographic_order
 from .build import KERNEL_STAGES, build_mesh, load_kernels
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
-from .mesh import Mesh
+from .mesh import Mesh, with_vertices
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .predicates import incircle, orient2d
@@ -62,6 +62,7 @@ def kernels_compiled() -> bool:
 
 __all__ = [
     "Mesh",
+    "with_vertices",
     "build_mesh",
     "load_kernels",
     "KERNEL_STAGES",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
 
-__all__ = ["Mesh", "mesh_arrays", "vertex_values"]
+__all__ = ["Mesh", "mesh_arrays", "vertex_values", "with_vertices"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,6 +103,50 @@ def _corners_in_range(faces: np.ndarray, n_v: int) -> bool:
             if v >= n_v or v < (-1 if k == 3 else 0):
                 return False
     return True
+
+
+def with_vertices(mesh: Mesh, points: ArrayLike) -> Mesh:
+    """``mesh`` with ``points`` among its input points: those at a new place
+    become vertices that no face uses, after the others and in the order of
+    their first occurrence, and ``input_to_vertex`` grows by one entry a
+    point (a point at a vertex's place, or at another point's, is that
+    vertex).  The faces, the options and the window stay as they are: meant
+    for points that lie in none of the faces' circumcircles, which a build
+    with them would have left as they are (a window piece's points outside
+    every one of its ``window_escapes``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> square = Mesh(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), np.array([[0, 1, 2, 3]]), np.arange(4))
+    >>> more = with_vertices(square, [[5.0, 5.0], [1.0, 1.0], [5.0, 5.0], [7.0, 0.0]])
+    >>> more.vertices[4:].tolist(), more.input_to_vertex[4:].tolist()
+    ([[5.0, 5.0], [7.0, 0.0]], [4, 2, 4, 5])
+    """
+    vertices, _ = mesh_arrays(mesh)
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 2:
+        raise InvalidInputError(f"points must be of shape (n, 2), got {pts.shape}")
+    pts = np.ascontiguousarray(pts[:, :2])
+    if not np.isfinite(pts).all():
+        raise InvalidInputError("points must be finite")
+    if pts.shape[0] == 0:
+        return mesh
+    # a point's place as one complex number: sorted and compared as (x, y), 0.0 equal to -0.0
+    keys = pts.view(np.complex128).ravel()
+    places, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    vertex = np.full(places.size, -1, dtype=np.int64)
+    known = vertices.view(np.complex128).ravel()
+    at = np.minimum(np.searchsorted(places, known), places.size - 1)
+    same = places[at] == known
+    vertex[at[same]] = np.flatnonzero(same)
+    fresh = np.flatnonzero(vertex < 0)
+    fresh = fresh[np.argsort(first[fresh], kind="stable")]
+    n = vertices.shape[0]
+    vertex[fresh] = n + np.arange(fresh.size)
+    grown = np.concatenate([vertices, pts[first[fresh]]])
+    mapped = np.concatenate([np.asarray(mesh.input_to_vertex, dtype=np.int64), vertex[inverse.ravel()]])
+    return replace(mesh, vertices=grown, input_to_vertex=mapped)
 
 
 def vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:

@@ -350,6 +350,28 @@ def _nearest(
         return np.full((queries.shape[0], k), -1, dtype=np.int64), np.full((queries.shape[0], k), np.inf)
     out_index = np.empty((queries.shape[0], k), dtype=np.int64)  # every row written, -1 and inf past the points found
     out_d2 = np.empty((queries.shape[0], k))
+    grid = _bucket_grid(xy)
+    q = np.ascontiguousarray(queries, dtype=np.float64)
+    _knn_kernel(grid.sxy, grid.items, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start, q, k, out_index, out_d2)
+    return out_index, out_d2
+
+
+class _BucketGrid(NamedTuple):
+    """Points in the buckets of a grid (:func:`_bucket_grid`)."""
+
+    sxy: np.ndarray  # (n, 2) the points bucket by bucket, the buckets in rows
+    items: np.ndarray  # (n,) their indices
+    x0: float  # the grid's lower left corner
+    y0: float
+    cell: float  # the buckets' side
+    nbx: int  # buckets along x and y
+    nby: int
+    start: np.ndarray  # (nbx * nby + 1,) bucket b holds sxy[start[b]:start[b + 1]]
+
+
+def _bucket_grid(xy: NDArray[np.float64]) -> _BucketGrid:
+    """``(n >= 1, 2)`` points in a grid of :data:`_BUCKET_POINTS` points a bucket on average over their box."""
+    n = xy.shape[0]
     lo, hi = _bounds(xy)
     span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
     area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
@@ -365,9 +387,55 @@ def _nearest(
     np.cumsum(np.bincount(key, minlength=nbx * nby), out=start[1:])
     sxy = np.empty((n, 2))
     items = _bucket_items(key, start, xy, sxy)
-    q = np.ascontiguousarray(queries, dtype=np.float64)
-    _knn_kernel(sxy, items, float(lo[0]), float(lo[1]), cell, nbx, nby, start, q, k, out_index, out_d2)
-    return out_index, out_d2
+    return _BucketGrid(sxy, items, float(lo[0]), float(lo[1]), cell, nbx, nby, start)
+
+
+@njit
+def _disks_holding_kernel(
+    sxy: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int, start: np.ndarray,
+    centres: np.ndarray, radius: np.ndarray, out: np.ndarray,
+) -> None:
+    """Whether each closed disk ``(centres[s], radius[s])``, its radius grown by a
+    billionth, holds one of the grid's points (a radius not finite: always).
+    The buckets its box meets are read, one more on every side (a point's
+    bucket is found by a division that may round it into its neighbour)."""
+    for s in range(centres.shape[0]):
+        r = radius[s]
+        if not (r < math.inf):
+            out[s] = True
+            continue
+        r = r * (1.0 + 1e-9)
+        r2 = r * r
+        cx = centres[s, 0]
+        cy = centres[s, 1]
+        out[s] = False
+        if cx + r < x0 - cell or cy + r < y0 - cell or cx - r > x0 + (nbx + 1) * cell or cy - r > y0 + (nby + 1) * cell:
+            continue
+        i_lo = larger(np.int64(math.floor((cx - r - x0) / cell)) - 1, 0)
+        i_hi = smaller(np.int64(math.floor((cx + r - x0) / cell)) + 1, nbx - 1)
+        j_lo = larger(np.int64(math.floor((cy - r - y0) / cell)) - 1, 0)
+        j_hi = smaller(np.int64(math.floor((cy + r - y0) / cell)) + 1, nby - 1)
+        for j in range(j_lo, j_hi + 1):
+            for t in range(start[j * nbx + i_lo], start[j * nbx + i_hi + 1]):
+                dx = sxy[t, 0] - cx
+                dy = sxy[t, 1] - cy
+                if dx * dx + dy * dy <= r2:
+                    out[s] = True
+                    break
+            if out[s]:
+                break
+
+
+def _disks_holding(centres: NDArray[np.float64], radius: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which of the closed disks ``(centres, radius)`` may hold one of ``points``:
+    every disk that does, and a few that only come within a billionth of their radius."""
+    out = np.zeros(centres.shape[0], dtype=bool)
+    if points.shape[0] == 0 or centres.shape[0] == 0:
+        return out
+    grid = _bucket_grid(np.ascontiguousarray(points, dtype=np.float64))
+    _disks_holding_kernel(grid.sxy, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start,
+                          np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radius, dtype=np.float64), out)
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -1464,13 +1532,20 @@ def _added_points(data: NDArray[np.float64], positions: NDArray[np.float64], cel
     return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2))
 
 
-def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS) -> SmoothPlan:
+def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS,
+                previous: SmoothPlan | None = None) -> SmoothPlan:
     """The long faces cut and every kriging system of ``mesh``'s smooth surface (see :class:`SmoothPlan`).
 
     Edges longer than a few point spacings (:func:`_long_edges`, by the
     variogram) are split into equal pieces, decided and placed by the edge
     alone, so two pieces of a survey split a shared edge alike.  ``.disks``
     are the points the values will read.
+
+    ``previous``: the plan, with the same variogram and ``neighbours``, of a
+    mesh with the same faces whose vertices are the first of ``mesh``'s (as
+    :func:`meshcore.mesh.with_vertices` adds points).  Only the systems whose
+    disks hold one of the other vertices are searched again: the plan is
+    the one ``mesh`` gets, in a fraction of the time.
 
     Examples
     --------
@@ -1482,7 +1557,11 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     """
     k = _check_neighbours(neighbours)
     variogram = _check_variogram(variogram)
-    vertices, _ = mesh_arrays(mesh)
+    vertices, faces = mesh_arrays(mesh)
+    if previous is not None:
+        extended = _extended_plan(previous, mesh, vertices, faces, k)
+        if extended is not None:
+            return extended
     spacing = _mesh_spacing(vertices, k) if variogram.spacing is None else variogram.spacing
     longer_than, piece = _long_edges(variogram)
     refinement = refine_long_faces(mesh, spacing, longer_than, piece)
@@ -1490,6 +1569,53 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     nodes = smooth_neighbourhoods(refinement.mesh, k, spacing, data_vertices=n)
     added = _added_points(vertices, np.ascontiguousarray(refinement.mesh.vertices[n:]), nodes.cell, k)
     return SmoothPlan(refinement, nodes, added)
+
+
+def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float64], faces: NDArray[np.int64],
+                   k: int) -> SmoothPlan | None:
+    """:func:`smooth_plan` of ``mesh`` from ``previous`` (see there); None when
+    its systems have fewer than ``k`` neighbours, all searched again then."""
+    refinement, nodes, added = previous
+    refined = refinement.mesh
+    m = refinement.t.shape[0]
+    n_old = refined.vertices.shape[0] - m
+    n = vertices.shape[0]
+    n_f = faces.shape[0]
+    if (n < n_old or refinement.parent.shape[0] < n_f or nodes.take.shape[0] != refinement.parent.shape[0]
+            or not np.array_equal(refinement.parent[:n_f], np.arange(n_f))
+            or not np.array_equal(refined.vertices[:n_old], vertices[:n_old])):
+        raise InvalidInputError("previous must be the plan of a mesh with these faces and the first of these vertices")
+    if nodes.index.shape[1] != min(k, n_old) or min(k, n_old) != min(k, n):
+        return None
+    if n == n_old:
+        return previous
+    grown = n - n_old
+    new = vertices[n_old:]
+
+    def shifted(index: NDArray) -> NDArray:
+        """Indices of the refined mesh's vertices, its new points moved past the vertices added."""
+        return np.where(index >= n_old, index + grown, index).astype(index.dtype)
+
+    if m:
+        refined = Mesh(np.concatenate([vertices, refined.vertices[n_old:]]), shifted(refined.faces), mesh.input_to_vertex,
+                       mesh.triangle_measure, mesh.quad_measure, mesh.merge, mesh.window, mesh.window_escapes)
+    else:
+        refined = mesh
+    index, radius = nodes.index, nodes.radius
+    again = _disks_holding(nodes.centres, radius, new)
+    if again.any():
+        index, radius = index.copy(), radius.copy()
+        found, d2 = _nearest(vertices, np.ascontiguousarray(nodes.centres[again]), k)
+        index[again], radius[again] = found, _radii(d2)
+    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners))
+    index, radius = added.index, added.radius
+    again = _disks_holding(added.centres, radius, new)
+    if again.any():
+        index, radius = index.copy(), radius.copy()
+        found, d2 = _nearest_around(vertices, np.ascontiguousarray(added.centres[again]), k, 6.0 * nodes.cell)
+        index[again], radius[again] = found, _radii(d2)
+    added = added._replace(index=index, radius=radius)
+    return SmoothPlan(refinement._replace(mesh=refined), nodes, added)
 
 
 def smooth_surface(

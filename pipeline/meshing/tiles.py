@@ -485,8 +485,17 @@ def mesh_tile(job: TileJob) -> TileSummary:
         )
         return mesh, points
 
-    mesh, meshed = build(points)  # ``meshed``: the points of the last build, in its order
-    plan = None  # the smooth surface's long faces and kriging systems over ``mesh``
+    mesh, meshed = build(points)  # ``meshed``: the mesh's input points, in its order
+    built = points.shape[0]  # ``points[:built]`` are those points; the others were loaded since, in no circle
+    # the smooth surface's long faces and kriging systems over ``mesh``, once
+    # its faces are certified: every point held is then outside their
+    # circles, and joins the mesh as a vertex that no face uses
+    plan = None
+
+    def held_as_vertices():
+        """``mesh`` and ``meshed`` with the points loaded since the build as vertices that no face uses."""
+        return meshcore.with_vertices(mesh, points[built:, :2]), np.concatenate([meshed, points[built:]])
+
     ext = job.extent
     while True:
         # circles not yet vouched for; their points are loaded from near to
@@ -498,9 +507,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         escapes = mesh.window_escapes
-        if smooth:  # the smoother's neighbourhoods must be held too
-            if plan is None:
-                plan = meshcore.smooth_plan(mesh, job.variogram)
+        if plan is not None:  # the smoother's neighbourhoods must be held too
             escapes = np.concatenate([escapes, _open_disks(plan.disks, held[0])])
         for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
             rest = [] if box is None else _uncovered(box, held)
@@ -513,6 +520,10 @@ def mesh_tile(job: TileJob) -> TileSummary:
             around = intersect_boxes(near, ext)
             requests.extend([] if around is None else _uncovered(around, held))
         if not (circles or gap):
+            if smooth and plan is None:
+                (mesh, meshed), built = held_as_vertices(), points.shape[0]
+                plan = meshcore.smooth_plan(mesh, job.variogram)
+                continue
             break
         expansions += 1
         if not requests:
@@ -534,9 +545,14 @@ def mesh_tile(job: TileJob) -> TileSummary:
         points = np.concatenate([points, extra])
         c = np.array(circles).reshape(-1, 3)
         d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
-        if gap or np.any(d2 <= c[None, :, 2] ** 2):
+        if gap or (plan is None and np.any(d2 <= c[None, :, 2] ** 2)):
             # a loaded point lies in a circle, or may close the gap: build again
-            (mesh, meshed), plan = build(points), None
+            (mesh, meshed), built, plan = build(points), points.shape[0], None
+        elif plan is not None:
+            # the faces' circles are held, and the points lie outside what was
+            # held: vertices, kriged from where a disk holds them
+            (mesh, meshed), built = held_as_vertices(), points.shape[0]
+            plan = meshcore.smooth_plan(mesh, job.variogram, previous=plan)
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
@@ -741,6 +757,10 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     g = job.grid
     box = g.box(job.row, job.col)
     smooth = job.surface == "smooth"
+
+    def points_after(meshed, points, built):
+        """The mesh's input points with those loaded since it was built, as :func:`meshcore.with_vertices` takes them."""
+        return np.concatenate([meshed, points[built:]])
     parts = []
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)

@@ -142,6 +142,26 @@ def test_nearest_around_a_few_centres_is_the_exact_nearest(rng):
         np.testing.assert_array_equal(d2, want_d2)
 
 
+def test_disks_holding_a_point_are_all_found(rng):
+    """Every closed disk that holds a point is found, a point on its circle too; the
+    others only when a point comes within a billionth of the radius."""
+    from meshcore.smooth import _disks_holding
+
+    points = rng.random((300, 2)) * 100.0 + OFFSET
+    centres = rng.random((2000, 2)) * 140.0 + OFFSET - 20.0
+    radius = rng.random(2000) * 6.0
+    radius[:50] = np.sqrt(((points[:50] - centres[:50]) ** 2).sum(axis=1))  # a point on the circle, to rounding
+    radius[50:60] = np.inf
+    radius[60:70] = 80.0  # wide
+    d2 = ((centres[:, None, :] - points[None, :, :]) ** 2).sum(axis=2)
+    holds = np.any(d2 <= radius[:, None] ** 2, axis=1)
+    near = np.any(d2 <= (radius[:, None] * (1.0 + 1e-9)) ** 2, axis=1)
+    found = _disks_holding(centres, radius, points)
+    assert 100 < holds.sum() < 1900
+    assert found[:70].all() and np.all(found[holds]) and not np.any(found & ~near)
+    assert not _disks_holding(centres, radius, points[:0]).any()
+
+
 def test_linear_ground_is_reproduced_on_the_cut_faces_too(rng):
     xy = _with_void(rng)
     mesh = meshcore.build_mesh(xy, "s3", "s4")
@@ -235,3 +255,59 @@ def test_an_outlier_far_away_costs_little(rng):
     index, d2 = _nearest(xy, queries, 16)
     want = np.sort(((xy[None, :, 0] - queries[:, None, 0]) ** 2 + (xy[None, :, 1] - queries[:, None, 1]) ** 2), axis=1)[:, :16]
     np.testing.assert_array_equal(d2, want)
+
+
+def test_a_plan_grown_by_points_in_its_disks_is_the_plan_of_the_grown_mesh(rng):
+    """A window piece whose faces are certified gets the points its kriging disks
+    still need as vertices no face uses: the plan grown from the previous one is
+    the grown mesh's own plan, and the surface is that of the piece built again
+    with those points."""
+    xy = _with_void(rng, 3000)
+    z = 5.0 + np.sin((xy[:, 0] - OFFSET[0]) / 15.0) + rng.normal(0.0, 0.01, xy.shape[0])
+    variogram = fit_variogram(xy, z)
+    window = (OFFSET[0] + 20.0, OFFSET[1] + 20.0, OFFSET[0] + 80.0, OFFSET[1] + 80.0)  # around the void
+    known = (window[0] - 4.0, window[1] - 4.0, window[2] + 4.0, window[3] + 4.0)
+    inside = (xy[:, 0] >= known[0]) & (xy[:, 1] >= known[1]) & (xy[:, 0] <= known[2]) & (xy[:, 1] <= known[3])
+    mesh = meshcore.build_mesh(xy[inside], "s3", "s4", window=window, known=known)
+    plan = smooth_plan(mesh, variogram)
+    assert plan.refinement.ends.shape[0] > 0  # faces across the void are cut: their new points are renumbered
+
+    def within(points, disks):
+        d2 = (points[:, 0, None] - disks[None, :, 0]) ** 2 + (points[:, 1, None] - disks[None, :, 1]) ** 2
+        return np.any(d2 <= disks[None, :, 2] ** 2, axis=1)
+
+    outside = xy[~inside]
+    wanted = within(outside, plan.disks) & ~within(outside, mesh.window_escapes)
+    assert wanted.sum() > 20
+    added = np.concatenate([outside[wanted], outside[wanted][:3], xy[inside][:2]])  # and points already there
+    grown = meshcore.with_vertices(mesh, added)
+    assert grown.vertices.shape[0] == mesh.vertices.shape[0] + wanted.sum()
+    np.testing.assert_array_equal(grown.vertices[grown.input_to_vertex[-5:]], added[-5:])
+
+    again = smooth_plan(grown, variogram, previous=plan)
+    fresh = smooth_plan(grown, variogram)
+    changed = np.any(again.nodes.index != plan.nodes.index, axis=1)
+    assert 0 < changed.sum() < changed.size  # some systems searched again, not all
+    for a, b in ((again.refinement, fresh.refinement), (again.nodes, fresh.nodes), (again.added, fresh.added)):
+        for x, y in zip(a, b):
+            if isinstance(x, meshcore.Mesh):
+                np.testing.assert_array_equal(x.vertices, y.vertices)
+                np.testing.assert_array_equal(x.faces, y.faces)
+            else:
+                np.testing.assert_array_equal(x, y)
+
+    # the same surface as the piece built again with the points
+    values = np.concatenate([z[inside], z[~inside][wanted]])
+    zz = np.empty(grown.vertices.shape[0])
+    zz[grown.input_to_vertex[: values.size]] = values
+    rebuilt = meshcore.build_mesh(np.concatenate([xy[inside], outside[wanted]]), "s3", "s4", window=window, known=known)
+    rz = np.empty(rebuilt.vertices.shape[0])
+    rz[rebuilt.input_to_vertex] = values
+    q = rng.random((3000, 2)) * 56.0 + OFFSET + 22.0  # inside the window (its piece may stop short of its edges)
+    a = meshcore.interpolate(grown, zz, q[:, 0], q[:, 1], surface=smooth_surface(grown, zz, variogram, plan=again))
+    b = meshcore.interpolate(rebuilt, rz, q[:, 0], q[:, 1], surface=smooth_surface(rebuilt, rz, variogram))
+    assert np.isfinite(a).all()
+    np.testing.assert_array_equal(a, b)
+
+    with pytest.raises(InvalidInputError, match="previous"):
+        smooth_plan(meshcore.build_mesh(xy[:500]), variogram, previous=plan)
