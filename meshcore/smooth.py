@@ -1341,8 +1341,9 @@ def smooth_nodes(
         raise InvalidInputError(f"neighbourhoods were computed for cells of {hoods.cell!r}, the variogram's spacing gives "
                                 f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
+    rows = hoods.pattern.astype(np.int32)  # as the added points give theirs: one kernel for both, compiled and loaded once
     _nodes_kriged_kernel(
-        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, hoods.pattern, _PATTERN_WEIGHTS,
+        vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
         _clamps_inside(variogram), values,
     )
@@ -1594,7 +1595,10 @@ def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float6
 
     def shifted(index: NDArray) -> NDArray:
         """Indices of the refined mesh's vertices, its new points moved past the vertices added."""
-        return np.where(index >= n_old, index + grown, index).astype(index.dtype)
+        out = index.copy()
+        if m:
+            out[out >= n_old] += grown
+        return out
 
     if m:
         refined = Mesh(np.concatenate([vertices, refined.vertices[n_old:]]), shifted(refined.faces), mesh.input_to_vertex,
@@ -1691,7 +1695,7 @@ def _krige_added(
     values = np.empty(n)
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
-        np.arange(n), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
+        np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
         MODELS.index(variogram.model), _clamps_inside(variogram), values,
     )
     out = np.empty(n)
