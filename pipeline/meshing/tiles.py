@@ -543,16 +543,16 @@ def mesh_tile(job: TileJob) -> TileSummary:
         # kept even when no circle holds it: its box now counts as held, so a
         # circle of a later build that reaches it is vouched for by it
         points = np.concatenate([points, extra])
-        c = np.array(circles).reshape(-1, 3)
-        d2 = (extra[:, 0, None] - c[None, :, 0]) ** 2 + (extra[:, 1, None] - c[None, :, 1]) ** 2
-        if gap or (plan is None and np.any(d2 <= c[None, :, 2] ** 2)):
-            # a loaded point lies in a circle, or may close the gap: build again
-            (mesh, meshed), built, plan = build(points), points.shape[0], None
-        elif plan is not None:
+        if plan is not None and not gap:
             # the faces' circles are held, and the points lie outside what was
             # held: vertices, kriged from where a disk holds them
             (mesh, meshed), built = held_as_vertices(), points.shape[0]
             plan = meshcore.smooth_plan(mesh, job.variogram, previous=plan)
+        elif gap or meshcore.disks_holding(np.array(circles).reshape(-1, 3), extra).any():
+            # a loaded point lies in a circle, or may close the gap: build again
+            # (tested in a grid of the points: hundreds of thousands of them
+            # against a thousand circles made a matrix of gigabytes)
+            (mesh, meshed), built, plan = build(points), points.shape[0], None
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
