@@ -757,10 +757,6 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     g = job.grid
     box = g.box(job.row, job.col)
     smooth = job.surface == "smooth"
-
-    def points_after(meshed, points, built):
-        """The mesh's input points with those loaded since it was built, as :func:`meshcore.with_vertices` takes them."""
-        return np.concatenate([meshed, points[built:]])
     parts = []
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
