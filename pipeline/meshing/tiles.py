@@ -195,6 +195,12 @@ def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDA
     return ex[None, :] * (np.asarray(qy)[:, None] - py[None, :]) - ey[None, :] * (np.asarray(qx)[:, None] - px[None, :])
 
 
+#: circles times hull vertices that :func:`_disk_boxes_in_hull` computes at once (about 100 MiB
+#: of arrays): thousands of open disks of a smooth tile against the thousands of vertices of a
+#: hull cut on a curve took 1.4 GiB at once
+_HULL_CHUNK = 1 << 19
+
+
 def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box) -> list:
     """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
     polygon ``hull_xy`` (counter-clockwise) ∩ ``box``), rounded outwards by a
@@ -206,8 +212,12 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     The box's corners are those of the polygon inside the disk, the crossings
     of its edges with the circle, and the disk's own extreme points inside the
     polygon.  An infinite radius (a triangle too thin to bound its circle)
-    gives the whole of ``box``.  All circles are computed at once.
+    gives the whole of ``box``.  The circles are computed together, as many
+    at once as :data:`_HULL_CHUNK` allows.
     """
+    step = max(1, _HULL_CHUNK // max(hull_xy.shape[0], 1))
+    if circles.shape[0] > step:
+        return [b for k in range(0, circles.shape[0], step) for b in _disk_boxes_in_hull(circles[k:k + step], hull_xy, box)]
     clipped = [_disk_box_in(float(cx), float(cy), float(r), box) for cx, cy, r in circles]
     out: list = list(clipped)
     finite = np.array([c is not None and math.isfinite(r) for c, r in zip(clipped, circles[:, 2])], dtype=bool)

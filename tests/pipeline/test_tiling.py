@@ -153,6 +153,34 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     assert area(lens) < 0.5 * area(full)
 
 
+def test_circles_against_a_hull_of_many_vertices_are_boxed_a_chunk_at_a_time(rng, monkeypatch):
+    """A survey cut on a curve has a hull of thousands of vertices; the boxes of
+    thousands of circles are computed a bounded chunk at a time, each the same
+    as computed alone."""
+    import tracemalloc
+
+    import pipeline.meshing.tiles as tiles
+
+    angle = np.sort(rng.uniform(0.0, 2.0 * math.pi, 3000))
+    hull = np.column_stack([5.0e5 + 300.0 * np.cos(angle), 6.8e6 + 300.0 * np.sin(angle)])  # counter-clockwise
+    extent = (*hull.min(axis=0), *hull.max(axis=0))
+    circles = np.column_stack([rng.uniform(extent[0] - 50, extent[2] + 50, 2500), rng.uniform(extent[1] - 50, extent[3] + 50, 2500),
+                               rng.uniform(1.0, 60.0, 2500)])
+    circles[::97, 2] = np.inf
+    tracemalloc.start()
+    try:
+        whole = tiles._disk_boxes_in_hull(circles, hull, extent)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 256 * 2**20  # all at once: 1.4 GiB
+    assert sum(b is None for b in whole) > 100 and sum(b is not None for b in whole) > 1000
+    one_by_one = [tiles._disk_boxes_in_hull(circles[i:i + 1], hull, extent)[0] for i in range(0, 2500, 50)]
+    assert one_by_one == whole[::50]
+    monkeypatch.setattr(tiles, "_HULL_CHUNK", 7 * hull.shape[0] + 1)
+    assert tiles._disk_boxes_in_hull(circles, hull, extent) == whole
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_the_hull_grown_chunk_by_chunk_is_the_hull_of_all_points(seed):
     """Routing grows the survey's hull one chunk at a time from each chunk's
