@@ -898,10 +898,11 @@ def load_kernels(job: TileJob) -> None:
 
 
 def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str, ...] = ()) -> None:
-    """The DEM kernels of :func:`load_kernels` (and ``layers``'), and those a
-    piece's faces reaching its neighbours need, on a mesh of three faces made
-    here (so that they compile without the mesh kernels); with the smooth
-    surface, the variogram's fit too."""
+    """The DEM kernels of :func:`load_kernels` (and ``layers``'), those a
+    piece's faces reaching its neighbours need and the certificate's test of
+    loaded points against circles, on a mesh of three faces made here (so
+    that they compile without the mesh kernels); with the smooth surface, the
+    variogram's fit too."""
     vertices = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 4.0], [4.0, 4.0], [8.0, 5.0], [2.0, 8.0]])
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
     mesh = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
@@ -912,7 +913,9 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
         meshcore.lexicographic_order(vertices)
         grid = sample_grid_mesh(8).vertices
         meshcore.fit_variogram(grid, grid[:, 0] * 0.1 + np.sin(grid[:, 1]), neighbours=meshcore.DEFAULT_NEIGHBOURS)
-    # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them
+    # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them; points
+    # loaded for its circles, tested against them
+    meshcore.disks_holding(np.array([[0.0, 0.0, 1.0]]), vertices)
     table = np.column_stack([vertices, z])
     _reaching_out(table, faces.astype(np.int32), (0.0, 0.0, 4.0, 4.0))
     table.flags.writeable = False  # points as read back from the scratch folder
