@@ -34,7 +34,6 @@ from .smooth import (
     SmoothPlan,
     SmoothSurface,
     Variogram,
-    disks_holding,
     fit_variogram,
     smooth_neighbourhoods,
     smooth_nodes,
@@ -64,7 +63,6 @@ def kernels_compiled() -> bool:
 __all__ = [
     "Mesh",
     "with_vertices",
-    "disks_holding",
     "build_mesh",
     "load_kernels",
     "KERNEL_STAGES",

@@ -61,7 +61,7 @@ from .refine import Refinement, _first_end, refine_long_faces
 
 __all__ = [
     "MODELS", "CELL_PER_SPACING", "Variogram", "Neighbourhoods", "AddedPoints", "SmoothPlan", "SmoothSurface", "fit_variogram",
-    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS", "disks_holding",
+    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS",
 ]
 
 DEFAULT_NEIGHBOURS = 16
@@ -436,25 +436,6 @@ def _disks_holding(centres: NDArray[np.float64], radius: NDArray[np.float64], po
     _disks_holding_kernel(grid.sxy, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start,
                           np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radius, dtype=np.float64), out)
     return out
-
-
-def disks_holding(disks: ArrayLike, points: ArrayLike) -> NDArray[np.bool_]:
-    """Which closed disks, rows ``(x, y, r)`` (as :attr:`SmoothPlan.disks`), may
-    hold one of ``points`` ``(n, 2)``: every disk that does, and those whose
-    circle passes within a billionth of the radius of one (a radius not
-    finite: every disk).  The points are put in a grid and each disk reads the
-    buckets its box meets: memory of the points only.
-
-    Examples
-    --------
-    >>> disks_holding([[0.0, 0.0, 1.0], [5.0, 5.0, 1.0], [9.0, 0.0, np.inf]], [[0.6, 0.8], [3.0, 3.0]]).tolist()
-    [True, False, True]
-    """
-    d = np.asarray(disks, dtype=np.float64)
-    pts = np.asarray(points, dtype=np.float64)
-    if d.ndim != 2 or d.shape[1] != 3 or pts.ndim != 2 or pts.shape[1] < 2:
-        raise InvalidInputError(f"disks must be of shape (m, 3) and points (n, 2), got {d.shape} and {pts.shape}")
-    return _disks_holding(d[:, :2], d[:, 2], np.ascontiguousarray(pts[:, :2]))
 
 
 # --------------------------------------------------------------------------
