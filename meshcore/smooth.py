@@ -1595,29 +1595,32 @@ def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float6
 
     def shifted(index: NDArray) -> NDArray:
         """Indices of the refined mesh's vertices, its new points moved past the vertices added."""
+        if not m:
+            return index
         out = index.copy()
-        if m:
-            out[out >= n_old] += grown
+        out[out >= n_old] += grown
         return out
+
+    def searched_again(centres, index, radius, search):
+        """``index`` and ``radius`` with the systems whose disks hold a new vertex found again by ``search``."""
+        again = _disks_holding(centres, radius, new)
+        if not again.any():
+            return index, radius
+        index, radius = index.copy(), radius.copy()
+        found, d2 = search(np.ascontiguousarray(centres[again]))
+        index[again], radius[again] = found, _radii(d2)
+        return index, radius
 
     if m:
         refined = Mesh(np.concatenate([vertices, refined.vertices[n_old:]]), shifted(refined.faces), mesh.input_to_vertex,
                        mesh.triangle_measure, mesh.quad_measure, mesh.merge, mesh.window, mesh.window_escapes)
     else:
         refined = mesh
-    index, radius = nodes.index, nodes.radius
-    again = _disks_holding(nodes.centres, radius, new)
-    if again.any():
-        index, radius = index.copy(), radius.copy()
-        found, d2 = _nearest(vertices, np.ascontiguousarray(nodes.centres[again]), k)
-        index[again], radius[again] = found, _radii(d2)
+    index, radius = searched_again(nodes.centres, nodes.index, nodes.radius, lambda c: _nearest(vertices, c, k))
     nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners))
-    index, radius = added.index, added.radius
-    again = _disks_holding(added.centres, radius, new)
-    if again.any():
-        index, radius = index.copy(), radius.copy()
-        found, d2 = _nearest_around(vertices, np.ascontiguousarray(added.centres[again]), k, 6.0 * nodes.cell)
-        index[again], radius[again] = found, _radii(d2)
+    # as _added_points searches them
+    index, radius = searched_again(added.centres, added.index, added.radius,
+                                   lambda c: _nearest_around(vertices, c, k, 6.0 * nodes.cell))
     added = added._replace(index=index, radius=radius)
     return SmoothPlan(refinement._replace(mesh=refined), nodes, added)
 

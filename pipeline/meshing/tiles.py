@@ -514,8 +514,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         )
         return mesh, points
 
-    mesh, meshed = build(points)  # ``meshed``: the mesh's input points, in its order
-    built = points.shape[0]  # ``points[:built]`` are those points; the others were loaded since, in no circle
+    # ``meshed``: the mesh's input points, in its order: ``points[:len(meshed)]``;
+    # the others were loaded since, and lie in no circle of its faces
+    mesh, meshed = build(points)
     # the smooth surface's long faces and kriging systems over ``mesh``, once
     # its faces are certified: every point held is then outside their
     # circles, and joins the mesh as a vertex that no face uses
@@ -523,7 +524,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
 
     def held_as_vertices():
         """``mesh`` and ``meshed`` with the points loaded since the build as vertices that no face uses."""
-        return meshcore.with_vertices(mesh, points[built:, :2]), np.concatenate([meshed, points[built:]])
+        since = points[meshed.shape[0]:]
+        return meshcore.with_vertices(mesh, since[:, :2]), np.concatenate([meshed, since])
 
     ext = job.extent
     while True:
@@ -550,7 +552,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
             requests.extend([] if around is None else _uncovered(around, held))
         if not (circles or gap):
             if smooth and plan is None:
-                (mesh, meshed), built = held_as_vertices(), points.shape[0]
+                mesh, meshed = held_as_vertices()
                 plan = meshcore.smooth_plan(mesh, job.variogram)
                 continue
             break
@@ -575,11 +577,11 @@ def mesh_tile(job: TileJob) -> TileSummary:
         if plan is not None and not gap:
             # the faces' circles are held, and the points lie outside what was
             # held: vertices, kriged from where a disk holds them
-            (mesh, meshed), built = held_as_vertices(), points.shape[0]
+            mesh, meshed = held_as_vertices()
             plan = meshcore.smooth_plan(mesh, job.variogram, previous=plan)
         elif gap or _any_in_circles(extra, np.array(circles).reshape(-1, 3)):
             # a loaded point lies in a circle, or may close the gap: build again
-            (mesh, meshed), built, plan = build(points), points.shape[0], None
+            (mesh, meshed), plan = build(points), None
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
