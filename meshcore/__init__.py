@@ -25,7 +25,7 @@ from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_d
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
-from .rasterize import rasterize
+from .rasterize import rasterize, sampled_faces
 from .refine import Refinement, cut_face_rows, refine_long_faces, with_cut_faces
 from .smooth import (
     DEFAULT_NEIGHBOURS,
@@ -73,6 +73,7 @@ __all__ = [
     "interpolate",
     "gradient",
     "rasterize",
+    "sampled_faces",
     "smooth_nodes",
     "smooth_plan",
     "smooth_surface",

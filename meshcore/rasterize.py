@@ -30,7 +30,10 @@ from numpy.typing import ArrayLike, NDArray
 from ._jit import empty, larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 from .interpolate import (
+    _INSIDE_TOL,
     _bilinear_inverse,
+    _edge_turn,
+    _face_bbox,
     _grow_bbox,
     _quad_contains,
     _quad_value_and_gradient,
@@ -43,7 +46,7 @@ from .options import Surface
 from .patches import quad_patch, triangle_patch
 from .smooth import SmoothSurface, Variogram
 
-__all__ = ["rasterize"]
+__all__ = ["rasterize", "sampled_faces"]
 
 
 _CHUNK = 512
@@ -51,6 +54,11 @@ _CHUNK = 512
 
 _RANGE_SLACK = 16.0 * 2.0**-52
 """Relative widening of the estimated cell range, larger than its rounding error."""
+
+_SAMPLED_REACH = 1e-6
+""":func:`sampled_faces` takes a face that comes this share of a cell near a
+centre (plus a millionth of a millionth of the coordinates), far more than
+the rounding of a centre computed from another origin on the grid."""
 
 
 @njit_helper
@@ -180,6 +188,88 @@ def _rasterize_kernel(
                                 ax, ay, bx, by, cx, cy, dx, dy,
                                 zs[k, 0], zs[k, 1], zs[k, 2], zs[k, 3], qx, qy,
                             )[0]
+
+
+@njit
+def _sampled_faces_kernel(vertices: np.ndarray, faces: np.ndarray, x0: float, y0: float, resolution: float,
+                          nx: int, ny: int, out: np.ndarray) -> None:
+    """:func:`sampled_faces`: each face's box, then the centres in it against its edges."""
+    inv_res = 1.0 / resolution
+    for f in range(faces.shape[0]):
+        nc = 4 if faces[f, 3] >= 0 else 3
+        out[f] = False
+        bx0, by0, bx1, by1 = _face_bbox(vertices, faces, f)
+        reach = _SAMPLED_REACH * resolution + 1e-12 * (abs(bx0) + abs(by0) + abs(bx1) + abs(by1))
+        i0, i1 = _cell_range(bx0 - reach, bx1 + reach, x0, inv_res, nx)
+        j0, j1 = _cell_range(by0 - reach, by1 + reach, y0, inv_res, ny)
+        if i0 > i1 or j0 > j1:
+            continue
+        a = faces[f, 0]
+        c = faces[f, 2]
+        d = faces[f, 3] if nc == 4 else a
+        b = faces[f, 1]
+        # twice the area, as the inside tests take it (a quadrangle's: its diagonals' cross product)
+        if nc == 4:
+            area2 = ((vertices[c, 0] - vertices[a, 0]) * (vertices[d, 1] - vertices[b, 1])
+                     - (vertices[c, 1] - vertices[a, 1]) * (vertices[d, 0] - vertices[b, 0]))
+        else:
+            area2 = _edge_turn(vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1], vertices[c, 0], vertices[c, 1])
+        slack = _INSIDE_TOL * abs(area2)
+        for j in range(j0, j1 + 1):
+            py = _centre(y0, j, resolution)
+            for i in range(i0, i1 + 1):
+                px = _centre(x0, i, resolution)
+                near = True
+                for k in range(nc):
+                    s = faces[f, k]
+                    e = faces[f, (k + 1) % nc]
+                    ex = vertices[e, 0] - vertices[s, 0]
+                    ey = vertices[e, 1] - vertices[s, 1]
+                    # p at most ``reach`` outside the edge's line (and the inside test's tolerance)
+                    if _edge_turn(vertices[s, 0], vertices[s, 1], vertices[e, 0], vertices[e, 1], px, py) < -(
+                            slack + reach * math.sqrt(ex * ex + ey * ey)):
+                        near = False
+                        break
+                if near:
+                    out[f] = True
+                    break
+            if out[f]:
+                break
+
+
+def sampled_faces(mesh: Mesh, x0: float, y0: float, resolution: float, nx: int, ny: int) -> NDArray[np.bool_]:
+    """Which faces of ``mesh`` hold a centre of the grid's cells (as :func:`rasterize` takes the grid).
+
+    A face is taken when a centre lies in it or within a millionth of a cell
+    of it (:data:`_SAMPLED_REACH`): every face :func:`rasterize` reads a
+    value from, on this grid or on any part of it whose origin is moved by
+    whole cells (as a tile's is), and every face :func:`meshcore.gradient`
+    reads at those centres.  The other faces' surface is never sampled: a
+    smooth surface needs no patch there (``faces`` of
+    :func:`meshcore.smooth_plan`).
+
+    Returns
+    -------
+    (n_f,) bool
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshcore.mesh import Mesh
+    >>> strip = Mesh(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 0.2], [0.0, 0.2], [3.0, 2.0]]),
+    ...              np.array([[0, 1, 2, 3], [3, 2, 4, -1]]), np.arange(5))
+    >>> sampled_faces(strip, 0.0, 0.0, 1.0, 3, 2).tolist()  # the centres lie at y = 0.5 and 1.5
+    [False, True]
+    """
+    vertices, faces = mesh_arrays(mesh)
+    x0 = _finite_float("x0", x0)
+    y0 = _finite_float("y0", y0)
+    resolution = _finite_float("resolution", resolution)
+    if resolution <= 0.0:
+        raise InvalidInputError(f"resolution must be > 0, got {resolution!r}")
+    out = np.empty(faces.shape[0], dtype=bool)
+    _sampled_faces_kernel(vertices, faces, x0, y0, resolution, _positive_int("nx", nx), _positive_int("ny", ny), out)
+    return out
 
 
 def _finite_float(name: str, value: object) -> float:

@@ -922,7 +922,7 @@ class Neighbourhoods(NamedTuple):
     radius : (m,) the distance from each centre to its last neighbour
     first : (m + 1,) cell ``s`` holds the nodes ``first[s] .. first[s+1]-1``
     positions : (n, 2) the nodes
-    take : (n_f, 12) int32, the node in each slot of a face's row (``-1``: unused)
+    take : (n_f, 12) int32, the node in each slot of a face's row (``-1``: unused, or a face left out)
     corners : (n, 4) int32, the vertices whose values bound each node's clamp (``-1`` pads)
     pattern : (n,) uint8, where the node lies in its face: the row of
         :data:`_PATTERN_WEIGHTS` that gives the linear surface's weights of its corners
@@ -1222,6 +1222,13 @@ per edge and face (five per point), within the noise of the test; at 2
 spacings they grow."""
 
 
+def _face_mask(faces: ArrayLike, n_f: int) -> NDArray[np.bool_]:
+    mask = np.asarray(faces)
+    if mask.dtype != np.bool_ or mask.shape != (n_f,):
+        raise InvalidInputError(f"faces must be a boolean mask of the mesh's {n_f} faces, got {mask.dtype} {mask.shape}")
+    return mask
+
+
 def _spacing(d2_last: NDArray[np.float64], k: int) -> float:
     """The point spacing ``1 / sqrt(density)`` from the squared distances to the ``k``-th nearest point."""
     r = np.sqrt(d2_last[np.isfinite(d2_last)])
@@ -1243,7 +1250,7 @@ def _mesh_spacing(vertices: NDArray[np.float64], k: int) -> float:
 
 
 def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spacing: float | None = None,
-                          data_vertices: int | None = None) -> Neighbourhoods:
+                          data_vertices: int | None = None, faces: ArrayLike | None = None) -> Neighbourhoods:
     """The smooth surface's kriging systems and nodes for ``mesh`` (see :class:`Neighbourhoods`).
 
     ``spacing`` is the survey's point spacing (:attr:`Variogram.spacing`);
@@ -1254,6 +1261,8 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     set inside each disk is among its vertices, and both use one spacing.
     ``data_vertices``: only the first this many vertices are kriged from (the
     others are points a refined mesh added, :mod:`meshcore.refine`).
+    ``faces``: a mask of the faces that get nodes (default: all); the others'
+    rows of ``take`` are -1, and no system serves them alone.
 
     Examples
     --------
@@ -1264,13 +1273,20 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     (True, True)
     """
     k = _check_neighbours(neighbours)
-    vertices, faces = mesh_arrays(mesh)
+    vertices, mesh_faces = mesh_arrays(mesh)
     if spacing is None:
         spacing = _mesh_spacing(vertices, k)
     elif isinstance(spacing, bool) or not isinstance(spacing, (int, float)) or not (math.isfinite(spacing) and spacing > 0.0):
         raise InvalidInputError(f"spacing must be a finite number > 0, got {spacing!r}")
     cell = float(spacing) * CELL_PER_SPACING
-    positions, take, corners, pattern = _layout(vertices, faces)
+    if faces is None:
+        positions, take, corners, pattern = _layout(vertices, mesh_faces)
+    else:
+        wanted = _face_mask(faces, mesh_faces.shape[0])
+        # a node lies on its edge or face alone: the faces wanted give theirs as all the faces do
+        positions, some, corners, pattern = _layout(vertices, mesh_faces[wanted])
+        take = np.full((mesh_faces.shape[0], NODES_PER_FACE), -1, dtype=np.int32)
+        take[wanted] = some
     order, first, centres = _cells(positions, cell)
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
     data = vertices if data_vertices is None else np.ascontiguousarray(vertices[:data_vertices])
@@ -1534,7 +1550,7 @@ def _added_points(data: NDArray[np.float64], positions: NDArray[np.float64], cel
 
 
 def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS,
-                previous: SmoothPlan | None = None) -> SmoothPlan:
+                previous: SmoothPlan | None = None, faces: ArrayLike | None = None) -> SmoothPlan:
     """The long faces cut and every kriging system of ``mesh``'s smooth surface (see :class:`SmoothPlan`).
 
     Edges longer than a few point spacings (:func:`_long_edges`, by the
@@ -1546,7 +1562,15 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     mesh with the same faces whose vertices are the first of ``mesh``'s (as
     :func:`meshcore.mesh.with_vertices` adds points).  Only the systems whose
     disks hold one of the other vertices are searched again: the plan is
-    the one ``mesh`` gets, in a fraction of the time.
+    the one ``mesh`` gets, in a fraction of the time (for the faces
+    ``previous`` was made for).
+
+    ``faces``: a mask of the faces whose patches are wanted (default: all),
+    such as those a grid samples (:func:`meshcore.sampled_faces`).  The
+    others get no nodes: their rows of the surface's nodes are NaN, so the
+    surface is unknown inside them, and the systems only they would read are
+    neither searched nor solved.  The nodes computed are those of the whole
+    mesh's plan, bit for bit.
 
     Examples
     --------
@@ -1558,16 +1582,17 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     """
     k = _check_neighbours(neighbours)
     variogram = _check_variogram(variogram)
-    vertices, faces = mesh_arrays(mesh)
+    vertices, mesh_faces = mesh_arrays(mesh)
     if previous is not None:
-        extended = _extended_plan(previous, mesh, vertices, faces, k)
+        extended = _extended_plan(previous, mesh, vertices, mesh_faces, k)
         if extended is not None:
             return extended
     spacing = _mesh_spacing(vertices, k) if variogram.spacing is None else variogram.spacing
     longer_than, piece = _long_edges(variogram)
     refinement = refine_long_faces(mesh, spacing, longer_than, piece)
     n = vertices.shape[0]
-    nodes = smooth_neighbourhoods(refinement.mesh, k, spacing, data_vertices=n)
+    wanted = None if faces is None else _face_mask(faces, mesh_faces.shape[0])[refinement.parent]
+    nodes = smooth_neighbourhoods(refinement.mesh, k, spacing, data_vertices=n, faces=wanted)
     added = _added_points(vertices, np.ascontiguousarray(refinement.mesh.vertices[n:]), nodes.cell, k)
     return SmoothPlan(refinement, nodes, added)
 

@@ -40,8 +40,8 @@ def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: st
         # edges are 20 spacings long, split as long faces are: those kernels too
         variogram = meshcore.Variogram(nugget=0.01, sill=1.0, range=3.0, model="matern52", spacing=0.05)
         meshcore.smooth_surface(mesh, z, variogram)
-        # and a plan grown by points its disks need, as a tile's is
-        plan = meshcore.smooth_plan(mesh, variogram)
+        # and a plan for the faces a grid samples, grown by points its disks need, as a tile's is
+        plan = meshcore.smooth_plan(mesh, variogram, faces=meshcore.sampled_faces(mesh, 0.0, 0.0, 2.0, 4, 4))
         meshcore.smooth_plan(meshcore.with_vertices(mesh, [[3.5, -0.5]]), variogram, previous=plan)
 
 

@@ -12,6 +12,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.interpolate import LinearNDInterpolator
 
+import meshcore
 from meshcore.errors import InvalidInputError
 from meshcore.interpolate import interpolate
 from meshcore.mesh import Mesh
@@ -263,3 +264,52 @@ def test_python_form_of_kernel_agrees():
     jit_values = rasterize(mixed(), np.cos(np.arange(8.0)), -0.3, -0.2, 0.3, 16, 16, max_edge=2.5)
     assert_allclose(py_values, jit_values, rtol=1e-14, atol=1e-14)
     assert np.isnan(jit_values).any() and not np.isnan(jit_values).all()
+
+
+def _outside(mesh: Mesh, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """``(n_f, n_p)``: how far each point lies outside each face (its largest
+    distance beyond an edge's line; <= 0 inside), and -inf tolerance aside."""
+    f = mesh.faces
+    closed = np.where(f >= 0, f, f[:, :1])
+    a = mesh.vertices[closed]  # (n_f, 4, 2), a triangle's 4th corner its 1st
+    b = np.roll(a, -1, axis=1)
+    e = b - a
+    length = np.hypot(e[..., 0], e[..., 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        turn = e[:, :, None, 0] * (py[None, None, :] - a[:, :, None, 1]) - e[:, :, None, 1] * (px[None, None, :] - a[:, :, None, 0])
+        dist = np.where(length[:, :, None] > 0, -turn / length[:, :, None], -np.inf)
+    return dist.max(axis=1)
+
+
+@pytest.mark.parametrize("resolution,shift", [(1.0, -0.5), (0.37, 0.11), (2.5, 0.3)])
+def test_sampled_faces_are_those_that_hold_a_cell_centre(rng, resolution, shift):
+    """Every face a centre lies in (on its edge, at its corner) is taken; a face taken
+    has a centre within a hair of it; and most faces of a mesh finer than the grid are not."""
+    from meshcore.rasterize import sampled_faces
+
+    origin = np.array([512345.0, 6789012.0])
+    grid = grid_mesh(rng, 14, 11)  # straight outer edges on whole units: centres on edges and corners at res 1
+    grid = Mesh(grid.vertices + origin, grid.faces, grid.input_to_vertex)
+    fine = meshcore.build_mesh(np.round(rng.random((600, 2)) * [14.0, 11.0] + origin, 2), "s3", "s4")
+    for mesh in (grid, fine):
+        x0, y0 = origin + shift * resolution
+        nx, ny = int(16 / resolution), int(13 / resolution)
+        taken = sampled_faces(mesh, x0, y0, resolution, nx, ny)
+        cx, cy = cell_centres(x0, y0, resolution, nx, ny)
+        outside = _outside(mesh, cx.ravel(), cy.ravel())
+        holds = np.any(outside <= 0.0, axis=1)
+        assert holds.any()
+        assert np.all(taken[holds])
+        assert np.all(np.min(outside[taken], axis=1) <= 1e-5 * resolution)
+        if mesh is fine and resolution > 1.0:
+            assert taken.mean() < 0.6  # the faces between the centres are left out
+        # every face rasterize draws is taken (values written only from faces taken)
+        value = rasterize(mesh, mesh.vertices[:, 0] * 0.0 + 1.0, x0, y0, resolution, nx, ny)
+        kept = Mesh(mesh.vertices, mesh.faces[taken], mesh.input_to_vertex)
+        z = np.sin(mesh.vertices[:, 0]) + mesh.vertices[:, 1] - origin[1]
+        assert_array_equal(rasterize(kept, z, x0, y0, resolution, nx, ny), rasterize(mesh, z, x0, y0, resolution, nx, ny))
+        assert np.isfinite(value).sum() > 10
+    with pytest.raises(InvalidInputError, match="resolution"):
+        sampled_faces(grid, 0.0, 0.0, -1.0, 3, 3)
+    with pytest.raises(InvalidInputError, match="nx"):
+        sampled_faces(grid, 0.0, 0.0, 1.0, 0, 3)

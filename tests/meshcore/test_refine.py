@@ -311,3 +311,41 @@ def test_a_plan_grown_by_points_in_its_disks_is_the_plan_of_the_grown_mesh(rng):
 
     with pytest.raises(InvalidInputError, match="previous"):
         smooth_plan(meshcore.build_mesh(xy[:500]), variogram, previous=plan)
+
+
+def test_a_plan_for_the_sampled_faces_gives_their_nodes_bit_for_bit(rng):
+    """The faces a grid samples get the nodes the whole plan gives them, the others
+    none; the grid (and any part of it moved by whole cells) reads the same surface,
+    for fewer nodes kriged."""
+    xy = _with_void(rng, 6000)
+    z = 5.0 + np.sin((xy[:, 0] - OFFSET[0]) / 15.0) + rng.normal(0.0, 0.01, xy.shape[0])
+    variogram = fit_variogram(xy, z)
+    mesh = meshcore.build_mesh(xy, "s3", "s4")
+    zz = np.empty(mesh.vertices.shape[0])
+    zz[mesh.input_to_vertex] = z
+    whole_plan = smooth_plan(mesh, variogram)
+    assert whole_plan.refinement.ends.shape[0] > 0  # faces across the void are cut
+    whole = smooth_surface(mesh, zz, variogram, plan=whole_plan)
+    x0, y0, res, n = OFFSET[0] - 0.35, OFFSET[1] - 0.35, 2.0, 51
+    taken = meshcore.sampled_faces(mesh, x0, y0, res, n, n)
+    assert 0.1 < taken.mean() < 0.6
+    plan = smooth_plan(mesh, variogram, faces=taken)
+    assert plan.nodes.positions.shape[0] < 0.7 * whole_plan.nodes.positions.shape[0]
+    assert plan.nodes.centres.shape[0] <= whole_plan.nodes.centres.shape[0]
+    part = smooth_surface(mesh, zz, variogram, plan=plan)
+    rows = taken[part.parent]
+    np.testing.assert_array_equal(part.nodes[rows], whole.nodes[rows])
+    assert np.all(np.isnan(part.nodes[~rows]))
+    np.testing.assert_array_equal(part.z, whole.z)
+    for c in (0, 7):  # the grid, and a tile of it
+        args = (x0 + c * res, y0 + c * res, res, n - c, n - c)
+        a = meshcore.rasterize(mesh, zz, *args, surface=whole)
+        np.testing.assert_array_equal(meshcore.rasterize(mesh, zz, *args, surface=part), a)
+        jj, ii = np.nonzero(np.isfinite(a))
+        qx, qy = args[0] + (ii + 0.5) * res, args[1] + (jj + 0.5) * res
+        for g, h in zip(meshcore.gradient(mesh, zz, qx, qy, surface=whole), meshcore.gradient(mesh, zz, qx, qy, surface=part)):
+            np.testing.assert_array_equal(h, g)
+    with pytest.raises(InvalidInputError, match="boolean mask"):
+        smooth_plan(mesh, variogram, faces=taken[1:])
+    with pytest.raises(InvalidInputError, match="boolean mask"):
+        smooth_plan(mesh, variogram, faces=taken.astype(int))
