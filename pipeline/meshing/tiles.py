@@ -533,6 +533,11 @@ def mesh_tile(job: TileJob) -> TileSummary:
         return meshcore.with_vertices(mesh, since[:, :2]), np.concatenate([meshed, since])
 
     ext = job.extent
+    # what stays true while the mesh grows: the boxes of its faces' circles
+    # (until it is built again), and its points' hull covering the window
+    # (points are only ever added)
+    escape_boxes: tuple = (None, [])
+    covered = False
     while True:
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
@@ -542,16 +547,20 @@ def mesh_tile(job: TileJob) -> TileSummary:
         reach = g.tile_size * 2.0**expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
-        escapes = mesh.window_escapes
+        if escape_boxes[0] is not mesh.window_escapes:
+            escape_boxes = (mesh.window_escapes, _disk_boxes_in_hull(mesh.window_escapes, hull_xy, ext))
+        open_circles = list(zip(mesh.window_escapes, escape_boxes[1]))
         if plan is not None:  # the smoother's neighbourhoods must be held too
-            escapes = np.concatenate([escapes, _open_disks(plan.disks, held[0])])
-        for (cx, cy, r), box in zip(escapes, _disk_boxes_in_hull(escapes, hull_xy, ext)):
+            disks = _open_disks(plan.disks, held[0])
+            open_circles += zip(disks, _disk_boxes_in_hull(disks, hull_xy, ext))
+        for (cx, cy, r), box in open_circles:
             rest = [] if box is None else _uncovered(box, held)
             if not rest:
                 continue
             circles.append((cx, cy, r))
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
-        gap = not _covers_window(meshed[:, :2], window, hull_xy)
+        covered = covered or _covers_window(meshed[:, :2], window, hull_xy)
+        gap = not covered
         if gap:  # points beyond a void: look around, farther each time
             around = intersect_boxes(near, ext)
             requests.extend([] if around is None else _uncovered(around, held))
