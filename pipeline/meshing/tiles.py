@@ -629,7 +629,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # the smooth surface's arrays: from the neighbourhoods held, the same in every tile
     surface = {}
     if smooth:
-        surface = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap)
+        surface = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap, sampled)
     save_piece(
         job.scratch, job.row, job.col, "piece",
         vertices=vertices,
@@ -705,15 +705,18 @@ def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str
     """The faces ``keep`` of a piece's arrays (:data:`PIECE_ARRAYS`, and the smooth
     surface's of :func:`_piece_surface`), with the vertices they use (kept in
     index order) and the faces renumbered to them; a missing fourth corner
-    (-1) stays -1.  The cut faces' triangles follow their faces; every added
-    point is kept."""
+    (-1) stays -1.  The nodes and the cut faces' triangles follow their faces;
+    every added point is kept."""
     faces = np.compress(keep, part["faces"], axis=0)
     used, inverse = np.unique(faces, return_inverse=True)  # -1 first when present
     has_gap = used.size > 0 and used[0] < 0
     used = used[int(has_gap):]
     out = {"vertices": np.take(part["vertices"], used, axis=0), "faces": inverse.reshape(faces.shape) - int(has_gap)}
-    if "nodes" in part:
-        out["nodes"] = np.compress(keep, part["nodes"], axis=0)
+    if "nodes" in part:  # the faces with nodes (``noded``) among those kept, renumbered
+        noded = np.asarray(part["noded"])
+        mine = keep[noded]
+        out["nodes"] = np.compress(mine, part["nodes"], axis=0)
+        out["noded"] = (np.cumsum(keep, dtype=np.int64) - 1)[np.compress(mine, noded)].astype(np.int32)
     if "cut_parent" in part:
         n_v = part["vertices"].shape[0]
         mine = keep[part["cut_parent"]]
@@ -729,12 +732,13 @@ def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str
 
 
 def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z: NDArray[np.float64],
-                   remap: NDArray[np.int32]) -> dict[str, NDArray]:
+                   remap: NDArray[np.int32], sampled: NDArray[np.bool_]) -> dict[str, NDArray]:
     """A tile's smooth surface as its piece saves it, beside the faces ``faces``
-    (over vertices with values ``z``, renumbered to the piece's by ``remap``).
+    (over vertices with values ``z``, renumbered to the piece's by ``remap``),
+    of which those ``sampled`` have nodes.
 
-    ``nodes``: the nodes of the surface's face in each face's row (a face cut:
-    its first triangle's); ``cut_faces``, ``cut_parent``, ``cut_nodes``: the
+    ``noded``: those faces' rows, ``nodes``: their nodes (a face cut: its
+    first triangle's); ``cut_faces``, ``cut_parent``, ``cut_nodes``: the
     triangles of the faces cut, each face's first triangle first, their
     corners numbered past the piece's vertices for the points ``added``
     (x, y, z).  The nodes are single-precision deviations from the linear
@@ -742,18 +746,22 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     edge by :func:`_local_mesh`.
     """
     n_f, n_v = faces.shape[0], z.shape[0]
-    # a face kept has the same corners and values in both meshes: the same deviations
-    deviations = meshcore.node_deviations(surface.mesh.faces, surface.z, surface.nodes)
+    noded = np.flatnonzero(sampled)
     rows = meshcore.cut_face_rows(surface.parent, n_f)
+    # a face kept has the same corners and values in both meshes: the same deviations
+    wanted = np.concatenate([noded, rows])
+    deviations = meshcore.node_deviations(np.take(surface.mesh.faces, wanted, axis=0), surface.z,
+                                          np.take(surface.nodes, wanted, axis=0))
     corners = surface.mesh.faces[rows, :3].astype(np.int64)
     old = corners < n_v
     corners[old] = remap[corners[old]]
     corners[~old] += int(np.count_nonzero(remap[:n_v] >= 0)) - n_v
     return {
-        "nodes": deviations[:n_f],
+        "nodes": deviations[:noded.size],
+        "noded": noded.astype(np.int32),
         "cut_faces": corners.astype(np.int32),
         "cut_parent": surface.parent[rows].astype(np.int32),
-        "cut_nodes": deviations[rows],
+        "cut_nodes": deviations[noded.size:],
         "added": np.column_stack([surface.mesh.vertices[n_v:], surface.z[n_v:]]),
     }
 
@@ -796,8 +804,10 @@ def load_pieces(scratch: Scratch, pieces: list[tuple[int, int, str]], keys) -> l
 
 
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], meshcore.SmoothSurface | None]:
-    """The faces of this tile and its neighbours that overlap the tile's cells,
-    as one mesh, with z, the faces' kinds and (smooth surface) the surface over them."""
+    """The faces of this tile and its neighbours that overlap the tile's cells
+    (smooth surface: those of them that have nodes, the only ones that hold a
+    cell centre), as one mesh, with z, the faces' kinds and (smooth surface)
+    the surface over them."""
     g = job.grid
     box = g.box(job.row, job.col)
     smooth = job.surface == "smooth"
@@ -812,15 +822,20 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
         f = piece["faces"]
         if f.shape[0] == 0:
             continue
+        keep = None
         if (r, c) != (job.row, job.col):
             v = piece["vertices"]
             corner = np.maximum(f, 0)
             fx = np.where(f >= 0, np.take(v[:, 0], corner), np.nan)
             fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
-            hit = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
-            hit &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
-            piece = _select_faces(piece, hit)
-        parts.append(piece)
+            keep = (np.nanmax(fx, 1) >= box[0]) & (np.nanmin(fx, 1) <= box[2])
+            keep &= (np.nanmax(fy, 1) >= box[1]) & (np.nanmin(fy, 1) <= box[3])
+        if smooth:
+            # the faces with nodes: those that hold a cell centre, so the only ones the DEM reads
+            noded = np.zeros(f.shape[0], dtype=bool)
+            noded[piece["noded"]] = True
+            keep = noded if keep is None else keep & noded
+        parts.append(piece if keep is None else _select_faces(piece, keep))
     if not parts:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
         z = np.empty(0)
@@ -837,13 +852,14 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
 
 
 #: the smooth surface's arrays of a piece (:func:`_piece_surface`)
-SURFACE_ARRAYS = ("nodes", "cut_faces", "cut_parent", "cut_nodes", "added")
+SURFACE_ARRAYS = ("nodes", "noded", "cut_faces", "cut_parent", "cut_nodes", "added")
 
 
 def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dict[str, NDArray]]) -> meshcore.SmoothSurface:
-    """The smooth surface over ``mesh`` (the faces of ``parts``, in order), from the
-    arrays of :func:`_piece_surface`: each face in its row (a face cut: its
-    first triangle), then the other triangles of the faces cut."""
+    """The smooth surface over ``mesh`` (the faces of ``parts``, in order, every
+    one with nodes), from the arrays of :func:`_piece_surface`: each face in
+    its row (a face cut: its first triangle), then the other triangles of the
+    faces cut."""
     n_v, n_f = z.shape[0], mesh.faces.shape[0]
     added = [np.asarray(p["added"]) for p in parts]
     tris, parent, cut_nodes = [], [], []
