@@ -16,7 +16,8 @@ throughput: two all-ground synthetic LAZ archives to DEM + mesh, side by side
 memory: peak RSS of a whole run (a fresh process each) on two archive sizes.
 seams: the same archive tiled and untiled: share of identical faces and DEM cells.
 surface: --surface smooth against linear, whole runs side by side (interleaved,
-    medians) on the real samples with ground and a 2M-point flown archive.
+    in turns first and second, medians) on the real samples with ground and a
+    2M-point flown archive.
 certify: the real samples with ground (../shared/data) at several tile sizes:
     every tile certifies, and what that costs: the points each tile reads
     beyond its buffer against the points it holds (median and worst tile).
@@ -256,8 +257,10 @@ def surfaces(cache: Path, repeat: int, points: int, samples: list[str]) -> None:
     for label, path, resolution in cases:
         walls: dict[str, list[float]] = {"linear": [], "smooth": []}
         stages: dict[str, dict] = {}
-        for _ in range(repeat):
-            for surface in ("linear", "smooth"):
+        for k in range(repeat):
+            # the order swapped every round: a run right after another is often
+            # slower (by up to a tenth here), and always being second would count against it
+            for surface in ("linear", "smooth")[:: 1 if k % 2 == 0 else -1]:
                 res = run_once(path, cache / f"surface_{surface}.zarr", None, surface, resolution)
                 walls[surface].append(res["wall"])
                 stages[surface] = res["report"]["stages"]
