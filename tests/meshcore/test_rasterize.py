@@ -255,15 +255,23 @@ def test_python_form_of_kernel_agrees():
         "m = Mesh(v.astype(float), f, np.arange(8))\n"
         "out = rasterize(m, np.cos(np.arange(8.0)), -0.3, -0.2, 0.3, 16, 16, max_edge=2.5)\n"
         "print(json.dumps(np.where(np.isnan(out), None, out).tolist()))\n"
+        "from meshcore.rasterize import sampled_faces\n"
+        "print(json.dumps([sampled_faces(m, x0, -0.2, r, 9, 9).tolist() for x0, r in ((-0.3, 0.3), (0.1, 0.9), (-0.5, 1.0))]))\n"
     )
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     result = subprocess.run(
         [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True
     )
-    py_values = np.array(json.loads(result.stdout), dtype=np.float64)
+    lines = result.stdout.splitlines()
+    py_values = np.array(json.loads(lines[0]), dtype=np.float64)
     jit_values = rasterize(mixed(), np.cos(np.arange(8.0)), -0.3, -0.2, 0.3, 16, 16, max_edge=2.5)
     assert_allclose(py_values, jit_values, rtol=1e-14, atol=1e-14)
     assert np.isnan(jit_values).any() and not np.isnan(jit_values).all()
+    from meshcore.rasterize import sampled_faces
+
+    jit_taken = [sampled_faces(mixed(), x0, -0.2, r, 9, 9).tolist() for x0, r in ((-0.3, 0.3), (0.1, 0.9), (-0.5, 1.0))]
+    assert json.loads(lines[1]) == jit_taken
+    assert any(not all(t) for t in jit_taken) and all(any(t) for t in jit_taken)
 
 
 def _outside(mesh: Mesh, px: np.ndarray, py: np.ndarray) -> np.ndarray:
