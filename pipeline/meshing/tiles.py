@@ -18,10 +18,10 @@ faces that hold a centre of the run's grid get nodes
 (:func:`meshcore.sampled_faces`): the DEM samples the surface nowhere else,
 and the mesh written carries no patch.  On a survey denser than its grid
 that is a fraction of the faces (one in twelve for 8 points a square metre
-at 1 m).  The piece saves its faces' nodes (NaN for the others), and for the
-faces cut (:func:`meshcore.smooth_plan`) their triangles, nodes and added
-points beside: the mesh written is the combined mesh, the DEM is drawn from
-the smooth surface.
+at 1 m).  The piece saves those faces' nodes (``noded``: their rows), and
+for the faces cut (:func:`meshcore.smooth_plan`) their triangles, nodes and
+added points beside: the mesh written is the combined mesh, the DEM is drawn
+from the smooth surface over the faces with nodes.
 
 A tile's result is saved to the scratch folder: its vertices (the ones it owns
 first, sorted by coordinates, for the global node numbering; then the other
@@ -526,6 +526,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # its faces are certified: every point held is then outside their
     # circles, and joins the mesh as a vertex that no face uses
     plan = None
+    sampled = None  # with the plan: the faces that hold a centre of the grid, the only ones given nodes
 
     def held_as_vertices():
         """``mesh`` and ``meshed`` with the points loaded since the build as vertices that no face uses."""
