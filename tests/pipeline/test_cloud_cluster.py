@@ -154,3 +154,34 @@ def test_a_cluster_with_no_shared_disk_runs_on_s3_survives_a_killed_worker_and_a
     for home in machines.homes:
         left = [p for p in home.rglob("*") if p.suffix in (".npy", ".json") or p.name.endswith(".work")]
         assert not left, left
+
+
+def test_a_smooth_run_on_the_cluster_and_s3_gives_the_local_store(server, machines, tmp_path):
+    """The smooth surface's variogram, and its pieces (the nodes of the faces the
+    grid samples, and their rows), travel to the workers and through object
+    storage: the store and its slope are the local run's, byte for byte."""
+    s3 = server
+    folder = tmp_path / "survey"
+    paths = write_survey(folder, SurveySpec(points=12_000, files=2, width=160.0, height=120.0, seed=47))
+    fs = s3.filesystem()
+    fs.mkdir("smooth")
+    for p in paths:
+        fs.put_file(str(p), f"smooth/survey/{p.name}")
+    reference = tmp_path / "local.zarr"
+    report = run(RunConfig(inputs=(str(folder),), output=str(reference), workers=2, surface="smooth",
+                           layers=("elevation", "slope"), **JOB), progress=False)
+    assert report.tiles > 4
+    job_file = tmp_path / "job.toml"
+    job_file.write_text(
+        '[run]\ninputs = ["s3://smooth/survey/"]\noutput = "s3://smooth/dem/survey.zarr"\n'
+        f"resolution = {JOB['resolution']}\ntile_size = {JOB['tile_size']}\n"
+        'surface = "smooth"\nlayers = ["elevation", "slope"]\n'
+        f'scheduler = "{machines.address}"\n'
+        f'[run.storage_options]\nkey = "{s3.key}"\nsecret = "{s3.secret}"\nendpoint_url = "{s3.endpoint}"\n'
+    )
+    done = subprocess.run([str(BIN / "terrain"), "run", "--config", str(job_file), "--no-progress"], cwd=tmp_path,
+                          env=_bare_env(), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    fs.invalidate_cache()
+    fs.get("smooth/dem/survey.zarr", str(tmp_path / "fetched.zarr"), recursive=True)
+    assert_same_store(tmp_path / "fetched.zarr", reference)
