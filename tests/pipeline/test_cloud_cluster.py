@@ -105,16 +105,22 @@ def _wait_for(fs, prefix: str, timeout: float, process: subprocess.Popen) -> boo
     return False
 
 
+def _survey_on_s3(s3, tmp_path: Path, bucket: str, spec: SurveySpec):
+    """A synthetic survey written to ``tmp_path / "survey"`` and copied to
+    ``s3://BUCKET/survey/``; the local folder and the S3 filesystem."""
+    folder = tmp_path / "survey"
+    fs = s3.filesystem()
+    fs.mkdir(bucket)
+    for p in write_survey(folder, spec):
+        fs.put_file(str(p), f"{bucket}/survey/{p.name}")
+    return folder, fs
+
+
 def test_a_cluster_with_no_shared_disk_runs_on_s3_survives_a_killed_worker_and_a_killed_client(
     server, machines, tmp_path
 ):
     s3 = server
-    folder = tmp_path / "survey"
-    paths = write_survey(folder, SurveySpec(points=24_000, files=3, width=240.0, height=160.0, seed=43))
-    fs = s3.filesystem()
-    fs.mkdir("lidar")
-    for p in paths:
-        fs.put_file(str(p), f"lidar/survey/{p.name}")
+    folder, fs = _survey_on_s3(s3, tmp_path, "lidar", SurveySpec(points=24_000, files=3, width=240.0, height=160.0, seed=43))
     reference = tmp_path / "local.zarr"
     run(RunConfig(inputs=(str(folder),), output=str(reference), workers=2, **JOB), progress=False)
 
@@ -161,12 +167,7 @@ def test_a_smooth_run_on_the_cluster_and_s3_gives_the_local_store(server, machin
     grid samples, and their rows), travel to the workers and through object
     storage: the store and its slope are the local run's, byte for byte."""
     s3 = server
-    folder = tmp_path / "survey"
-    paths = write_survey(folder, SurveySpec(points=12_000, files=2, width=160.0, height=120.0, seed=47))
-    fs = s3.filesystem()
-    fs.mkdir("smooth")
-    for p in paths:
-        fs.put_file(str(p), f"smooth/survey/{p.name}")
+    folder, fs = _survey_on_s3(s3, tmp_path, "smooth", SurveySpec(points=12_000, files=2, width=160.0, height=120.0, seed=47))
     reference = tmp_path / "local.zarr"
     report = run(RunConfig(inputs=(str(folder),), output=str(reference), workers=2, surface="smooth",
                            layers=("elevation", "slope"), **JOB), progress=False)
