@@ -312,6 +312,12 @@ def _triangle_contains(
 
 
 @njit_helper
+def _quad_area2(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float) -> float:
+    """Twice the area of the quadrangle ``a b c d``: the cross product of its diagonals."""
+    return (cx - ax) * (dy - by) - (cy - ay) * (dx - bx)
+
+
+@njit_helper
 def _quad_contains(
     ax: float, ay: float, bx: float, by: float, cx: float, cy: float,
     dx: float, dy: float, px: float, py: float,
@@ -319,9 +325,9 @@ def _quad_contains(
     """True when ``p`` is in the counter-clockwise convex quadrangle ``a b c d`` or on its boundary.
 
     Every edge turn ``cross(edge, p - start)`` must be ``>= -_INSIDE_TOL``
-    times twice the area (the cross product of the diagonals).
+    times twice the area (:func:`_quad_area2`).
     """
-    area2 = (cx - ax) * (dy - by) - (cy - ay) * (dx - bx)
+    area2 = _quad_area2(ax, ay, bx, by, cx, cy, dx, dy)
     if not area2 > 0.0:
         return False
     tol = -_INSIDE_TOL * area2

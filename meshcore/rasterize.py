@@ -35,6 +35,7 @@ from .interpolate import (
     _edge_turn,
     _face_bbox,
     _grow_bbox,
+    _quad_area2,
     _quad_contains,
     _quad_value_and_gradient,
     _triangle_contains,
@@ -190,13 +191,28 @@ def _rasterize_kernel(
                             )[0]
 
 
+@njit_helper
+def _near_face(vertices: np.ndarray, faces: np.ndarray, f: int, nc: int, px: float, py: float, slack: float,
+               reach: float) -> bool:
+    """Whether ``p`` lies at most ``reach`` outside each edge's line of face ``f``
+    (``nc`` corners), beyond the inside test's tolerance ``slack``."""
+    for k in range(nc):
+        s = faces[f, k]
+        e = faces[f, (k + 1) % nc]
+        ex = vertices[e, 0] - vertices[s, 0]
+        ey = vertices[e, 1] - vertices[s, 1]
+        if _edge_turn(vertices[s, 0], vertices[s, 1], vertices[e, 0], vertices[e, 1], px, py) < -(
+                slack + reach * math.sqrt(ex * ex + ey * ey)):
+            return False
+    return True
+
+
 @njit
 def _sampled_faces_kernel(vertices: np.ndarray, faces: np.ndarray, x0: float, y0: float, resolution: float,
                           nx: int, ny: int, out: np.ndarray) -> None:
     """:func:`sampled_faces`: each face's box, then the centres in it against its edges."""
     inv_res = 1.0 / resolution
     for f in range(faces.shape[0]):
-        nc = 4 if faces[f, 3] >= 0 else 3
         out[f] = False
         bx0, by0, bx1, by1 = _face_bbox(vertices, faces, f)
         reach = _SAMPLED_REACH * resolution + 1e-12 * (abs(bx0) + abs(by0) + abs(bx1) + abs(by1))
@@ -204,33 +220,20 @@ def _sampled_faces_kernel(vertices: np.ndarray, faces: np.ndarray, x0: float, y0
         j0, j1 = _cell_range(by0 - reach, by1 + reach, y0, inv_res, ny)
         if i0 > i1 or j0 > j1:
             continue
-        a = faces[f, 0]
-        c = faces[f, 2]
-        d = faces[f, 3] if nc == 4 else a
-        b = faces[f, 1]
-        # twice the area, as the inside tests take it (a quadrangle's: its diagonals' cross product)
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        nc = 4 if faces[f, 3] >= 0 else 3
+        # twice the area, as the inside tests scale their tolerance by it
         if nc == 4:
-            area2 = ((vertices[c, 0] - vertices[a, 0]) * (vertices[d, 1] - vertices[b, 1])
-                     - (vertices[c, 1] - vertices[a, 1]) * (vertices[d, 0] - vertices[b, 0]))
+            d = faces[f, 3]
+            area2 = _quad_area2(vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1],
+                                vertices[c, 0], vertices[c, 1], vertices[d, 0], vertices[d, 1])
         else:
             area2 = _edge_turn(vertices[a, 0], vertices[a, 1], vertices[b, 0], vertices[b, 1], vertices[c, 0], vertices[c, 1])
         slack = _INSIDE_TOL * abs(area2)
         for j in range(j0, j1 + 1):
             py = _centre(y0, j, resolution)
             for i in range(i0, i1 + 1):
-                px = _centre(x0, i, resolution)
-                near = True
-                for k in range(nc):
-                    s = faces[f, k]
-                    e = faces[f, (k + 1) % nc]
-                    ex = vertices[e, 0] - vertices[s, 0]
-                    ey = vertices[e, 1] - vertices[s, 1]
-                    # p at most ``reach`` outside the edge's line (and the inside test's tolerance)
-                    if _edge_turn(vertices[s, 0], vertices[s, 1], vertices[e, 0], vertices[e, 1], px, py) < -(
-                            slack + reach * math.sqrt(ex * ex + ey * ey)):
-                        near = False
-                        break
-                if near:
+                if _near_face(vertices, faces, f, nc, _centre(x0, i, resolution), py, slack, reach):
                     out[f] = True
                     break
             if out[f]:

@@ -713,11 +713,12 @@ def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str
     has_gap = used.size > 0 and used[0] < 0
     used = used[int(has_gap):]
     out = {"vertices": np.take(part["vertices"], used, axis=0), "faces": inverse.reshape(faces.shape) - int(has_gap)}
-    if "nodes" in part:  # the faces with nodes (``noded``) among those kept, renumbered
+    row = np.cumsum(keep, dtype=np.int64) - 1  # a face kept: its row among those kept
+    if "nodes" in part:  # the faces with nodes (``noded``) among those kept
         noded = np.asarray(part["noded"])
         mine = keep[noded]
         out["nodes"] = np.compress(mine, part["nodes"], axis=0)
-        out["noded"] = (np.cumsum(keep, dtype=np.int64) - 1)[np.compress(mine, noded)].astype(np.int32)
+        out["noded"] = row[np.compress(mine, noded)].astype(np.int32)
     if "cut_parent" in part:
         n_v = part["vertices"].shape[0]
         mine = keep[part["cut_parent"]]
@@ -726,7 +727,7 @@ def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str
         corners[old] = np.searchsorted(used, corners[old])
         corners[~old] += used.size - n_v
         out["cut_faces"] = corners.astype(np.int32)
-        out["cut_parent"] = (np.cumsum(keep, dtype=np.int64) - 1)[np.compress(mine, part["cut_parent"])].astype(np.int32)
+        out["cut_parent"] = row[np.compress(mine, part["cut_parent"])].astype(np.int32)
         out["cut_nodes"] = np.compress(mine, part["cut_nodes"], axis=0)
         out["added"] = np.asarray(part["added"])
     return out
