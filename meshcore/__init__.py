@@ -17,6 +17,7 @@ from __future__ import annotations
 from ._jit import kernel
 from ._order import block_order, lexicographic_order
 from .build import KERNEL_STAGES, build_mesh, load_kernels
+from .certificate import KnownRegion, WindowCertificate
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh, with_vertices
@@ -64,6 +65,8 @@ __all__ = [
     "Mesh",
     "with_vertices",
     "build_mesh",
+    "KnownRegion",
+    "WindowCertificate",
     "load_kernels",
     "KERNEL_STAGES",
     "lexicographic_order",

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -11,8 +9,9 @@ from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zer
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .flip import flip_edges
-from .merge import merge_triangles
+from .certificate import _U, KnownRegion, WindowCertificate, initial_taint, open_hull_edges, safe_circle
+from .flip import _centroid_in, _meets_box, flip_edges
+from .merge import merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import cross_rounded, lex_before
@@ -90,78 +89,6 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     return active
 
 
-@njit_helper
-def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
-    """True when the whole box lies clearly right of the directed line p -> q."""
-    dx = qx - px
-    dy = qy - py
-    tol = slack * (abs(dx) + abs(dy))
-    for cx, cy in ((x_lo, y_lo), (x_hi, y_lo), (x_hi, y_hi), (x_lo, y_hi)):
-        if dx * (cy - py) - dy * (cx - px) >= -tol:
-            return False
-    return True
-
-
-@njit
-def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
-    """Whether the counter-clockwise triangle abc meets the closed box (conservative:
-    near misses within ``slack`` count as meeting).  Infinite box sides are fine."""
-    x_lo = larger(x_lo, smaller(ax, smaller(bx, cx)) - slack)
-    x_hi = smaller(x_hi, larger(ax, larger(bx, cx)) + slack)
-    y_lo = larger(y_lo, smaller(ay, smaller(by, cy)) - slack)
-    y_hi = smaller(y_hi, larger(ay, larger(by, cy)) + slack)
-    if x_lo > x_hi or y_lo > y_hi:
-        return False
-    # the box is now finite: separated only when it lies right of an edge
-    return not (
-        _outside_edge(ax, ay, bx, by, x_lo, y_lo, x_hi, y_hi, slack)
-        or _outside_edge(bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack)
-        or _outside_edge(cx, cy, ax, ay, x_lo, y_lo, x_hi, y_hi, slack)
-    )
-
-
-_U = 2.0**-53
-"""The unit roundoff of float64."""
-
-
-@njit
-def _safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
-    """Circumcentre of ``a, b, c`` relative to ``a``, and a radius whose disk
-    around that centre holds the exact circumdisk (a forward error bound of
-    the floating-point evaluation; infinite when the triangle is too thin to
-    bound it).
-
-    A fixed relative margin will not do: the slivers along a straight survey
-    edge have circles of thousands of kilometres, where 1e-9 of the radius is
-    centimetres, which is the spacing of the points themselves.  Their cross
-    product is evaluated exactly (then rounded), so the margin stays ulps of
-    the radius however thin the triangle.
-    """
-    dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
-    err_d = 16.0 * _U * (abs(dx * ey) + abs(dy * ex))
-    if not abs(d) > 1e12 * err_d:
-        # a sliver: its cross product has lost most of its digits, and its
-        # circle's centre would be known only to within a fraction of its
-        # radius (kilometres on the circles along a straight survey edge,
-        # which then reach the whole survey); exactly, it is known to ulps
-        d, err_d = cross_rounded(ax, ay, bx, by, cx, cy)
-        if not abs(d) > 2.0 * err_d:
-            return 0.0, 0.0, math.inf
-    nx = ey * bl - dy * cl
-    ny = dx * cl - ex * bl
-    err_nx = 16.0 * _U * (abs(ey) * bl + abs(dy) * cl)
-    err_ny = 16.0 * _U * (abs(dx) * cl + abs(ex) * bl)
-    ux = nx * 0.5 / d
-    uy = ny * 0.5 / d
-    # |N/d - N*/d*| <= (err_N + |N| err_d / |d|) / (|d| - err_d), halved, plus the division's rounding
-    lo = abs(d) - err_d
-    eu = 0.5 * (err_nx + abs(nx) * err_d / abs(d)) / lo + 2.0 * _U * abs(ux)
-    eu += 0.5 * (err_ny + abs(ny) * err_d / abs(d)) / lo + 2.0 * _U * abs(uy)
-    # the exact disk lies within |u - u*| + r* <= |u| + 2|u - u*| of the computed centre
-    r = math.sqrt(ux * ux + uy * uy) * (1.0 + 4.0 * _U) + 2.0 * eu
-    return ux, uy, r
-
-
 @njit
 def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
@@ -178,7 +105,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
             x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
         ):
             continue
-        ux, uy, r = _safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
+        ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
         ux += x[a] + ox
         uy += y[a] + oy
         # the sums' rounding moves the centre by at most an ulp of each coordinate
@@ -234,6 +161,8 @@ def _emit(faces, k, x, y, vertex_of, a, b, c, d) -> None:
 
 @njit
 def _faces_kernel(tri, he, partner, vertex_of, active, x, y) -> np.ndarray:
+    """The faces of the ``active`` triangles: a lone one, or the first (lower
+    slot) of a quadrangle's two."""
     nt = tri.shape[0] // 3
     count = 0
     for t in range(nt):
@@ -308,39 +237,45 @@ def build_mesh(
     quad_measure: str | None = "s2",
     merge: str = "greedy",
     window: tuple[float, float, float, float] | None = None,
-    known: tuple[float, float, float, float] | None = None,
+    known: tuple[float, float, float, float] | KnownRegion | None = None,
+    assume_rounds: int = 0,
 ) -> Mesh:
     """Build the combined triangle/quadrangle mesh of a planar point set.
 
     1. Delaunay triangulation (exact predicates; duplicates merged);
     2. flips to local optimality under ``triangle_measure`` ("s1" or "s3";
-       "delaunay" keeps the Delaunay triangulation);
+       "delaunay" keeps the Delaunay triangulation), in rounds decided by the
+       geometry alone (see :mod:`meshcore.flip`);
     3. elimination of diagonals under ``quad_measure`` ("s2" or "s4"; None keeps
-       a pure triangulation), ``merge="greedy"`` (the paper's queue) or
-       ``"optimal"`` (maximum total gain).
+       a pure triangulation), ``merge="greedy"`` (the paper's queue, ties
+       broken by coordinates) or ``"optimal"`` (maximum total gain).
 
     Parameters
     ----------
     xy : (n, 2) array of finite coordinates
     window : (x_min, y_min, x_max, y_max), optional
-        Build only the piece of the mesh over the Delaunay triangles whose
-        centroid lies in the half-open box ``[x_min, x_max) x [y_min, y_max)``:
-        only they are flipped and merged (among themselves) and returned.
-        The Delaunay triangulation is unique (ties are broken by the points'
-        coordinates), so pieces built for adjacent windows from point sets that
-        cover every triangle's circumcircle fit together without gaps or
+        Return only the faces the half-open box ``[x_min, x_max) x [y_min,
+        y_max)`` owns: a triangle whose centroid lies in it, a quadrangle
+        whose deleted diagonal's midpoint does.  The whole point set is
+        flipped and merged; pieces built for adjacent windows from enough of
+        the global set's points are the global mesh's faces, without gaps or
         overlaps: this is how a tiled run stitches its tiles.
-    known : (x_min, y_min, x_max, y_max), optional
-        With ``window``: the box in which ``xy`` holds every point of the
-        global set.  The circumcircles of the window's Delaunay triangles that
-        are not inside it are returned as ``mesh.window_escapes`` ``(k, 3)``
-        (centre x, centre y, radius), for every Delaunay triangle that meets
-        the window: the piece is the global mesh's piece unless a point the
-        caller did not pass lies inside one of these circles.  Beyond the
-        convex hull of ``xy`` there are no triangles and so no circles: where
-        the window reaches past that hull, ``xy`` must also hold the points
-        of the global convex hull there (a tiled run adds them to every
-        tile), else global triangles there are missing without an escape.
+        ``mesh.certificate`` says whether the points passed were enough.
+    known : (x_min, y_min, x_max, y_max) or KnownRegion, optional
+        With ``window``: where ``xy`` holds every point of the global set (a
+        box, or a :class:`meshcore.certificate.KnownRegion` that also knows
+        the global hull and vouches for circles beyond its box).  The
+        circumcircles of the window's Delaunay triangles that are not inside
+        its box are returned as ``mesh.window_escapes`` ``(k, 3)`` (centre x,
+        centre y, radius), for every Delaunay triangle that meets the window.
+        Beyond the convex hull of ``xy`` there are no triangles and so no
+        circles: where the window reaches past that hull, ``xy`` must also
+        hold the points of the global convex hull there (a tiled run adds
+        them to every tile).
+    assume_rounds : int
+        With ``window``: the certificate assumes that the global mesh makes no
+        flip near the window after this round (a tiled run checks it against
+        the neighbouring tiles' ``certificate.last_flip_round``).
 
     Returns
     -------
@@ -358,8 +293,12 @@ def build_mesh(
     mm = parse_option(MergeMethod, merge, "merge")
     bounds = None if window is None else _check_window(window)
     points = as_points(xy)
-    known_box = None if known is None or bounds is None else _check_window(known)
-    return _combined_mesh(points, delaunay(points), tm, qm, mm, bounds, known_box)
+    region = None
+    if known is not None and bounds is not None:
+        region = known if isinstance(known, KnownRegion) else KnownRegion(box=_check_window(known))
+    if not (isinstance(assume_rounds, (int, np.integer)) and assume_rounds >= 0):
+        raise InvalidInputError(f"assume_rounds must be a whole number >= 0, got {assume_rounds!r}")
+    return _combined_mesh(points, delaunay(points), tm, qm, mm, bounds, region, int(assume_rounds))
 
 
 def _combined_mesh(
@@ -369,37 +308,54 @@ def _combined_mesh(
     qm: QuadMeasure | None,
     mm: MergeMethod,
     bounds: tuple[float, float, float, float] | None,
-    known: tuple[float, float, float, float] | None,
+    known: KnownRegion | None,
+    rounds: int = 0,
 ) -> Mesh:
     """:func:`build_mesh` after the Delaunay triangulation of ``points``."""
     if bounds is not None:
-        # a window piece is numbered by its geometry, so that its flips and
-        # merges match its neighbours' and a whole run's wherever they overlap
+        # near in the plane, near in memory (the results do not depend on the numbering)
         triangulation = geometric_order(triangulation)
     nt = triangulation.triangles.shape[0] // 3
     escapes = None
-    if bounds is None:
-        active = np.ones(nt, dtype=np.uint8)
-    else:
-        o = triangulation.origin
-        active = _window_mask(
+    taint = None
+    open_edges = None
+    active = np.ones(nt, dtype=np.uint8)
+    window = None if bounds is None else np.array(bounds, dtype=np.float64)
+    o = triangulation.origin
+    if bounds is not None:
+        region = known if known is not None else KnownRegion()
+        window_triangles = _window_mask(
             triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles, *bounds
         )
-        box = (-np.inf, -np.inf, np.inf, np.inf) if known is None else known
         escapes = _escaping_circles(
-            triangulation.x, triangulation.y, triangulation.triangles, active, np.array(bounds), float(o[0]), float(o[1]),
-            *box,
+            triangulation.x, triangulation.y, triangulation.triangles, window_triangles, window, float(o[0]), float(o[1]),
+            *region.box,
         )
+        taint = initial_taint(triangulation, region)
+        open_edges = open_hull_edges(triangulation, region)
+    flipped = None
     if tm is not TriangleMeasure.DELAUNAY:
-        flip_edges(triangulation, tm.value, active)
+        flipped = flip_edges(
+            triangulation, tm.value, active, taint=taint, open_edges=open_edges, assume_rounds=rounds,
+            window=bounds,
+        )
     if qm is None:
         partner = np.full(nt, -1, dtype=np.int32)
+        candidates = None
     else:
-        partner = merge_triangles(triangulation, qm.value, mm.value, active)
+        candidates = merge_candidates(triangulation, qm.value, active)
+        partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates)
 
+    certificate = None
+    if bounds is None:
+        owned = active
+    else:
+        owned = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles,
+                             triangulation.halfedges, partner, window)
+        certificate = _certificate(triangulation, taint, owned, partner, candidates, flipped, mm, rounds)
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     faces = _faces_kernel(
-        triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, active,
+        triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, owned,
         triangulation.x, triangulation.y,
     )
     del triangulation, partner, vertex_of_sorted, active
@@ -412,7 +368,78 @@ def _combined_mesh(
         merge=mm.value,
         window=bounds,
         window_escapes=escapes,
+        certificate=certificate,
     )
+
+
+def _certificate(triangulation: Triangulation, taint, owned, partner, candidates, flipped, mm: MergeMethod,
+                 rounds: int) -> WindowCertificate:
+    """Whether a window piece's faces are the global mesh's, given that the
+    global mesh makes no flip near the window after round ``rounds``."""
+    nt = triangulation.triangles.shape[0] // 3
+    start = owned.copy()
+    _mark_partners(partner, triangulation.halfedges, start)
+    need = start.copy()
+    if candidates is not None:
+        # whether an edge of a face is a candidate at all reads the triangle beyond it
+        _grow_ring(triangulation.halfedges, need)
+        if mm is MergeMethod.GREEDY:
+            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start)
+    if flipped is not None:
+        need |= flipped.zone
+    clean = not bool(np.any(need & taint)) if nt else True
+    last = 0 if flipped is None else flipped.last_window_round
+    return WindowCertificate(certified=clean, last_flip_round=last, assumed_rounds=int(rounds),
+                             rounds=0 if flipped is None else flipped.rounds)
+
+
+@njit
+def _mark_partners(partner, he, flags) -> None:
+    """Flag the partner of every flagged triangle that is half of a quadrangle."""
+    for t in range(partner.shape[0]):
+        if flags[t] and partner[t] >= 0:
+            flags[he[partner[t]] // 3] = 1
+
+
+@njit
+def _grow_ring(he, flags) -> None:
+    """Flag every triangle sharing an edge with a flagged one."""
+    nt = he.shape[0] // 3
+    ring = zeros(nt, dtype=np.uint8)
+    for t in range(nt):
+        if flags[t]:
+            for j in range(3):
+                h = he[3 * t + j]
+                if h >= 0:
+                    ring[h // 3] = 1
+    for t in range(nt):
+        if ring[t]:
+            flags[t] = 1
+
+
+@njit
+def _owned_faces(x, y, ox, oy, tri, he, partner, window) -> np.ndarray:
+    """1 for the triangles that start a face the window owns: a lone triangle
+    whose centroid lies in it, or the first triangle of a quadrangle whose
+    deleted diagonal's midpoint does (input frame, the same bits in every run)."""
+    nt = tri.shape[0] // 3
+    owned = zeros(nt, dtype=np.uint8)
+    for t in range(nt):
+        e = partner[t]
+        if e == -1:
+            if _centroid_in(x, y, tri, t, ox, oy, window):
+                owned[t] = 1
+            continue
+        f = he[e]
+        if t > f // 3:
+            continue
+        a = tri[e]
+        b = tri[f]
+        mx = ((x[a] + ox) + (x[b] + ox)) / 2.0
+        my = ((y[a] + oy) + (y[b] + oy)) / 2.0
+        if window[0] <= mx < window[2] and window[1] <= my < window[3]:
+            owned[t] = 1
+    return owned
 
 
 KERNEL_STAGES = ("triangulation", "faces")
@@ -442,4 +469,5 @@ def load_kernels(stage: str, triangle_measure: str = "s1", quad_measure: str | N
         return None
     if stage != "faces":
         raise InvalidInputError(f"stage must be one of {', '.join(KERNEL_STAGES)}, got {stage!r}")
-    return _combined_mesh(points, triangulation, tm, qm, mm, (1.0, 1.0, 6.0, 6.0), (-1.0, -1.0, 9.0, 9.0))
+    return _combined_mesh(points, triangulation, tm, qm, mm, (1.0, 1.0, 6.0, 6.0),
+                          KnownRegion(box=(-1.0, -1.0, 9.0, 9.0)), 2)

@@ -1,23 +1,36 @@
 """Edge flipping to local optimality under a triangle quality measure (paper, section 2).
 
-A diagonal of a strictly convex quadrangle is flipped when the smaller measure
-of the two alternative triangles exceeds the smaller measure of the current two
-by more than a relative tolerance.  Kernels compare *scores*, a monotone
-transform of the measure that needs no root: S1 itself, and S3 cubed.  Every flip raises the sorted vector of
-triangle measures, so the procedure terminates; the tolerance keeps rounding
-noise from flipping back and forth between equivalent diagonals.
+A diagonal of a strictly convex quadrangle may flip when the smaller measure of
+the two alternative triangles exceeds the smaller measure of the current two
+by more than a relative tolerance; its *improvement* is the difference.
+Kernels compare *scores*, a monotone transform of the measure that needs no
+root: S1 itself, and S3 cubed.
+
+The flips are made in rounds, by a rule of the geometry alone: in each round,
+every diagonal whose improvement is the largest among the edges of its two
+triangles flips (ties go to the edge whose endpoints come first by
+coordinates), all at once.  Two such edges never share a triangle, so the
+order in which a round applies them does not matter, and the result is the
+same whatever the numbering of the triangles: a tile computes the faces the
+whole survey has (see :func:`flip_edges`'s ``taint``).  Every round flips at
+least the edge of largest improvement, and every flip raises the sorted vector
+of triangle measures, so the rounds end; the tolerance keeps rounding noise
+from flipping back and forth between equivalent diagonals.  Every score is
+computed from the triangle's corners in one order, starting at the corner
+that comes first by coordinates, so the same triangle scores the same bits in
+every run.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._jit import empty, njit, njit_helper, smaller, zeros
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _flip, _next, _prev
-from .predicates import orient2d
+from .predicates import lex_before, orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
 
-__all__ = ["flip_edges", "FLIP_TOLERANCE"]
+__all__ = ["flip_edges", "FlipRounds", "FLIP_TOLERANCE"]
 
 FLIP_TOLERANCE = 1e-9
 """Relative improvement a flip must bring to the score: alt > current * (1 + FLIP_TOLERANCE)."""
@@ -28,7 +41,13 @@ _S3 = 3
 
 @njit_helper
 def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
-    """Score of the triangle with these corners: S1, or S3 cubed."""
+    """Score of the triangle with these corners: S1, or S3 cubed; computed from
+    the corner that comes first by coordinates, so any rotation of the same
+    triangle gives the same bits."""
+    if lex_before(bx, by, ax, ay) and lex_before(bx, by, cx, cy):
+        ax, ay, bx, by, cx, cy = bx, by, cx, cy, ax, ay
+    elif lex_before(cx, cy, ax, ay) and lex_before(cx, cy, bx, by):
+        ax, ay, bx, by, cx, cy = cx, cy, ax, ay, bx, by
     if measure == _S1:
         return s1_kernel(ax, ay, bx, by, cx, cy)
     return s3_cubed_kernel(ax, ay, bx, by, cx, cy)
@@ -54,66 +73,342 @@ def triangle_scores(measure: int, x, y, tri) -> np.ndarray:
     return q
 
 
+@njit_helper
+def edge_before(x, y, tri, e: int, g: int) -> bool:
+    """Whether edge ``e`` comes before edge ``g`` by its endpoints' coordinates
+    (the first endpoints compared, then the second): a tie-break of the geometry."""
+    a = tri[e]
+    b = tri[_next(e)]
+    if lex_before(x[b], y[b], x[a], y[a]):
+        a, b = b, a
+    c = tri[g]
+    d = tri[_next(g)]
+    if lex_before(x[d], y[d], x[c], y[c]):
+        c, d = d, c
+    if a != c:
+        return lex_before(x[a], y[a], x[c], y[c])
+    return lex_before(x[b], y[b], x[d], y[d])
+
+
+@njit_helper
+def _improvement(measure: int, tolerance: float, x, y, tri, he, q, e: int) -> float:
+    """How much flipping the diagonal ``e`` raises the smaller score of its two
+    triangles, or -1 when it may not flip."""
+    f = he[e]
+    t1 = e // 3
+    t2 = f // 3
+    current = smaller(q[t1], q[t2])
+    a = tri[e]
+    b = tri[_next(e)]
+    c = tri[_prev(e)]
+    d = tri[_prev(f)]
+    # each corner's coordinates read once (scores and the convexity test share them)
+    xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
+    limit = current * (1.0 + tolerance)
+    # most edges stay: a quick estimate of S3 settles them without divisions
+    if measure == _S3 and s3_cubed_below(xa, ya, xd, yd, xc, yc, limit):
+        return -1.0
+    qa = triangle_score(measure, xa, ya, xd, yd, xc, yc)
+    if qa <= limit:
+        return -1.0
+    if measure == _S3 and s3_cubed_below(xb, yb, xc, yc, xd, yd, limit):
+        return -1.0
+    qb = triangle_score(measure, xb, yb, xc, yc, xd, yd)
+    if qb <= limit:
+        return -1.0
+    if not flippable(xa, ya, xb, yb, xc, yc, xd, yd):
+        return -1.0
+    return smaller(qa, qb) - current
+
+
+@njit_helper
+def _beats(x, y, tri, imp, g: int, e: int) -> bool:
+    """Whether edge ``g`` takes precedence over edge ``e`` in a round."""
+    return imp[g] > imp[e] or (imp[g] == imp[e] and edge_before(x, y, tri, g, e))
+
+
+@njit_helper
+def _wins(x, y, tri, he, imp, e: int) -> bool:
+    """Whether the candidate ``e`` beats every other edge of its two triangles."""
+    f = np.int64(he[e])
+    for g in (_next(e), _prev(e), _next(f), _prev(f)):
+        if imp[g] > 0.0 and _beats(x, y, tri, imp, g, e):
+            return False
+    return True
+
+
+@njit_helper
+def _unknown(he, taint, open_edge, g: int) -> bool:
+    """Whether the far side of edge ``g`` may differ from the global mesh's:
+    its other triangle is tainted, or it is a hull edge of this point set that
+    need not be one of the global set."""
+    h = he[g]
+    if h < 0:
+        return open_edge[g] != 0
+    return taint[h // 3] != 0
+
+
+@njit_helper
+def _known_beaten(x, y, tri, he, imp, taint, open_edge, e: int) -> bool:
+    """Whether an edge of ``e``'s triangles whose improvement is known beats it."""
+    f = np.int64(he[e])
+    for g in (_next(e), _prev(e), _next(f), _prev(f)):
+        if imp[g] > 0.0 and not _unknown(he, taint, open_edge, g) and _beats(x, y, tri, imp, g, e):
+            return True
+    return False
+
+
+@njit_helper
+def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
+    """Whether the centroid of triangle ``t`` (input frame, summed in the
+    corners' coordinate order, so the same bits in every run) lies in the
+    half-open ``window``."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    ax, ay, bx, by, cx, cy = x[a], y[a], x[b], y[b], x[c], y[c]
+    if lex_before(bx, by, ax, ay):
+        ax, ay, bx, by = bx, by, ax, ay
+    if lex_before(cx, cy, bx, by):
+        bx, by, cx, cy = cx, cy, bx, by
+        if lex_before(bx, by, ax, ay):
+            ax, ay, bx, by = bx, by, ax, ay
+    gx = ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0
+    gy = ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
+    return window[0] <= gx < window[2] and window[1] <= gy < window[3]
+
+
+@njit_helper
+def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
+    """True when the whole box lies clearly right of the directed line p -> q."""
+    dx = qx - px
+    dy = qy - py
+    tol = slack * (abs(dx) + abs(dy))
+    for cx, cy in ((x_lo, y_lo), (x_hi, y_lo), (x_hi, y_hi), (x_lo, y_hi)):
+        if dx * (cy - py) - dy * (cx - px) >= -tol:
+            return False
+    return True
+
+
 @njit
-def _flip_kernel(x, y, tri, he, active, measure: int, tolerance: float) -> int:
-    q = triangle_scores(measure, x, y, tri)
+def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
+    """Whether the counter-clockwise triangle abc meets the closed box (conservative:
+    near misses within ``slack`` count as meeting).  Infinite box sides are fine."""
+    x_lo = larger(x_lo, smaller(ax, smaller(bx, cx)) - slack)
+    x_hi = smaller(x_hi, larger(ax, larger(bx, cx)) + slack)
+    y_lo = larger(y_lo, smaller(ay, smaller(by, cy)) - slack)
+    y_hi = smaller(y_hi, larger(ay, larger(by, cy)) + slack)
+    if x_lo > x_hi or y_lo > y_hi:
+        return False
+    # the box is now finite: separated only when it lies right of an edge
+    return not (
+        _outside_edge(ax, ay, bx, by, x_lo, y_lo, x_hi, y_hi, slack)
+        or _outside_edge(bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack)
+        or _outside_edge(cx, cy, ax, ay, x_lo, y_lo, x_hi, y_hi, slack)
+    )
+
+
+@njit_helper
+def _meets_window(x, y, tri, t: int, ox: float, oy: float, window, slack: float) -> bool:
+    """Whether triangle ``t`` meets the closed window, or nearly (see :func:`_meets_box`)."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    return _meets_box(x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox,
+                      window[3] - oy, slack)
+
+
+@njit
+def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, taint, open_edge, assume: int,
+                        ox: float, oy: float, window):
+    """The rounds; returns (flips, rounds with a flip, last round whose flips
+    touch the window, per triangle slot: whether it ever held a triangle that
+    meets the window).
+
+    Every triangle of the global mesh whose centroid lies in the window lies
+    on a triangle of this set that meets the window: when those are never
+    tainted, they are the global mesh's, and so are the window's faces.
+
+    With ``taint`` (one flag per triangle; empty: not tracked), the flags
+    grow each round over the triangles whose state may differ from the global
+    mesh's, as explained in :func:`flip_edges`.
+    """
+    nt = tri.shape[0] // 3
     m = tri.shape[0]
-    queued = zeros(m, dtype=np.uint8)
-    stack = empty(m, dtype=np.int32)
-    n = 0
-    for e in range(m - 1, -1, -1):  # the stack pops the first edge first
-        if he[e] > e and active[e // 3] and active[he[e] // 3]:
-            stack[n] = e
-            n += 1
-            queued[e] = 1
-    flips = 0
-    while n > 0:
-        n -= 1
-        e = np.int64(stack[n])
-        queued[e] = 0
+    track = taint.shape[0] == nt and nt > 0
+    windowed = window.shape[0] == 4
+    q = triangle_scores(measure, x, y, tri)
+    imp = full(m, -1.0)  # per half-edge; an edge's two halves hold the same value
+    cand = empty(m // 2 + 1, dtype=np.int32)
+    nc = 0
+    for e in range(m):
         f = he[e]
-        # a queued slot may hold another edge by now (flips around it move
-        # edges between slots), one whose twin lies outside the active region
-        if f < 0 or not (active[e // 3] and active[f // 3]):
+        if f > e and active[e // 3] and active[f // 3]:
+            v = _improvement(measure, tolerance, x, y, tri, he, q, e)
+            imp[e] = v
+            imp[f] = v
+            if v > 0.0:
+                cand[nc] = e
+                nc += 1
+    zone = zeros(nt, dtype=np.uint8)
+    slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
+    if windowed:
+        for t in range(nt):
+            if _meets_window(x, y, tri, t, ox, oy, window, slack):
+                zone[t] = 1
+    stamp = zeros(m, dtype=np.int32)  # the round an edge was last rescored or won
+    touched = zeros(nt, dtype=np.int32)  # the round a triangle was last flipped
+    marked = zeros(nt if track else 0, dtype=np.int32)  # the round a triangle was tainted
+    winners = empty(nt // 2 + 1, dtype=np.int32)
+    frontier = empty(nt if track else 0, dtype=np.int32)
+    nf = 0
+    fresh = empty(nt if track else 0, dtype=np.int32)
+    if track:
+        for t in range(nt):
+            if taint[t]:
+                frontier[nf] = t
+                nf += 1
+    flips = 0
+    rounds = 0
+    last_window = 0
+    k = 0
+    while True:
+        k += 1
+        if nc == 0 and not (track and k <= assume and (nf > 0 or k == 1)):
+            break
+        nw = 0
+        for i in range(nc):
+            e = cand[i]
+            if _wins(x, y, tri, he, imp, e):
+                winners[nw] = e
+                nw += 1
+                stamp[e] = -k
+                stamp[he[e]] = -k
+        if track:
+            nn = 0
+            if k <= assume:
+                # the global mesh may flip any edge with a tainted side this round
+                for i in range(nf if k > 1 else nt):
+                    t = frontier[i] if k > 1 else i
+                    if k == 1 and not taint[t]:
+                        # first round: triangles on a hull edge that may be no hull edge of the global set
+                        if (open_edge[3 * t] or open_edge[3 * t + 1] or open_edge[3 * t + 2]) and marked[t] != k:
+                            marked[t] = k
+                            fresh[nn] = t
+                            nn += 1
+                        continue
+                    for j in range(3):
+                        h = he[3 * t + j]
+                        if h >= 0 and not taint[h // 3] and marked[h // 3] != k:
+                            marked[h // 3] = k
+                            fresh[nn] = h // 3
+                            nn += 1
+                # one ring more across the candidates of those triangles whose decision a tainted edge may change
+                spread = nn
+                for i in range(spread):
+                    t = fresh[i]
+                    for j in range(3):
+                        e = 3 * t + j
+                        f = he[e]
+                        if f < 0 or taint[f // 3] or marked[f // 3] == k or imp[e] <= 0.0:
+                            continue
+                        if stamp[e] != -k and _known_beaten(x, y, tri, he, imp, taint, open_edge, e):
+                            continue
+                        marked[f // 3] = k
+                        fresh[nn] = f // 3
+                        nn += 1
+            # a flip whose decision read a tainted triangle may differ from the global mesh's
+            for i in range(nw):
+                e = np.int64(winners[i])
+                f = np.int64(he[e])
+                t1 = e // 3
+                t2 = f // 3
+                unsure = taint[t1] != 0 or taint[t2] != 0
+                for g in (_next(e), _prev(e), _next(f), _prev(f)):
+                    unsure = unsure or _unknown(he, taint, open_edge, g)
+                if unsure:
+                    for t in (t1, t2):
+                        if not taint[t] and marked[t] != k:
+                            marked[t] = k
+                            fresh[nn] = t
+                            nn += 1
+            for i in range(nn):
+                taint[fresh[i]] = 1
+                frontier[i] = fresh[i]
+            nf = nn
+        if nw == 0:
             continue
-        t1 = e // 3
-        t2 = f // 3
-        current = smaller(q[t1], q[t2])
-        a = tri[e]
-        b = tri[_next(e)]
-        c = tri[_prev(e)]
-        d = tri[_prev(f)]
-        # each corner's coordinates read once (scores and the convexity test share them)
-        xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
-        limit = current * (1.0 + tolerance)
-        # most edges stay: a quick estimate of S3 settles them without divisions
-        if measure == _S3 and s3_cubed_below(xa, ya, xd, yd, xc, yc, limit):
-            continue
-        qa = triangle_score(measure, xa, ya, xd, yd, xc, yc)
-        if qa <= limit:
-            continue
-        if measure == _S3 and s3_cubed_below(xb, yb, xc, yc, xd, yd, limit):
-            continue
-        qb = triangle_score(measure, xb, yb, xc, yc, xd, yd)
-        if qb <= limit:
-            continue
-        if not flippable(xa, ya, xb, yb, xc, yc, xd, yd):
-            continue
-        _flip(tri, he, e)
-        q[t1] = qa
-        q[t2] = qb
-        flips += 1
-        for j in range(4):
-            g = e if j == 0 else (_prev(e) if j == 1 else (f if j == 2 else _prev(f)))
-            h = he[g]
-            if h < 0 or not (active[g // 3] and active[h // 3]):
+        rounds = k
+        for i in range(nw):
+            e = np.int64(winners[i])
+            f = np.int64(he[e])
+            t1 = e // 3
+            t2 = f // 3
+            # a slot that ever held a triangle of the window (a few flips counted too many: only later rounds asked of the rest)
+            near = windowed and (zone[t1] != 0 or zone[t2] != 0)
+            a = tri[e]
+            b = tri[_next(e)]
+            c = tri[_prev(e)]
+            d = tri[_prev(f)]
+            _flip(tri, he, e)
+            q[t1] = triangle_score(measure, x[a], y[a], x[d], y[d], x[c], y[c])
+            q[t2] = triangle_score(measure, x[b], y[b], x[c], y[c], x[d], y[d])
+            touched[t1] = k
+            touched[t2] = k
+            flips += 1
+            if windowed:
+                for t in (t1, t2):
+                    if _meets_window(x, y, tri, t, ox, oy, window, slack):
+                        zone[t] = 1
+                        near = True
+                if near:
+                    last_window = k
+        # the next round's candidates: those whose triangles stayed, and the rescored edges of the flipped ones
+        kept = 0
+        for i in range(nc):
+            e = cand[i]
+            f = he[e]
+            if touched[e // 3] == k or (f >= 0 and touched[f // 3] == k):
                 continue
-            k = smaller(g, h)
-            if queued[k] == 0:
-                queued[k] = 1
-                stack[n] = k
-                n += 1
-    return flips
+            cand[kept] = e
+            kept += 1
+        nc = kept
+        for i in range(nw):
+            e = np.int64(winners[i])
+            # after the flip, e's slot and its old twin's hold the two new triangles; the new diagonal is next(e)
+            for t in (e // 3, np.int64(he[_next(e)]) // 3):
+                for j in range(3):
+                    g = 3 * t + j
+                    h = he[g]
+                    if h < 0 or not (active[g // 3] and active[h // 3]):
+                        imp[g] = -1.0
+                        continue
+                    c = g if g < h else h
+                    if stamp[c] == k:
+                        continue
+                    stamp[c] = k
+                    v = _improvement(measure, tolerance, x, y, tri, he, q, c)
+                    imp[c] = v
+                    imp[he[c]] = v
+                    if v > 0.0:
+                        cand[nc] = c
+                        nc += 1
+    return flips, rounds, last_window, zone
+
+
+class FlipRounds:
+    """What :func:`flip_edges` did: ``flips`` made in ``rounds`` rounds; with a
+    window, ``last_window_round`` (the last round whose flips touched a
+    triangle meeting the window, 0 for none) and ``zone`` (per triangle slot:
+    it held such a triangle at some round)."""
+
+    __slots__ = ("flips", "rounds", "last_window_round", "zone")
+
+    def __init__(self, flips: int, rounds: int, last_window_round: int, zone: np.ndarray) -> None:
+        self.flips = flips
+        self.rounds = rounds
+        self.last_window_round = last_window_round
+        self.zone = zone
 
 
 def flip_edges(
@@ -121,27 +416,51 @@ def flip_edges(
     measure: str,
     active: np.ndarray | None = None,
     tolerance: float = FLIP_TOLERANCE,
-) -> int:
-    """Flip diagonals in place until no flip improves ``measure`` ("s1" or "s3").
+    *,
+    taint: np.ndarray | None = None,
+    open_edges: np.ndarray | None = None,
+    assume_rounds: int = 0,
+    window: tuple[float, float, float, float] | None = None,
+) -> FlipRounds:
+    """Flip diagonals in place, in rounds, until no flip improves ``measure`` ("s1" or "s3").
 
     With ``active`` (one flag per triangle), only diagonals between two active
     triangles are considered, so the region the active triangles cover stays
-    the same.  Edges are visited in the triangulation's own order, so two
-    triangulations numbered in the same geometric order (see
-    :func:`meshcore._order.geometric_order`) flip the edges they share the
-    same way.  Returns the number of flips made.
+    the same.  The result does not depend on the triangles' numbering.
+
+    ``taint`` (one flag per triangle, updated in place) serves a point set
+    that is part of a larger one (a tile): it marks the triangles that may
+    not be the larger set's (their circumcircle reaches points not held).
+    ``open_edges`` (per half-edge) marks the hull edges of this set that may
+    not be hull edges of the larger set.  Each round, the flags spread to
+    every triangle whose state after the round may differ from the larger
+    set's: the far triangle of an edge whose flip is decided from a tainted
+    triangle, and for the first ``assume_rounds`` rounds, every neighbour of a
+    tainted triangle (the larger set may flip the edge between them in any
+    round it still flips near here).  Past ``assume_rounds``, only this set's
+    own flips spread them: when the larger set makes no flip near here after
+    that round, an untainted triangle is the larger set's final one.
     """
     code = {"s1": _S1, "s3": _S3}[measure]
+    nt = triangulation.triangles.shape[0] // 3
     if active is None:
-        active = np.ones(triangulation.triangles.shape[0] // 3, dtype=np.uint8)
-    return int(
-        _flip_kernel(
-            triangulation.x,
-            triangulation.y,
-            triangulation.triangles,
-            triangulation.halfedges,
-            active,
-            code,
-            float(tolerance),
-        )
+        active = np.ones(nt, dtype=np.uint8)
+    flags = np.zeros(0, dtype=np.uint8) if taint is None else taint
+    opened = np.zeros(triangulation.triangles.shape[0], dtype=np.uint8) if open_edges is None else open_edges
+    o = triangulation.origin
+    flips, rounds, last, zone = _flip_rounds_kernel(
+        triangulation.x,
+        triangulation.y,
+        triangulation.triangles,
+        triangulation.halfedges,
+        active,
+        code,
+        float(tolerance),
+        flags,
+        opened,
+        int(assume_rounds),
+        float(o[0]),
+        float(o[1]),
+        np.zeros(0) if window is None else np.asarray(window, dtype=np.float64),
     )
+    return FlipRounds(int(flips), int(rounds), int(last), zone)

@@ -7,8 +7,11 @@ quadrangle q, with e34 the other diagonal,
 
 where the quad measure S2 is paired with the triangle measure S1, and S4 with
 S3.  ``greedy`` (the paper's scheme) sorts the edges by decreasing gain (ties
-by half-edge index, deterministic for a given input) and deletes a diagonal
-while both of its triangles are still triangles and the gain is positive.
+by the edges' endpoints' coordinates) and deletes a diagonal while both of its
+triangles are still triangles and the gain is positive.  That is the locally
+dominant matching of the triangles: a diagonal is deleted exactly when no
+edge of its triangles that comes first in that order is, so the choice is one
+of the geometry alone, and :func:`merge_dependencies` says how far it reaches.
 ``optimal`` deletes the set of diagonals with the largest total gain: a
 maximum-weight matching of the triangles (networkx's blossom algorithm).
 """
@@ -18,13 +21,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller
-from ._order import order_ties_by, sortable_keys
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _next, _prev
 from .flip import flippable, triangle_score, triangle_scores
+from .predicates import lex_before
 from .quality import s2_kernel, s4_cubed_kernel
 
-__all__ = ["merge_candidates", "merge_triangles"]
+__all__ = ["merge_candidates", "merge_triangles", "merge_dependencies"]
 
 _PAIRED_TRIANGLE_MEASURE = {"s2": 1, "s4": 3}
 _QUAD_CODE = {"s2": 2, "s4": 4}
@@ -33,7 +36,12 @@ _QUAD_CODE = {"s2": 2, "s4": 4}
 @njit_helper
 def _quad_score(measure: int, ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """Score of the quadrangle with these corners: S2, or S4 cubed (paired with the
-    triangle scores S1, S3 cubed)."""
+    triangle scores S1, S3 cubed); computed from the corner that comes first by
+    coordinates, so any rotation of the same quadrangle gives the same bits."""
+    for _ in range(3):
+        if lex_before(ax, ay, bx, by) and lex_before(ax, ay, cx, cy) and lex_before(ax, ay, dx, dy):
+            break
+        ax, ay, bx, by, cx, cy, dx, dy = bx, by, cx, cy, dx, dy, ax, ay
     if measure == 2:
         return s2_kernel(ax, ay, bx, by, cx, cy, dx, dy)
     return s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy)
@@ -106,12 +114,87 @@ def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
     return partner
 
 
-def _order_by_gain(gains: np.ndarray) -> np.ndarray:
-    """Indices by decreasing gain; equal gains keep increasing index (half-edge) order."""
-    key = sortable_keys(-gains)
-    order = np.argsort(key)
-    order_ties_by(order, key[order], order.astype(np.uint64))  # ties by index
-    return order
+def _order_by_gain(triangulation: Triangulation, edges: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """Indices by decreasing gain; equal gains by the edges' endpoints (the one
+    first by coordinates, then the other), so the order is the geometry's."""
+    tri = triangulation.triangles
+    a = tri[edges]
+    b = tri[np.where(edges % 3 == 2, edges - 2, edges + 1)]
+    x, y = triangulation.x, triangulation.y
+    swap = (x[b] < x[a]) | ((x[b] == x[a]) & (y[b] < y[a]))
+    lo = np.where(swap, b, a)
+    hi = np.where(swap, a, b)
+    return np.lexsort((y[hi], x[hi], y[lo], x[lo], -gains))
+
+
+@njit
+def _dependencies_kernel(he, edges, order, start, nt: int) -> np.ndarray:
+    """Triangles the greedy choice of ``start``'s triangles reads: see :func:`merge_dependencies`."""
+    n = edges.shape[0]
+    rank = empty(n, dtype=np.int64)
+    for k in range(n):
+        rank[order[k]] = k
+    first = full(nt, -1, dtype=np.int64)  # a triangle's candidates, as a linked list over 2n slots
+    link = full(2 * n, -1, dtype=np.int64)
+    for i in range(n):
+        for side in range(2):
+            t = (edges[i] if side == 0 else he[edges[i]]) // 3
+            link[2 * i + side] = first[t]
+            first[t] = 2 * i + side
+    need = zeros(nt, dtype=np.uint8)
+    seen = zeros(n, dtype=np.uint8)
+    stack = empty(n, dtype=np.int64)
+    top = 0
+    for t in range(nt):
+        if not start[t]:
+            continue
+        need[t] = 1
+        s = first[t]
+        while s >= 0:
+            i = s // 2
+            if not seen[i]:
+                seen[i] = 1
+                stack[top] = i
+                top += 1
+            s = link[s]
+    while top > 0:
+        top -= 1
+        i = stack[top]
+        e = np.int64(edges[i])
+        f = np.int64(he[e])
+        # the edge's gain reads its two triangles; whether it is a candidate at
+        # all, each edge around them reads the triangle beyond it
+        for g in (e, f, _next(e), _prev(e), _next(f), _prev(f)):
+            h = he[g]
+            need[g // 3] = 1
+            if h >= 0:
+                need[h // 3] = 1
+        for t in (e // 3, f // 3):
+            s = first[t]
+            while s >= 0:
+                j = s // 2
+                if not seen[j] and rank[j] < rank[i]:
+                    seen[j] = 1
+                    stack[top] = j
+                    top += 1
+                s = link[s]
+    return need
+
+
+def merge_dependencies(
+    triangulation: Triangulation, edges: NDArray[np.int32], gains: NDArray[np.float64], start: NDArray[np.uint8]
+) -> NDArray[np.uint8]:
+    """The triangles whose shapes decide the greedy choice for the triangles ``start`` flags.
+
+    A diagonal is deleted exactly when no candidate sharing a triangle with it
+    and coming first in the order is deleted, so the choice for a triangle
+    depends on the chains of candidates from its edges, each one coming before
+    the last.  Returns a flag per triangle: those chains' triangles and the
+    triangles around them (which say which edges are candidates at all).
+    """
+    nt = triangulation.triangles.shape[0] // 3
+    order = _order_by_gain(triangulation, edges, gains)
+    return _dependencies_kernel(triangulation.halfedges, edges, order, np.ascontiguousarray(start, dtype=np.uint8), nt)
 
 
 def merge_candidates(
@@ -168,12 +251,14 @@ def merge_triangles(
     quad_measure: str,
     merge: str = "greedy",
     active: NDArray[np.uint8] | None = None,
+    candidates: tuple[NDArray[np.int32], NDArray[np.float64]] | None = None,
 ) -> NDArray[np.int32]:
     """Choose the diagonals to delete; returns, per triangle, the half-edge of its
-    deleted diagonal or -1 when it stays a triangle."""
+    deleted diagonal or -1 when it stays a triangle.  ``candidates``: what
+    :func:`merge_candidates` returned for these arguments, when known."""
     nt = triangulation.triangles.shape[0] // 3
-    edges, gains = merge_candidates(triangulation, quad_measure, active)
+    edges, gains = merge_candidates(triangulation, quad_measure, active) if candidates is None else candidates
     if merge == "optimal":
         return _optimal_partner(triangulation.halfedges, edges, gains, nt)
-    order = _order_by_gain(gains)
+    order = _order_by_gain(triangulation, edges, gains)
     return _greedy_kernel(triangulation.halfedges, edges, gains, order, nt)

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
 from .errors import InvalidInputError, InvalidMeshError
+
+if TYPE_CHECKING:
+    from .certificate import WindowCertificate
 
 __all__ = ["Mesh", "mesh_arrays", "vertex_values", "with_vertices"]
 
@@ -50,6 +54,8 @@ class Mesh:
     merge: str = "greedy"
     window: tuple[float, float, float, float] | None = None
     window_escapes: NDArray[np.float64] | None = None
+    certificate: "WindowCertificate | None" = None
+    """For a window piece: whether its faces are the global mesh's (:class:`meshcore.certificate.WindowCertificate`)."""
 
     @property
     def is_quad(self) -> NDArray[np.bool_]:

@@ -53,6 +53,12 @@ __all__ = [
     "reached_tiles", "load_kernels", "load_surface_kernels",
 ]
 
+DEFAULT_ASSUMED_ROUNDS = 8
+"""The flip rounds a tile's certificate first allows its neighbours: on the
+surveys measured, no tile flipped past round 8 (a run checks it after meshing,
+and meshes again with more the tiles whose neighbours flipped later)."""
+
+
 @dataclass(frozen=True)
 class TileJob:
     """A small, picklable recipe for one tile's work (no open files)."""
@@ -84,6 +90,8 @@ class TileJob:
     variogram: meshcore.Variogram | None = None
     windows: tuple[WindowSource, ...] = ()
     """COPC inputs this tile reads by window (:mod:`pipeline.tiling.windows`), not from spill files."""
+    assume_rounds: int = DEFAULT_ASSUMED_ROUNDS
+    """The flip rounds the certificate allows the tiles around this one (see :func:`mesh_tile`)."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +121,12 @@ class TileSummary:
     window_counts: tuple[tuple[str, int, int, int, int, int], ...] = ()
     """What the tile counted of each window source: (path, read,
     filtered_class, filtered_withheld, outside_bbox, kept) of the nodes it owns."""
+    last_flip_round: int = 0
+    """The last flip round whose flips touched the tile's window (0: none)."""
+    assumed_rounds: int = -1
+    """The rounds after which its certificate assumes no flip near it (-1: a record of an older version)."""
+    grown: float = 0.0
+    """How far beyond its buffer the box it holds whole had to grow for the flips' certificate."""
 
 
 def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
@@ -286,6 +300,16 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     return out
 
 
+def _grown_box(box, by: float, extent) -> tuple[float, float, float, float]:
+    """``box`` grown by ``by`` on every side, each side stopping at the infinite
+    one past the survey's ``extent`` (nothing lies beyond it)."""
+    lo_x, lo_y, hi_x, hi_y = box[0] - by, box[1] - by, box[2] + by, box[3] + by
+    return (
+        -math.inf if lo_x <= extent[0] else lo_x, -math.inf if lo_y <= extent[1] else lo_y,
+        math.inf if hi_x >= extent[2] else hi_x, math.inf if hi_y >= extent[3] else hi_y,
+    )
+
+
 def _any_in_circles(points: NDArray[np.float64], circles: NDArray[np.float64]) -> bool:
     """Whether a point ``(x, y, ...)`` lies in a closed circle ``(x, y, r)`` (a radius
     not finite: any point).  The points are sorted by x and each circle tests
@@ -426,6 +450,21 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     return bands
 
 
+class _HeldRegion(meshcore.KnownRegion):
+    """What a tile holds, for meshcore's certificate: the box it holds whole,
+    the global hull, and its other held boxes (a circle is vouched for when its
+    part inside the hull lies in them)."""
+
+    def __init__(self, held: list, hull: NDArray[np.float64], extent) -> None:
+        super().__init__(box=tuple(held[0]), hull=hull if hull.shape[0] >= 3 else None)
+        object.__setattr__(self, "_held", list(held))
+        object.__setattr__(self, "_extent", extent)
+
+    def covers(self, circles: NDArray[np.float64]) -> NDArray[np.bool_]:
+        boxes = _disk_boxes_in_hull(circles, self.hull if self.hull is not None else np.empty((0, 2)), self._extent)
+        return np.array([box is None or not _uncovered(box, self._held) for box in boxes], dtype=bool)
+
+
 #: the side of :func:`meshcore.block_order`'s cells, in point spacings, for the smooth surface
 #: (measured on 125k random points: 4 spacings 0.04 s faster a tile than 2 or 32, and than the random order)
 _BLOCK_SPACINGS = 4.0
@@ -515,7 +554,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
             # (random file orders made them 10-20% slower); the mesh is the same in any order
             points = np.take(points, meshcore.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, held[0]), axis=0)
         mesh = meshcore.build_mesh(
-            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window, known=held[0]
+            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window,
+            known=_HeldRegion(held, hull_xy, job.extent), assume_rounds=job.assume_rounds,
         )
         return mesh, points
 
@@ -539,6 +579,7 @@ def mesh_tile(job: TileJob) -> TileSummary:
     # (points are only ever added)
     escape_boxes: tuple = (None, [])
     covered = False
+    grown = 0.0  # how far the box held whole grew beyond the buffer, for the certificate
     while True:
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
@@ -565,6 +606,26 @@ def mesh_tile(job: TileJob) -> TileSummary:
         if gap:  # points beyond a void: look around, farther each time
             around = intersect_boxes(near, ext)
             requests.extend([] if around is None else _uncovered(around, held))
+        if not (circles or gap) and not mesh.certificate.certified:
+            # the flips and merges of the window's faces read triangles the tile may not have as the
+            # survey has them: hold a wider box whole (only the points not held yet are read)
+            # by the buffer, then by all it grew so far: the box's width at most doubles each time
+            step = max(job.buffer, g.resolution, grown)
+            wider = _grown_box(held[0], step, ext)
+            grown += step
+            if wider == held[0]:
+                raise SeamError(
+                    f"tile ({job.row}, {job.col}): its piece cannot be certified although it holds every point "
+                    "of the survey (its flips or merges read triangles it does not have)"
+                )
+            expansions += 1
+            fresh = _uncovered(wider, held)
+            extra = _load_boxes(job, fresh, held) if fresh else np.empty((0, 3))
+            held[0] = wider
+            loaded += extra.shape[0]
+            points = np.concatenate([points, extra])
+            (mesh, meshed), plan = build(points), None
+            continue
         if not (circles or gap):
             if smooth and plan is None:
                 mesh, meshed = held_as_vertices()
@@ -657,6 +718,9 @@ def mesh_tile(job: TileJob) -> TileSummary:
         window_counts=tuple((c.path, c.read, c.filtered_class, c.filtered_withheld, c.outside_bbox, c.kept) for c in counted),
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in held),
+        last_flip_round=mesh.certificate.last_flip_round,
+        assumed_rounds=job.assume_rounds,
+        grown=grown,
         reach=None if border_v.shape[0] == 0 else (
             *(float(v) for v in border_v[:, :2].min(axis=0)), *(float(v) for v in border_v[:, :2].max(axis=0))
         ),

@@ -542,6 +542,15 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         summaries[(job.row, job.col)] = summary
 
     map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
+    again = pending
+    while True:
+        # a tile's certificate assumed its neighbours make no flip after its assumed rounds: where one
+        # did, mesh it again assuming as many (its faces change only if the assumption was wrong)
+        again = _rounds_unchecked(grid, tile_jobs, summaries)
+        if not again:
+            break
+        pending = pending + [job for job in again if job not in pending]
+        map_tasks(client, mesh_tile, again, Progress("mesh", len(again), show), lambda s: s.points_owned, meshed)
     _count_windows(report, results, plan.infos, routed.windows, summaries.values())
     report.files = [c.to_report() for c in results if c.skipped is None]
     for s in summaries.values():
@@ -572,6 +581,25 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
             "that could not certify their seams; run again with overwrite to mesh every tile again"
         )
     return Meshed(tile_jobs, summaries, pending)
+
+
+def _rounds_unchecked(grid, tile_jobs: list[TileJob], summaries: dict) -> list[TileJob]:
+    """The tiles to mesh again, each with the rounds it must assume: those
+    around which a tile flipped later than their certificate assumed.
+
+    A tile's flips spread doubt over the triangles it holds only until the
+    round its certificate assumed; the tiles whose windows meet the box it
+    held whole say how long the survey flipped there (``last_flip_round``).
+    """
+    out = []
+    for job in tile_jobs:
+        s = summaries[(job.row, job.col)]
+        held = list(s.held) or [grid.window(job.row, job.col)]
+        need = max((summaries[key].last_flip_round for key in grid.tiles_meeting(held) if key in summaries),
+                   default=0)
+        if s.assumed_rounds < need:
+            out.append(replace(job, assume_rounds=need))
+    return out
 
 
 def _empty_dem_note(config: RunConfig) -> str:
