@@ -17,13 +17,16 @@ from pipeline.errors import CrsError, UsageError
 from pipeline.inputs.header import SourceInfo
 from pipeline.inputs.sources import read_info
 
-from .test_sources import sample, write_las
+from .test_sources import LAMBERT93_ORIGIN, sample, write_las
 
 LAMBERT93 = "EPSG:2154"
 
 
 def info_for(tmp_path: Path, name: str, crs: str | None, **kwargs: object) -> SourceInfo:
-    """Header info of a small synthetic file in ``crs``."""
+    """Header info of a small synthetic file in ``crs``, by default at
+    Lambert-93's origin (central France; 50 km east of UTM 31N's band), so
+    that its coordinates agree with a record of either."""
+    kwargs.setdefault("origin", LAMBERT93_ORIGIN)
     return read_info(write_las(tmp_path / name, crs=crs, n=20, **kwargs).path)  # type: ignore[arg-type]
 
 
