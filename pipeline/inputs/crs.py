@@ -1,10 +1,11 @@
 """Coordinate reference systems: decide each file's CRS and the target CRS, and reproject.
 
-:func:`resolve_crs` turns the files' CRS records plus the ``in_crs`` and
-``out_crs`` parameters into a :class:`CrsPlan`: one source CRS per file, one
-target CRS (projected: the mesh is built in linear units), its horizontal
-unit, and notes for the run report. CRSs travel as WKT strings so that the
-plan and its :class:`Reprojector` recipes pickle and store as plain text.
+:func:`resolve_crs` turns the files' CRS records plus the ``in_crs``,
+``override_crs`` and ``out_crs`` parameters into a :class:`CrsPlan`: one
+source CRS per file, one target CRS (projected: the mesh is built in linear
+units), its horizontal unit, and notes for the run report. CRSs travel as WKT
+strings so that the plan and its :class:`Reprojector` recipes pickle and
+store as plain text.
 
 A note on heights: pyproj transforms z only when both the source and the
 target CRS have a vertical component (compound or 3D CRSs). Between 2D CRSs
@@ -39,6 +40,7 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError
 
+from ..config import BOTH_CRS_OPTIONS
 from ..errors import CrsError, UsageError, one_line
 from ..urls import Location, as_location
 
@@ -394,7 +396,13 @@ class CrsPlan:
         )
 
 
-def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs: str | None = None) -> CrsPlan:
+def resolve_crs(
+    infos: Sequence[SourceInfo],
+    in_crs: str | None = None,
+    out_crs: str | None = None,
+    *,
+    override_crs: str | None = None,
+) -> CrsPlan:
     """Decide the source CRS of every file and the target CRS.
 
     Parameters
@@ -403,10 +411,15 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         Header information of the input files (:func:`pipeline.inputs.sources.read_info`).
     in_crs
         CRS of the inputs whose CRS is missing or broken (anything
-        ``pyproj.CRS.from_user_input`` accepts).  A file's valid CRS is kept,
-        and a note says so when it differs from ``in_crs``.
+        ``pyproj.CRS.from_user_input`` accepts; PDAL's ``default_srs``).  A
+        file's valid CRS is kept, and a note says so when it differs from
+        ``in_crs``.
     out_crs
         CRS of the outputs. Default: the files' common CRS.
+    override_crs
+        CRS of every input, whatever its record says (PDAL's
+        ``override_srs``); a note names each file whose record it replaces.
+        Not with ``in_crs``.
 
     Returns
     -------
@@ -415,16 +428,23 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
     Raises
     ------
     CrsError
-        On a bad ``in_crs``/``out_crs`` string; when files without a usable
-        CRS are given no ``in_crs``; when files in different CRSs are given no
-        ``out_crs``; when the target CRS is not projected (e.g. geographic,
-        in degrees).
+        On a bad ``in_crs``/``override_crs``/``out_crs`` string; when files
+        without a usable CRS are given no ``in_crs``; when files in different
+        CRSs are given no ``out_crs``; when the target CRS is not projected
+        (e.g. geographic, in degrees).
+    UsageError
+        When both ``in_crs`` and ``override_crs`` are given.
     """
     if len(infos) == 0:
         raise UsageError("no input files to resolve a CRS for")
+    if in_crs is not None and override_crs is not None:
+        raise UsageError(BOTH_CRS_OPTIONS)
     cache = _CrsCache()
     user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
+    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
     user_out = _user_crs(out_crs, "out_crs") if out_crs is not None else None
+    # the CRS the user gives for files, and the option that gives it
+    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
     notes: list[str] = []
 
     sources: list[pyproj.CRS] = []
@@ -438,19 +458,24 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
                 file_crs = cache.get(info.crs_wkt)
             except CRSError as exc:
                 problem = f"stored CRS unparsable ({one_line(exc)})"
-        if file_crs is not None:
+        if file_crs is not None and user_override is None:
             if user_in is not None and not same_crs(file_crs, user_in):
                 notes.append(
                     f"{info.path}: its own CRS {crs_label(file_crs)} is kept; in_crs={crs_label(user_in)!r} "
-                    "is for files without a usable CRS"
+                    "is for files without a usable CRS (override_crs replaces every file's)"
                 )
             sources.append(file_crs)
-        elif user_in is not None:
-            if problem:
-                notes.append(f"{info.path}: {problem}; using in_crs={crs_label(user_in)!r}")
+        elif user is not None:
+            if file_crs is not None:
+                if not same_crs(file_crs, user):
+                    notes.append(
+                        f"{info.path}: its CRS record {crs_label(file_crs)} is replaced by {option}={crs_label(user)!r}"
+                    )
+            elif problem:
+                notes.append(f"{info.path}: {problem}; using {option}={crs_label(user)!r}")
             else:
                 defaulted.append(info.path)
-            sources.append(user_in)
+            sources.append(user)
         else:
             unusable.append(f"{info.path} ({problem or 'no CRS record'})")
     if unusable:
@@ -461,8 +486,8 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
             + (f" and {more} more" if more > 0 else "")
             + "; give in_crs (e.g. in_crs='EPSG:2154') to say which CRS they are in"
         )
-    if defaulted and user_in is not None:
-        notes.append(f"in_crs={crs_label(user_in)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
+    if defaulted and user is not None:
+        notes.append(f"{option}={crs_label(user)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
 
     groups: list[tuple[pyproj.CRS, list[int]]] = []
     for i, crs in enumerate(sources):

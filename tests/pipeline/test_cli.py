@@ -261,3 +261,18 @@ def test_a_bbox_or_extent_west_or_south_of_the_origin_is_read_as_coordinates(tmp
     assert config.extent == (-500.0, -2000.0, 0.0, 0.0)
     # a flag after --bbox is still a flag
     assert _with_attached_values(["run", "--bbox", "--resolution", "1"]) == ["run", "--bbox", "--resolution", "1"]
+
+
+def test_override_crs_is_a_flag_that_replaces_a_job_files_in_crs(tmp_path):
+    from pipeline.cli import _parser, _run_config, as_flags
+
+    job = tmp_path / "job.toml"
+    job.write_text('[run]\ninputs = ["a.laz"]\noutput = "o.zarr"\nresolution = 1.0\nin_crs = "EPSG:2154"\n')
+    config = _run_config(_parser().parse_args(["run", "--config", str(job), "--override-crs", "EPSG:32612"]))
+    assert (config.in_crs, config.override_crs) == (None, "EPSG:32612")
+    config = _run_config(_parser().parse_args(["run", "--config", str(job)]))
+    assert (config.in_crs, config.override_crs) == ("EPSG:2154", None)
+    assert as_flags("its record is replaced by override_crs='WGS 84 / UTM zone 12N (EPSG:32612)'; give override_crs "
+                    "the CRS") == "its record is replaced by --override-crs WGS 84 / UTM zone 12N (EPSG:32612); " \
+                                  "give --override-crs the CRS"
+

@@ -170,6 +170,26 @@ def test_us_feet_target_and_compound_z_conversion(tmp_path: Path) -> None:
     assert_allclose(z, [7000.0 * 1200 / 3937], rtol=1e-9)
 
 
+YELLOWSTONE = (515_368.0, 4_918_340.0)
+"""UTM zone 12N metres (the lone-star survey): what PDAL's test files hold under wrong records."""
+
+
+def test_override_crs_replaces_every_record_and_names_each_file(tmp_path: Path) -> None:
+    wrong = info_for(tmp_path, "wrong.las", "EPSG:4326", origin=YELLOWSTONE)
+    right = info_for(tmp_path, "right.las", "EPSG:32612", origin=YELLOWSTONE)
+    none = info_for(tmp_path, "none.las", None, origin=YELLOWSTONE)
+    plan = resolve_crs([wrong, right, none], override_crs="EPSG:32612")
+    assert {pyproj.CRS.from_wkt(w).to_epsg() for w in plan.source_wkts} == {32612}
+    assert all(plan.reprojector(p).is_identity for p in plan.paths)
+    replaced = [n for n in plan.notes if "is replaced by override_crs=" in n]
+    assert len(replaced) == 1 and replaced[0].startswith(f"{wrong.path}: its CRS record WGS 84 (EPSG:4326)")
+    assert any(str(none.path) in n and "without a CRS" in n and "override_crs=" in n for n in plan.notes)
+    with pytest.raises(UsageError, match="not both"):
+        resolve_crs([wrong], "EPSG:32612", override_crs="EPSG:32612")
+    with pytest.raises(CrsError, match="^override_crs='EPSG:99999999'"):
+        resolve_crs([wrong], override_crs="EPSG:99999999")
+
+
 # --------------------------------------------------------------------------- Reprojector
 
 
