@@ -108,6 +108,8 @@ def _parser() -> argparse.ArgumentParser:
         "(files inside it never move the grid)"
     )
     run.add_argument("--in-crs", help="CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
+    run.add_argument("--override-crs", help="CRS of every input, whatever its CRS record says (e.g. EPSG:32612): "
+                     "for records the coordinates contradict; not with --in-crs")
     run.add_argument("--out-crs", help="reproject to this CRS (required for mixed or geographic inputs)")
     run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest; first: the first read, files in sorted path order)")
     run.add_argument("--triangle-measure", choices=("delaunay", "s1", "s3"), help="flip measure (default s3)")
@@ -200,6 +202,7 @@ def _run_config(args: argparse.Namespace):
         "buffer": args.buffer,
         "keep_withheld": args.keep_withheld,
         "in_crs": args.in_crs,
+        "override_crs": args.override_crs,
         "out_crs": args.out_crs,
         "duplicates": args.duplicates,
         "triangle_measure": args.triangle_measure,
@@ -214,6 +217,9 @@ def _run_config(args: argparse.Namespace):
         "overwrite": args.overwrite,
         "skip_bad_files": args.skip_bad_files,
     }
+    for flag, other in (("in_crs", "override_crs"), ("override_crs", "in_crs")):
+        if flags[flag] is not None:  # the command line's choice of the two replaces the job file's
+            data.pop(other, None)
     data.update({k: v for k, v in flags.items() if v is not None})
     if args.inputs:
         data["inputs"] = tuple(args.inputs)
@@ -298,8 +304,8 @@ def _progress(args: argparse.Namespace) -> bool | None:
 
 
 _SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
-_VALUES = re.compile(r"\b(in_crs|out_crs|max_cells|max_edge|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
-_NAMES = re.compile(r"\b(in_crs|out_crs|max_cells|max_edge|skip_bad_files|tile_size)\b")
+_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
+_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|skip_bad_files|tile_size)\b")
 
 
 def _flag(name: str) -> str:

@@ -103,6 +103,11 @@ def _whole(name: str, value: object, allow_none: bool = False) -> int | None:
     return number
 
 
+BOTH_CRS_OPTIONS = (
+    "give in_crs or override_crs, not both: override_crs sets the CRS of every input, "
+    "in_crs that of inputs without a usable CRS record"
+)
+
 #: fields whose default is not None but that accept None, and how a job file says None
 _NONE_WORDS = {"classes": "all", "quad_measure": "none"}
 
@@ -161,6 +166,10 @@ class RunConfig:
     """The survey's planned area (output CRS): the grid covers it, so files
     inside it never move the grid (an archive that grows file by file)."""
     in_crs: str | None = None
+    """The CRS of inputs whose record is missing or broken (PDAL's ``default_srs``)."""
+    override_crs: str | None = None
+    """The CRS of every input, whatever its record says (PDAL's ``override_srs``):
+    for files whose record the coordinates contradict."""
     out_crs: str | None = None
     duplicates: str = DuplicatePolicy.LOWEST.value
     triangle_measure: str = "s3"
@@ -246,11 +255,13 @@ class RunConfig:
         if not isinstance(options, Mapping) or not all(isinstance(k, str) for k in options):
             raise UsageError(f"storage_options must be a table of option names, got {type(options).__name__}")
         object.__setattr__(self, "storage_options", dict(options))
-        for name in ("in_crs", "out_crs", "scheduler", "scratch_dir"):
+        for name in ("in_crs", "override_crs", "out_crs", "scheduler", "scratch_dir"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, (str, Path)):
                 raise UsageError(f"{name} must be a string, got {value!r}")
             object.__setattr__(self, name, None if value is None else str(value))
+        if self.in_crs is not None and self.override_crs is not None:
+            raise UsageError(BOTH_CRS_OPTIONS)
 
     @property
     def scheduler_address(self) -> str | None:

@@ -1,10 +1,17 @@
 """Coordinate reference systems: decide each file's CRS and the target CRS, and reproject.
 
-:func:`resolve_crs` turns the files' CRS records plus the ``in_crs`` and
-``out_crs`` parameters into a :class:`CrsPlan`: one source CRS per file, one
-target CRS (projected: the mesh is built in linear units), its horizontal
-unit, and notes for the run report. CRSs travel as WKT strings so that the
-plan and its :class:`Reprojector` recipes pickle and store as plain text.
+:func:`resolve_crs` turns the files' CRS records plus the ``in_crs``,
+``override_crs`` and ``out_crs`` parameters into a :class:`CrsPlan`: one
+source CRS per file, one target CRS (projected: the mesh is built in linear
+units), its horizontal unit, and notes for the run report. CRSs travel as WKT
+strings so that the plan and its :class:`Reprojector` recipes pickle and
+store as plain text.
+
+Before anything is transformed, each file's header bounds are tested against
+its CRS (:func:`contradiction`): degrees within 180 and 90, geocentric
+coordinates near the ellipsoid's surface, projected ones near the CRS's area
+of use.  A record that its file's coordinates contradict stops the run, with
+``override_crs`` as the way out.
 
 A note on heights: pyproj transforms z only when both the source and the
 target CRS have a vertical component (compound or 3D CRSs). Between 2D CRSs
@@ -39,13 +46,17 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError
 
+from ..config import BOTH_CRS_OPTIONS
 from ..errors import CrsError, UsageError, one_line
 from ..urls import Location, as_location
 
 if TYPE_CHECKING:
     from .header import SourceInfo
 
-__all__ = ["CrsPlan", "Reprojector", "crs_label", "resolve_crs", "same_crs", "transform_bounds"]
+__all__ = [
+    "AREA_TOLERANCE_KM", "SURFACE_TOLERANCE_KM", "CrsPlan", "Reprojector", "contradiction", "crs_label", "resolve_crs",
+    "same_crs", "transform_bounds",
+]
 
 _MAX_LISTED = 5
 
@@ -177,6 +188,169 @@ class _CrsCache:
         if crs is None:
             crs = self._by_wkt[wkt] = _described(pyproj.CRS.from_wkt(wkt))
         return crs
+
+
+# --------------------------------------------------------------------------- plausibility
+
+AREA_TOLERANCE_KM = 500.0
+"""How far (km) a file's header bounds may lie outside the area of use of its
+projected CRS.  Zones are used well beyond their bands: a UTM zone routinely
+1-3 degrees past its 6 (up to 330 km), Denmark's UTM 32N on Bornholm (200 km
+east of the band), Norway's UTM 33N over the whole country (Finnmark lies
+nearly 500 km east of the band, the west coast 400 km west of it).  A
+distance, not degrees, since a degree of longitude shrinks towards the poles
+where those zones are stretched furthest.  Coordinates under a wrong record
+land much farther: UTM 12N metres (Yellowstone) read as Lambert-93 lie 1,075
+km south of France, and most wrong records give points the projection cannot
+even take back to longitude and latitude."""
+
+SURFACE_TOLERANCE_KM = 50.0
+"""How far (km) geocentric coordinates may lie from the ellipsoid's surface:
+every point a survey measures lies within 11 km of it (ocean trenches to the
+highest peaks, the geoid within 110 m).  Projected or geographic coordinates
+under a geocentric record lie thousands of km inside the earth."""
+
+_KM_PER_DEGREE = 111.32
+"""Kilometres in a degree of latitude, or of longitude on the equator (near enough for a tolerance)."""
+
+
+def contradiction(crs: pyproj.CRS, bounds: Sequence[float]) -> tuple[str, bool] | None:
+    """Why header ``bounds`` ``(minx, miny, minz, maxx, maxy, maxz)`` cannot be
+    coordinates of ``crs``, or None when they can (or when it cannot be told).
+
+    Bounds are contradicted when no part of them can hold coordinates of the
+    CRS, so that a few stray points (named when they are transformed) or a
+    stale header bound do not condemn a file.  The reason reads after the
+    CRS's name (``"is in degrees, but ..."``); the flag says whether the
+    coordinates are impossible (degrees wholly past 180 or 90, geocentric
+    coordinates away from the earth's surface) rather than far from where the
+    CRS is used (:data:`AREA_TOLERANCE_KM`), or beyond what its projection
+    covers.
+
+    Examples
+    --------
+    >>> utm_12n_metres = (515368.6, 4918340.4, 2322.9, 515401.0, 4918381.1, 2338.6)
+    >>> contradiction(pyproj.CRS("EPSG:4326"), utm_12n_metres)[1]
+    True
+    >>> contradiction(pyproj.CRS("EPSG:32612"), utm_12n_metres) is None
+    True
+    """
+    return _Domain(crs).contradiction(bounds)
+
+
+class _Domain:
+    """Where coordinates of one CRS can lie: what testing a file's bounds
+    needs (a Transformer, the area of use) is built once, on first use."""
+
+    def __init__(self, crs: pyproj.CRS) -> None:
+        self.crs = _horizontal(crs)
+        self._to_lonlat: pyproj.Transformer | None = None
+        self._area: tuple[float, float, float, float] | None = None
+
+    def contradiction(self, bounds: Sequence[float]) -> tuple[str, bool] | None:
+        """See :func:`contradiction`."""
+        if self.crs.is_geographic:
+            return self._outside_degrees(bounds)
+        if self.crs.is_geocentric:
+            return self._off_the_surface(bounds)
+        if self.crs.is_projected:
+            return self._outside_area(bounds)
+        return None
+
+    def _unit(self) -> tuple[str, float]:
+        """The axes' unit and its size in metres or radians."""
+        axes = self.crs.axis_info
+        return (axes[0].unit_name, axes[0].unit_conversion_factor) if axes else ("unknown", 1.0)
+
+    def _outside_degrees(self, bounds: Sequence[float]) -> tuple[str, bool] | None:
+        unit, radians = self._unit()
+        minx, miny, _, maxx, maxy, _ = (math.degrees(v * radians) for v in bounds)
+        if minx <= 180 and maxx >= -180 and miny <= 90 and maxy >= -90:
+            return None  # a stray point beyond the pole is named when it is transformed
+        return (
+            f"is in {unit}s, but its {_bounds_text(bounds)} lie outside longitudes -180 to 180 and latitudes -90 to 90"
+        ), True
+
+    def _off_the_surface(self, bounds: Sequence[float]) -> tuple[str, bool] | None:
+        ellipsoid = self.crs.ellipsoid
+        if ellipsoid is None:
+            return None
+        metres = self._unit()[1]
+        spans = [(bounds[k] * metres, bounds[k + 3] * metres) for k in range(3)]
+        nearest = math.hypot(*(0.0 if lo <= 0.0 <= hi else min(abs(lo), abs(hi)) for lo, hi in spans))
+        farthest = math.hypot(*(max(abs(lo), abs(hi)) for lo, hi in spans))
+        off_km = max(nearest - ellipsoid.semi_major_metre, ellipsoid.semi_minor_metre - farthest) / 1000.0
+        if off_km <= SURFACE_TOLERANCE_KM:
+            return None
+        return (
+            f"is geocentric (earth-centred x, y, z), but its {_bounds_text(bounds, with_z=True)} lie "
+            f"{off_km:,.0f} km or more from the surface of its ellipsoid ({ellipsoid.name})"
+        ), True
+
+    def _outside_area(self, bounds: Sequence[float]) -> tuple[str, bool] | None:
+        minx, miny, _, maxx, maxy, _ = bounds
+        try:
+            if self._to_lonlat is None:
+                self._to_lonlat = pyproj.Transformer.from_crs(self.crs, self.crs.geodetic_crs, always_xy=True)
+                self._area = _area_of_use(self.crs)
+            lonlat = self._to_lonlat.transform_bounds(minx, miny, maxx, maxy, densify_pts=21)
+        except (CRSError, pyproj.exceptions.ProjError):
+            return None  # no way to tell
+        if not all(math.isfinite(v) for v in lonlat):
+            return f"cannot hold its {_bounds_text(bounds)}: they lie beyond what its projection covers", False
+        if self._area is None:
+            return None
+        off_km = _km_outside(self._area, lonlat)
+        if off_km <= AREA_TOLERANCE_KM:
+            return None
+        west, south, east, north = self._area
+        lon0, lat0, lon1, lat1 = lonlat
+        return (
+            f"is for lon {_degrees(west, east)}, lat {_degrees(south, north)}, but its {_bounds_text(bounds)} "
+            f"lie at lon {_degrees(lon0, lon1)}, lat {_degrees(lat0, lat1)}, {off_km:,.0f} km outside that area"
+        ), False
+
+
+def _bounds_text(bounds: Sequence[float], with_z: bool = False) -> str:
+    minx, miny, minz, maxx, maxy, maxz = bounds
+    spans = [("x", minx, maxx), ("y", miny, maxy)] + ([("z", minz, maxz)] if with_z else [])
+    return "header bounds (" + ", ".join(f"{a} {lo:,.10g} to {hi:,.10g}" for a, lo, hi in spans) + ")"
+
+
+def _degrees(low: float, high: float) -> str:
+    low_text, high_text = f"{low:.2f}", f"{high:.2f}"
+    return low_text if low_text == high_text else f"{low_text} to {high_text}"
+
+
+def _area_of_use(crs: pyproj.CRS) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) in degrees: the CRS's own area of use, or
+    that of the EPSG (or other authority's) CRS it matches (a file's WKT
+    record seldom carries its area)."""
+    area = crs.area_of_use
+    if area is None:
+        for match in crs.list_authority(min_confidence=70):
+            try:
+                area = pyproj.CRS.from_authority(match.auth_name, match.code).area_of_use
+            except CRSError:
+                continue
+            if area is not None:
+                break
+    return None if area is None else area.bounds
+
+
+def _km_outside(area: Sequence[float], box: Sequence[float]) -> float:
+    """Roughly how far (km) the lon/lat ``box`` lies outside ``area`` (both
+    west, south, east, north; east < west across the antimeridian); 0 where
+    they meet.  A longitude gap is measured at the box's latitude farthest
+    from the equator, where it is shortest."""
+    west, south, east, north = area
+    lon0, lat0, lon1, lat1 = box
+    east += 360.0 if east < west else 0.0
+    lon1 += 360.0 if lon1 < lon0 else 0.0
+    dlat = max(south - lat1, lat0 - north, 0.0)
+    dlon = min(max(west - (lon1 + k), (lon0 + k) - east, 0.0) for k in (-360.0, 0.0, 360.0))
+    shrink = math.cos(math.radians(min(90.0, max(abs(lat0), abs(lat1)))))
+    return _KM_PER_DEGREE * math.hypot(dlat, dlon * shrink)
 
 
 # --------------------------------------------------------------------------- reprojection
@@ -394,7 +568,13 @@ class CrsPlan:
         )
 
 
-def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs: str | None = None) -> CrsPlan:
+def resolve_crs(
+    infos: Sequence[SourceInfo],
+    in_crs: str | None = None,
+    out_crs: str | None = None,
+    *,
+    override_crs: str | None = None,
+) -> CrsPlan:
     """Decide the source CRS of every file and the target CRS.
 
     Parameters
@@ -403,10 +583,15 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         Header information of the input files (:func:`pipeline.inputs.sources.read_info`).
     in_crs
         CRS of the inputs whose CRS is missing or broken (anything
-        ``pyproj.CRS.from_user_input`` accepts).  A file's valid CRS is kept,
-        and a note says so when it differs from ``in_crs``.
+        ``pyproj.CRS.from_user_input`` accepts; PDAL's ``default_srs``).  A
+        file's valid CRS is kept, and a note says so when it differs from
+        ``in_crs``.
     out_crs
         CRS of the outputs. Default: the files' common CRS.
+    override_crs
+        CRS of every input, whatever its record says (PDAL's
+        ``override_srs``); a note names each file whose record it replaces.
+        Not with ``in_crs``.
 
     Returns
     -------
@@ -415,19 +600,29 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
     Raises
     ------
     CrsError
-        On a bad ``in_crs``/``out_crs`` string; when files without a usable
-        CRS are given no ``in_crs``; when files in different CRSs are given no
-        ``out_crs``; when the target CRS is not projected (e.g. geographic,
-        in degrees).
+        On a bad ``in_crs``/``override_crs``/``out_crs`` string; when files
+        without a usable CRS are given no ``in_crs``; when a file's header
+        bounds contradict its CRS record (:func:`contradiction`), or cannot
+        be coordinates of the CRS given for it; when files in different CRSs
+        are given no ``out_crs``; when the target CRS is not projected (e.g.
+        geographic, in degrees).
+    UsageError
+        When both ``in_crs`` and ``override_crs`` are given.
     """
     if len(infos) == 0:
         raise UsageError("no input files to resolve a CRS for")
+    if in_crs is not None and override_crs is not None:
+        raise UsageError(BOTH_CRS_OPTIONS)
     cache = _CrsCache()
     user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
+    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
     user_out = _user_crs(out_crs, "out_crs") if out_crs is not None else None
+    # the CRS the user gives for files, and the option that gives it
+    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
     notes: list[str] = []
 
     sources: list[pyproj.CRS] = []
+    chosen_by: list[str | None] = []  # per file, the option whose CRS it takes; None: its own record
     unusable: list[str] = []
     defaulted: list[Path] = []
     for info in infos:
@@ -438,19 +633,26 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
                 file_crs = cache.get(info.crs_wkt)
             except CRSError as exc:
                 problem = f"stored CRS unparsable ({one_line(exc)})"
-        if file_crs is not None:
+        if file_crs is not None and user_override is None:
             if user_in is not None and not same_crs(file_crs, user_in):
                 notes.append(
                     f"{info.path}: its own CRS {crs_label(file_crs)} is kept; in_crs={crs_label(user_in)!r} "
-                    "is for files without a usable CRS"
+                    "is for files without a usable CRS (override_crs replaces every file's)"
                 )
             sources.append(file_crs)
-        elif user_in is not None:
-            if problem:
-                notes.append(f"{info.path}: {problem}; using in_crs={crs_label(user_in)!r}")
+            chosen_by.append(None)
+        elif user is not None:
+            if file_crs is not None:
+                if not same_crs(file_crs, user):
+                    notes.append(
+                        f"{info.path}: its CRS record {crs_label(file_crs)} is replaced by {option}={crs_label(user)!r}"
+                    )
+            elif problem:
+                notes.append(f"{info.path}: {problem}; using {option}={crs_label(user)!r}")
             else:
                 defaulted.append(info.path)
-            sources.append(user_in)
+            sources.append(user)
+            chosen_by.append(option)
         else:
             unusable.append(f"{info.path} ({problem or 'no CRS record'})")
     if unusable:
@@ -461,8 +663,8 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
             + (f" and {more} more" if more > 0 else "")
             + "; give in_crs (e.g. in_crs='EPSG:2154') to say which CRS they are in"
         )
-    if defaulted and user_in is not None:
-        notes.append(f"in_crs={crs_label(user_in)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
+    if defaulted and user is not None:
+        notes.append(f"{option}={crs_label(user)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
 
     groups: list[tuple[pyproj.CRS, list[int]]] = []
     for i, crs in enumerate(sources):
@@ -472,6 +674,8 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
                 break
         else:
             groups.append((crs, [i]))
+
+    plausible = _check_coordinates(infos, groups, chosen_by, notes)
 
     if user_out is not None:
         target = user_out
@@ -485,7 +689,11 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
             f"input files are in {len(groups)} different CRSs and no out_crs was given: {listing}; "
             "give out_crs to reproject them all to one CRS"
         )
-    _check_target(target, from_option=user_out is not None, infos=infos, sources=sources)
+    _check_target(
+        target, from_option=user_out is not None,
+        infos=[info for info, ok in zip(infos, plausible) if ok],
+        sources=[crs for crs, ok in zip(sources, plausible) if ok],
+    )
 
     target_wkt = target.to_wkt()
     horizontal_unit = _horizontal_unit(target)
@@ -517,6 +725,48 @@ def resolve_crs(infos: Sequence[SourceInfo], in_crs: str | None = None, out_crs:
         height_scale=height_scale,
         z_factors=tuple(z_factors) if any(f != 1.0 for f in z_factors) else (),
     )
+
+
+def _check_coordinates(
+    infos: Sequence[SourceInfo], groups: Sequence[tuple[pyproj.CRS, list[int]]], chosen_by: Sequence[str | None],
+    notes: list[str],
+) -> list[bool]:
+    """Whether each file's header bounds are coordinates of its CRS (False
+    for a file with none to judge).
+
+    A CRS record they contradict is a CrsError (the way out:
+    ``override_crs``), and so is a CRS given by ``in_crs`` or
+    ``override_crs`` that cannot hold them at all; one given that is only
+    used far from them gets a note (the user's word stands)."""
+    plausible = [False] * len(infos)
+    errors: list[tuple[int, str]] = []
+    for crs, members in groups:
+        domain = _Domain(crs)
+        for i in members:
+            info = infos[i]
+            if not (info.point_count and info.bounds_usable):
+                continue  # no coordinates to judge
+            found = domain.contradiction(info.bounds)
+            if found is None:
+                plausible[i] = True
+                continue
+            (reason, impossible), option = found, chosen_by[i]
+            if option is None:
+                errors.append((i, (
+                    f"{info.path}: its CRS record {crs_label(crs)} {reason}; if the record is wrong, "
+                    "give override_crs the CRS the coordinates are in"
+                )))
+            elif impossible:
+                errors.append((i, (
+                    f"{info.path}: {option}={crs_label(crs)!r} {reason}; give {option} the CRS the coordinates are in"
+                )))
+            else:
+                notes.append(f"{info.path}: {option}={crs_label(crs)!r} {reason}; is it the CRS of these coordinates?")
+    if errors:
+        errors.sort()
+        rest = [infos[i].path for i, _ in errors[1:]]
+        raise CrsError(errors[0][1] + (f" ({len(rest)} more file(s) likewise: {_list_paths(rest)})" if rest else ""))
+    return plausible
 
 
 @dataclass(frozen=True)
@@ -604,10 +854,10 @@ def _suggest_utm(infos: Sequence[SourceInfo], sources: Sequence[pyproj.CRS]) -> 
     lons: list[float] = []
     lats: list[float] = []
     for info, crs in zip(infos, sources):
-        minx, miny, _, maxx, maxy, _ = info.bounds
-        try:
-            lon, lat = pyproj.Transformer.from_crs(crs, wgs84, always_xy=True).transform(
-                (minx + maxx) / 2, (miny + maxy) / 2
+        minx, miny, minz, maxx, maxy, maxz = info.bounds
+        try:  # z too: geocentric x and y alone make no latitude
+            lon, lat, _ = pyproj.Transformer.from_crs(crs, wgs84, always_xy=True).transform(
+                (minx + maxx) / 2, (miny + maxy) / 2, (minz + maxz) / 2
             )
         except (CRSError, pyproj.exceptions.ProjError):
             continue

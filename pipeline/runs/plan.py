@@ -112,7 +112,7 @@ def plan_run(config: RunConfig) -> RunPlan:
     from ..inputs.crs import resolve_crs
 
     paths, infos, skipped = read_headers(config)
-    crs = resolve_crs(infos, config.in_crs, config.out_crs)
+    crs = resolve_crs(infos, config.in_crs, config.out_crs, override_crs=config.override_crs)
     infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(config, paths, infos, crs)
     provenance = {
         "software": "terrain-pipeline",

@@ -261,3 +261,45 @@ def test_a_bbox_or_extent_west_or_south_of_the_origin_is_read_as_coordinates(tmp
     assert config.extent == (-500.0, -2000.0, 0.0, 0.0)
     # a flag after --bbox is still a flag
     assert _with_attached_values(["run", "--bbox", "--resolution", "1"]) == ["run", "--bbox", "--resolution", "1"]
+
+
+def test_override_crs_is_a_flag_that_replaces_a_job_files_in_crs(tmp_path):
+    from pipeline.cli import _parser, _run_config, as_flags
+
+    job = tmp_path / "job.toml"
+    job.write_text('[run]\ninputs = ["a.laz"]\noutput = "o.zarr"\nresolution = 1.0\nin_crs = "EPSG:2154"\n')
+    config = _run_config(_parser().parse_args(["run", "--config", str(job), "--override-crs", "EPSG:32612"]))
+    assert (config.in_crs, config.override_crs) == (None, "EPSG:32612")
+    config = _run_config(_parser().parse_args(["run", "--config", str(job)]))
+    assert (config.in_crs, config.override_crs) == ("EPSG:2154", None)
+    assert as_flags("its record is replaced by override_crs='WGS 84 / UTM zone 12N (EPSG:32612)'; give override_crs "
+                    "the CRS") == "its record is replaced by --override-crs WGS 84 / UTM zone 12N (EPSG:32612); " \
+                                  "give --override-crs the CRS"
+
+
+def test_a_record_its_coordinates_contradict_is_one_line_exit_2_and_the_override_runs(tmp_path, capsys):
+    """A survey in UTM zone 12N metres whose record says degrees: refused
+    before any transform (never a message about an empty bbox), and run with
+    --override-crs, which the report and the provenance record."""
+    import pyproj
+
+    from pipeline.store import zarr_store as store
+
+    from .test_sources import write_las
+
+    path = write_las(tmp_path / "degrees.las", n=3000, crs="EPSG:4326", origin=(515_368.0, 4_918_340.0),
+                     classes=(2,)).path
+    for flags in ([], ["--out-crs", "EPSG:32612"], ["--in-crs", "EPSG:32612"]):
+        assert _run(path, tmp_path / "o.zarr", "--no-progress", *flags) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith(f"terrain: error: {path}: its CRS record WGS 84 (EPSG:4326) is in degrees, but its "
+                               "header bounds (x 515,368")
+        assert line.endswith("if the record is wrong, give --override-crs the CRS the coordinates are in")
+    out = tmp_path / "o.zarr"
+    assert _run(path, out, "--no-progress", "--override-crs", "EPSG:32612") == 0
+    assert f"note: {path}: its CRS record WGS 84 (EPSG:4326) is replaced by --override-crs WGS 84 / UTM zone 12N " \
+           "(EPSG:32612)" in capsys.readouterr().out
+    attrs = store.read_attrs(out)
+    assert attrs["provenance"]["parameters"]["override_crs"] == "EPSG:32612"
+    assert pyproj.CRS.from_wkt(attrs["provenance"]["crs_wkt"]).to_epsg() == 32612
+    assert any(str(path) in note and "replaced by override_crs=" in note for note in attrs["report"]["notes"])

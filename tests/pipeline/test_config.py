@@ -50,6 +50,8 @@ def test_defaults_and_round_trip(tmp_path):
         ({"max_cells": 1.5}, "max_cells must be a positive integer"),
         ({"max_cells": float("inf")}, "max_cells must be a positive integer"),
         ({"scheduler": 5}, "scheduler must be a string"),
+        ({"override_crs": 32612}, "override_crs must be a string"),
+        ({"in_crs": "EPSG:2154", "override_crs": "EPSG:32612"}, "give in_crs or override_crs, not both"),
     ],
 )
 def test_invalid_values_are_named(kw, match):
@@ -95,3 +97,13 @@ def test_unknown_keys_and_bad_toml(tmp_path):
     bad.write_text("inputs = [")
     with pytest.raises(UsageError, match="bad.toml: not valid TOML"):
         RunConfig.from_toml(bad)
+
+
+def test_override_crs_in_a_job_file_changes_the_result(tmp_path):
+    job = tmp_path / "job.toml"
+    job.write_text('[run]\ninputs = ["a.laz"]\noutput = "out.zarr"\nresolution = 1.0\noverride_crs = "EPSG:32612"\n')
+    loaded = RunConfig.from_toml(job)
+    assert loaded.override_crs == "EPSG:32612" and loaded.in_crs is None
+    assert loaded.to_dict()["override_crs"] == "EPSG:32612"  # so the provenance records it
+    assert RunConfig.from_dict(loaded.to_dict()) == loaded
+    assert loaded.differences(base()) == ["override_crs"]  # a store made without it is not resumed

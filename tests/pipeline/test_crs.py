@@ -17,13 +17,16 @@ from pipeline.errors import CrsError, UsageError
 from pipeline.inputs.header import SourceInfo
 from pipeline.inputs.sources import read_info
 
-from .test_sources import sample, write_las
+from .test_sources import LAMBERT93_ORIGIN, sample, write_las
 
 LAMBERT93 = "EPSG:2154"
 
 
 def info_for(tmp_path: Path, name: str, crs: str | None, **kwargs: object) -> SourceInfo:
-    """Header info of a small synthetic file in ``crs``."""
+    """Header info of a small synthetic file in ``crs``, by default at
+    Lambert-93's origin (central France; 50 km east of UTM 31N's band), so
+    that its coordinates agree with a record of either."""
+    kwargs.setdefault("origin", LAMBERT93_ORIGIN)
     return read_info(write_las(tmp_path / name, crs=crs, n=20, **kwargs).path)  # type: ignore[arg-type]
 
 
@@ -167,6 +170,176 @@ def test_us_feet_target_and_compound_z_conversion(tmp_path: Path) -> None:
     assert_allclose(z, [7000.0 * 1200 / 3937], rtol=1e-9)
 
 
+# --------------------------------------------------------------------------- records the coordinates contradict
+
+YELLOWSTONE = (515_368.0, 4_918_340.0)
+"""UTM zone 12N metres (the lone-star survey): what PDAL's test files hold under wrong records."""
+
+
+def _lonlat_in(crs: str, lon: float, lat: float) -> tuple[float, float]:
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+    return float(x), float(y)
+
+
+def _one_line_naming(message: str, info: SourceInfo, *words: str) -> None:
+    assert "\n" not in message and message.startswith(f"{info.path}: ")
+    for word in words:
+        assert word in message, (word, message)
+
+
+@pytest.mark.parametrize("out_crs", [None, "EPSG:32612"])
+@pytest.mark.parametrize(
+    ("record", "words"),
+    [
+        ("EPSG:4978", ("(EPSG:4978) is geocentric", "y 4,918,3", "km or more from the surface")),
+        ("EPSG:4326", ("WGS 84 (EPSG:4326) is in degrees", "longitudes -180 to 180")),
+    ],
+)
+def test_a_geocentric_or_degrees_record_on_metres_is_refused_before_any_transform(
+    tmp_path: Path, record, words, out_crs
+) -> None:
+    info = info_for(tmp_path, "wrong.las", record, origin=YELLOWSTONE)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], None, out_crs)
+    message = str(exc.value)
+    _one_line_naming(message, info, *words, "x 515,368", "give override_crs")
+    assert "bbox" not in message
+    assert "WGS 84 / UTM zone" not in message  # no zone guessed from coordinates that are not what the record says
+
+
+@pytest.mark.parametrize(
+    ("record", "place", "label"),
+    [
+        ("EPSG:2154", YELLOWSTONE, "Lambert-93"),  # lands 1,075 km south of France
+        ("EPSG:2994", LAMBERT93_ORIGIN, "Oregon"),  # Lambert-93 metres read as Oregon feet: northern British Columbia
+        ("EPSG:32612", _lonlat_in("EPSG:2154", 9.2, 42.0), "UTM zone 12N"),  # Corsica read as UTM 12N: Manitoba
+    ],
+)
+def test_a_projected_record_of_another_continent_is_refused(tmp_path: Path, record, place, label) -> None:
+    info = info_for(tmp_path, "elsewhere.las", record, origin=place)
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([info], None, None)
+    _one_line_naming(str(exc.value), info, label, "km outside that area", "override_crs")
+    plan = resolve_crs([info], override_crs="EPSG:32612" if record != "EPSG:32612" else "EPSG:2154")
+    assert any(note.startswith(f"{info.path}: its CRS record ") and "is replaced by override_crs=" in note
+               for note in plan.notes)
+
+
+@pytest.mark.parametrize(
+    ("record", "lon", "lat"),
+    [
+        ("EPSG:32612", -115.6, 45.0),  # UTM 12N, 1.6 degrees (126 km) west of its band
+        ("EPSG:32612", -105.5, 40.0),  # 2.5 degrees (213 km) east of it
+        ("EPSG:25832", 15.1, 55.1),  # Bornholm in Denmark's UTM 32N
+        ("EPSG:25833", 30.5, 70.2),  # Finnmark in Norway's UTM 33N, 470 km east of its band
+        ("EPSG:2154", 8.6, 41.4),  # the south of Corsica, inside
+    ],
+)
+def test_a_right_record_a_little_outside_its_area_is_kept(tmp_path: Path, record, lon, lat) -> None:
+    info = info_for(tmp_path, "edge.las", record, origin=_lonlat_in(record, lon, lat))
+    plan = resolve_crs([info], None, None)
+    assert plan.reprojector(info.path).is_identity
+    assert not any("outside" in note for note in plan.notes)
+
+
+def test_a_survey_past_its_zone_edge_runs(tmp_path: Path) -> None:
+    """UTM zone 12N's record on a survey 1.6 degrees west of the zone's band:
+    the record is right (zones are used past their edges), and the run gives
+    its DEM in that zone, with no note."""
+    import xarray as xr
+
+    from pipeline.config import RunConfig
+    from pipeline.runs.runner import run
+
+    path = write_las(tmp_path / "edge.las", crs="EPSG:32612", n=2000, classes=(2,),
+                     origin=_lonlat_in("EPSG:32612", -115.6, 45.0)).path
+    out = tmp_path / "edge.zarr"
+    report = run(RunConfig(inputs=(str(path),), output=str(out), resolution=5.0), progress=False)
+    assert report.points_kept == 2000 and not any("area" in note for note in report.notes)
+    ds = xr.open_zarr(out)
+    assert pyproj.CRS.from_wkt(ds["spatial_ref"].attrs["crs_wkt"]).to_epsg() == 32612
+    assert np.isfinite(ds["elevation"].values).any()
+
+
+def test_the_area_tolerance(tmp_path: Path) -> None:
+    """Lambert-93 is for France (south to 41.15 N): 3 degrees (334 km) south
+    of it still holds, 6 degrees (668 km) no longer does."""
+    lambert93 = pyproj.CRS("EPSG:2154")
+    assert crs_module.AREA_TOLERANCE_KM == 500.0
+    for lat, refused in ((38.15, False), (35.15, True)):
+        x, y = _lonlat_in("EPSG:2154", 3.0, lat)
+        found = crs_module.contradiction(lambert93, (x, y, 0.0, x + 100.0, y + 100.0, 10.0))
+        assert (found is not None) == refused, found
+        if found:
+            assert found[1] is False and "lat 35.15, 668 km outside that area" in found[0]
+
+
+def test_a_geocentric_record_on_geocentric_coordinates_is_kept_and_gets_its_zone(tmp_path: Path) -> None:
+    import dataclasses
+
+    x, y, z = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(-110.8, -44.4, 2300.0)
+    bounds = (x, y, z, x + 40.0, y + 40.0, z + 15.0)
+    assert crs_module.contradiction(pyproj.CRS("EPSG:4978"), bounds) is None
+    info = dataclasses.replace(info_for(tmp_path, "ecef.las", "EPSG:4978", origin=(x, y)), bounds=bounds)
+    with pytest.raises(CrsError, match=r"geocentric .* use out_crs='EPSG:32712' \(WGS 84 / UTM zone 12S\)"):
+        resolve_crs([info], None, None)  # south of the equator: z says so
+
+
+def test_a_stray_point_beyond_the_pole_does_not_condemn_a_degrees_record() -> None:
+    """Only bounds that hold no coordinate of the CRS at all contradict it:
+    the points that cannot be transformed are named when they are."""
+    assert crs_module.contradiction(pyproj.CRS("EPSG:4326"), (2.0, 46.0, 0.0, 2.01, 95.0, 1.0)) is None
+
+
+def test_override_crs_replaces_every_record_and_names_each_file(tmp_path: Path) -> None:
+    wrong = info_for(tmp_path, "wrong.las", "EPSG:4326", origin=YELLOWSTONE)
+    right = info_for(tmp_path, "right.las", "EPSG:32612", origin=YELLOWSTONE)
+    none = info_for(tmp_path, "none.las", None, origin=YELLOWSTONE)
+    plan = resolve_crs([wrong, right, none], override_crs="EPSG:32612")
+    assert {pyproj.CRS.from_wkt(w).to_epsg() for w in plan.source_wkts} == {32612}
+    assert all(plan.reprojector(p).is_identity for p in plan.paths)
+    replaced = [n for n in plan.notes if "is replaced by override_crs=" in n]
+    assert len(replaced) == 1 and replaced[0].startswith(f"{wrong.path}: its CRS record WGS 84 (EPSG:4326)")
+    assert any(str(none.path) in n and "without a CRS" in n and "override_crs=" in n for n in plan.notes)
+    with pytest.raises(UsageError, match="not both"):
+        resolve_crs([wrong], "EPSG:32612", override_crs="EPSG:32612")
+    with pytest.raises(CrsError, match="^override_crs='EPSG:99999999'"):
+        resolve_crs([wrong], override_crs="EPSG:99999999")
+
+
+def test_a_given_crs_that_cannot_hold_the_coordinates_is_refused_and_one_far_off_is_noted(tmp_path: Path) -> None:
+    metres = info_for(tmp_path, "metres.las", None, origin=YELLOWSTONE)
+    for option in ("in_crs", "override_crs"):
+        with pytest.raises(CrsError) as exc:
+            resolve_crs([metres], **{option: "EPSG:4326"})
+        _one_line_naming(str(exc.value), metres, f"{option}='WGS 84 (EPSG:4326)' is in degrees", f"give {option} the CRS")
+    plan = resolve_crs([metres], "EPSG:2154")  # the user's word stands, with a note
+    (far,) = [n for n in plan.notes if "outside that area" in n]
+    assert far.startswith(f"{metres.path}: in_crs='RGF93 v1 / Lambert-93 (EPSG:2154)' is for lon -9.86 to 10.38")
+    # and no UTM zone is suggested from its coordinates
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([metres], "EPSG:2154", "EPSG:4326")
+    assert "WGS 84 / UTM zone" not in str(exc.value) and "give out_crs the EPSG code" in str(exc.value)
+
+
+def test_every_file_whose_record_is_contradicted_is_counted(tmp_path: Path) -> None:
+    good = info_for(tmp_path, "good.las", "EPSG:32612", origin=YELLOWSTONE)
+    bad = [info_for(tmp_path, f"bad{k}.las", "EPSG:4326", origin=YELLOWSTONE) for k in range(3)]
+    with pytest.raises(CrsError) as exc:
+        resolve_crs([good, *bad], None, "EPSG:32612")
+    message = str(exc.value)
+    assert message.startswith(f"{bad[0].path}: ") and str(good.path) not in message
+    assert message.endswith(f"(2 more file(s) likewise: {bad[1].path}, {bad[2].path})")
+
+
+def test_a_file_with_no_points_is_not_judged(tmp_path: Path) -> None:
+    import dataclasses
+
+    empty = dataclasses.replace(info_for(tmp_path, "empty.las", "EPSG:4326", origin=YELLOWSTONE), point_count=0)
+    with pytest.raises(CrsError, match="geographic"):  # the target is refused, but not the record
+        resolve_crs([empty], None, None)
+
+
 # --------------------------------------------------------------------------- Reprojector
 
 
@@ -236,6 +409,35 @@ def test_reprojector_bad_input() -> None:
 
 
 # --------------------------------------------------------------------------- real samples (../shared/data)
+
+
+def test_real_records_the_coordinates_contradict() -> None:
+    """PDAL's lone-star survey in UTM zone 12N metres, under a geocentric and
+    a geographic record: each refused in one line naming the file, its
+    record, its bounds and override_crs; each planned with the override."""
+    for name, record in (("lone_star_wrong_crs_geocentric.copc.laz", "unnamed (EPSG:4978) is geocentric"),
+                         ("lone_star_wrong_crs_degrees.laz", "WGS 84 (EPSG:4326) is in degrees")):
+        info = read_info(sample(name))
+        for out_crs in (None, "EPSG:32612"):
+            with pytest.raises(CrsError) as exc:
+                resolve_crs([info], None, out_crs)
+            _one_line_naming(str(exc.value), info, f"its CRS record {record}", "x 515,368.6", "override_crs")
+            assert "WGS 84 / UTM zone" not in str(exc.value)
+        with pytest.raises(CrsError):  # in_crs is for files without a record
+            resolve_crs([info], "EPSG:32612", None)
+        plan = resolve_crs([info], override_crs="EPSG:32612")
+        assert pyproj.CRS.from_wkt(plan.target_wkt).to_epsg() == 32612
+        assert plan.reprojector(info.path).is_identity
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["ign_semis_lambert93.laz", "autzen_trim.las", "4_6_crop_us_feet.las", "extra_byte_blocks_lambert93.laz",
+     "startinpy_small_extrabytes.laz", "geographic_epsg4326.las"],
+)
+def test_real_right_records_are_not_contradicted(name: str) -> None:
+    info = read_info(sample(name))
+    assert crs_module.contradiction(pyproj.CRS.from_wkt(info.crs_wkt or ""), info.bounds) is None
 
 
 def test_real_geographic_needs_a_projected_target() -> None:

@@ -21,7 +21,7 @@ import pytest
 
 from pipeline.store import zarr_store as store
 
-from .test_sources import patch, write_las
+from .test_sources import LAMBERT93_ORIGIN, patch, write_las
 
 CAP = 1536 * 2**20  # bytes of data segment the child may use
 
@@ -145,7 +145,7 @@ CASES = {
 def test_lying_counts_do_not_allocate_what_they_claim(tmp_path: Path, name: str) -> None:
     point_format, version, suffix, corrupt, words = CASES[name]
     path = write_las(tmp_path / f"bomb{suffix}", point_format=point_format, version=version, n=120_000,
-                     crs="EPSG:2154").path
+                     crs="EPSG:2154", origin=LAMBERT93_ORIGIN).path
     corrupt(path)
     done = _run_capped(path, tmp_path)
     lines = [line for line in done.stderr.splitlines() if "error" in line.lower()]

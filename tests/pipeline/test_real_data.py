@@ -77,6 +77,38 @@ def test_geographic_input_needs_a_projected_crs(tmp_path, capsys):
         _run(path, tmp_path / "g2.zarr", classes=None)
 
 
+@pytest.mark.parametrize(
+    ("name", "record"),
+    [
+        ("lone_star_wrong_crs_geocentric.copc.laz", "unnamed (EPSG:4978) is geocentric (earth-centred x, y, z)"),
+        ("lone_star_wrong_crs_degrees.laz", "WGS 84 (EPSG:4326) is in degrees"),
+    ],
+)
+def test_records_the_coordinates_contradict_are_refused_and_run_with_the_override(tmp_path, capsys, name, record):
+    """PDAL's lone-star survey: UTM zone 12N metres under a geocentric and a
+    geographic record. Without the override one line names the
+    contradiction; with it the DEM is on UTM zone 12N."""
+    from pyproj import CRS
+
+    path = sample(name)
+    out = tmp_path / "lone.zarr"
+    for flags in ([], ["--out-crs", "EPSG:32612"], ["--in-crs", "EPSG:32612"]):
+        assert main(["run", str(path), "-o", str(out), "--resolution", "1", "--no-progress", *flags]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert line.startswith(f"terrain: error: {path}: its CRS record {record}, but its header bounds (x 515,368.6")
+        assert line.endswith("if the record is wrong, give --override-crs the CRS the coordinates are in")
+    assert not out.exists()
+    assert main(["run", str(path), "-o", str(out), "--resolution", "1", "--no-progress",
+                 "--override-crs", "EPSG:32612"]) == 0
+    assert f"note: {path}: its CRS record " in capsys.readouterr().out
+    ds = xr.open_zarr(out)
+    assert CRS.from_wkt(ds["spatial_ref"].attrs["crs_wkt"]).to_epsg() == 32612
+    elevation = ds["elevation"].values
+    assert np.isfinite(elevation).mean() > 0.5  # the points' hull fills two thirds of the header's box
+    assert 2322.8 < np.nanmin(elevation) and np.nanmax(elevation) < 2338.6
+    assert 515_368 <= float(ds["x"].min()) and float(ds["x"].max()) <= 515_402
+
+
 def test_broken_crs_needs_in_crs(tmp_path, capsys):
     path = sample("warsaw_small_broken_crs.las")
     code = main(["run", str(path), "-o", str(tmp_path / "w.zarr"), "--resolution", "1", "--no-progress"])

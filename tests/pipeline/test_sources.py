@@ -47,6 +47,12 @@ class Written:
     withheld: np.ndarray
 
 
+LAMBERT93_ORIGIN = (700_000.0, 6_600_000.0)
+"""Lambert-93's origin (central France): where a file with a Lambert-93 record
+may lie.  The default origin of :func:`write_las` lies in the Sahara for it,
+which a run refuses as a record its coordinates contradict."""
+
+
 def write_las(
     path: Path,
     *,
@@ -404,7 +410,8 @@ def test_header_count_smaller_than_data_is_a_note_in_the_run_report(tmp_path: Pa
     from pipeline.config import RunConfig
     from pipeline.runs.runner import run
 
-    w = write_las(tmp_path / "long.las", point_format=6, version="1.4", n=1000, crs="EPSG:2154", classes=(2,))
+    w = write_las(tmp_path / "long.las", point_format=6, version="1.4", n=1000, crs="EPSG:2154", classes=(2,),
+                  origin=LAMBERT93_ORIGIN)
     patch(w.path, _POINT_COUNT_14, "<Q", 700)
     info = read_info(w.path)
     assert info.point_count == 700
