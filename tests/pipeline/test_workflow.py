@@ -15,6 +15,8 @@ from pipeline.errors import UsageError
 from pipeline.runs.runner import run
 from pipeline.tools.synthetic import SurveySpec, write_survey
 from pipeline.runs.workflow import Workflow, run_workflow, workflow_status
+from pipeline.store.zarr_store import read_attrs
+from pipeline.tiling.grid import TileGrid
 
 from .store_checks import assert_same_store
 
@@ -64,13 +66,41 @@ def _chunk_times(path: Path) -> dict[str, int]:
     return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file() and p.name != "zarr.json"}
 
 
+def _spy_tile_writes(monkeypatch) -> list[tuple[int, int]]:
+    """The tiles whose DEM the runs of this process write from now on (a run without a scheduler uses threads)."""
+    from pipeline.store import zarr_store
+
+    written: list[tuple[int, int]] = []
+    real = zarr_store.write_tile
+
+    def spy(path, grid, row, col, layers, **kwargs):
+        written.append((row, col))
+        return real(path, grid, row, col, layers, **kwargs)
+
+    monkeypatch.setattr(zarr_store, "write_tile", spy)
+    return written
+
+
+def _chunks_holding(path: Path, tiles) -> set[str]:
+    """The elevation chunk files (as :func:`_chunk_times` names them) that hold
+    cells of these tiles: the store's chunk rows count from the north edge,
+    tile rows from the south, so a tile's cells may lie in two chunk rows."""
+    grid = TileGrid.from_dict(read_attrs(path)["grid"])
+    t = grid.tile_cells
+    out = set()
+    for row, col in tiles:
+        r0, r1, _, _ = grid.cell_slice(row, col)
+        out.update(f"c/{i}/{col}" for i in range((grid.ny - r1) // t, (grid.ny - r0 - 1) // t + 1))
+    return out
+
+
 def _full_run(workflow: Workflow, out: Path) -> Path:
     values = workflow.config.to_dict() | {"output": str(out), "overwrite": True}
     run(RunConfig.from_dict(values), progress=False)
     return out
 
 
-def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
+def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path, monkeypatch):
     workflow = Workflow.load(job)
     assert workflow.config.output == str(tmp_path / "out" / "archive.zarr")
     assert workflow_status(workflow)["state"] == "never run"
@@ -91,13 +121,15 @@ def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
     total = status["tiles_total"]
     assert 0 < status["tiles_pending"] < total
 
+    written = _spy_tile_writes(monkeypatch)
     report = run_workflow(workflow, progress=False)
     assert any("inputs changed" in note for note in report.notes), report.notes
     # the status counted the tiles with the run's own decision
     assert any(f"{status['tiles_pending']} of {total} tile(s) computed again" in n for n in report.notes), report.notes
     after = _chunk_times(workflow.config.output)
-    untouched = [k for k in before if after.get(k) == before[k]]
-    assert 0 < len(untouched) < total  # far tiles were not written again, near ones were
+    untouched = {k for k in before if after.get(k) == before[k]}
+    assert 0 < len(set(written)) < total  # far tiles' DEM was not written again, near ones' was
+    assert untouched == set(before) - _chunks_holding(Path(workflow.config.output), written)  # nor their chunks
     assert report.points_read == 24_000 + 2 * 6000
     # the same store as a full run over the archive as it is now
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
@@ -254,7 +286,7 @@ BLOCKS = {"north": (60.0, 160.0), "east": (240.0, 40.0), "south": (60.0, -80.0),
 
 
 @pytest.mark.parametrize("side", list(BLOCKS))
-def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touches(tmp_path, side):
+def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touches(tmp_path, side, monkeypatch):
     archive = tmp_path / "archive"
     write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
     extent = [ORIGIN[0] - 100.0, ORIGIN[1] - 100.0, ORIGIN[0] + 340.0, ORIGIN[1] + 260.0]
@@ -268,11 +300,14 @@ def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touch
     status = workflow_status(workflow)
     assert status["new_files"] == [str(archive / f"{side}.laz")]
     assert 0 < status["tiles_pending"] < status["tiles_total"] / 2, status
+    written = _spy_tile_writes(monkeypatch)
     run_workflow(workflow, progress=False)
     after = _chunk_times(workflow.config.output)
     assert set(after) == set(before)  # the grid did not move
-    untouched = [k for k in before if after[k] == before[k]]
-    assert len(untouched) >= len(before) / 3  # far tiles' chunk files were not written again
+    untouched = {k for k in before if after[k] == before[k]}
+    assert len(set(written)) < status["tiles_total"]  # far tiles' DEM was not written again
+    assert untouched == set(before) - _chunks_holding(Path(workflow.config.output), written)  # nor their chunks
+    assert len(untouched) >= len(before) / 5
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
 
 
