@@ -167,6 +167,52 @@ def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_pat
         assert float(window.y.max()) < y1 and r1 - r0 <= t
 
 
+def _grid_of(path) -> dict:
+    """What a store says of its grid, but for the chunk size: shape, x, y, the grid mapping."""
+    with xr.open_zarr(path) as ds:
+        grid = dict(ds.attrs["grid"])
+        grid.pop("tile_cells")
+        return {"shape": ds["elevation"].shape, "x": ds["x"].values.tobytes(), "y": ds["y"].values.tobytes(),
+                "spatial_ref": dict(ds["spatial_ref"].attrs), "grid": grid}
+
+
+def _bits(path, layer: str) -> np.ndarray:
+    """A layer's cells as stored, bit for bit (a float layer as unsigned integers)."""
+    values = store.read_layer(path, layer)
+    return values.view(f"u{values.dtype.itemsize}") if values.dtype.kind == "f" else values
+
+
+def test_the_grid_and_the_delaunay_dem_are_the_same_at_any_tile_size(tmp_path):
+    """Any tile size and buffer gives the grid of the data's extent (no rows
+    of no data up to a whole tile) and, for the Delaunay mesh, the same
+    cells, bit for bit."""
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=12_000, files=2, width=50.0, height=30.0, seed=8))
+    layers = ("slope", "face_kind", "point_count")
+    # 100 x 60 cells: tiles of 14, 25 and 40 cells (none divides the rows, one the columns), and one tile
+    sizes = [(7.0, None), (12.5, 0.0), (20.0, 9.0), (1000.0, None)]
+    stores = []
+    for tile_size, buffer in sizes:
+        out = tmp_path / f"tile{tile_size:g}.zarr"
+        report = _run(folder, out, resolution=0.5, tile_size=tile_size, buffer=buffer, layers=layers,
+                      triangle_measure="delaunay", quad_measure=None)
+        assert report.tiles_uncertified == 0
+        stores.append(out)
+    reference = _grid_of(stores[-1])
+    assert reference["shape"] == (61, 101)  # the data's 30 x 50 m at 0.5 m, whatever the tiles
+    chunks = []
+    for out in stores:
+        assert _grid_of(out) == reference, out.name
+        with xr.open_zarr(out) as ds:
+            chunks.append(ds["elevation"].chunks)
+        for layer in ("elevation", *layers):
+            assert np.array_equal(_bits(out, layer), _bits(stores[-1], layer)), (out.name, layer)
+    # chunks of a tile's size from the north-west corner: those of the southern row and the eastern column are partial
+    assert chunks[0] == ((14,) * 4 + (5,), (14,) * 7 + (3,))
+    assert chunks[1] == ((25,) * 2 + (11,), (25,) * 4 + (1,))
+    assert chunks[-1] == ((61,), (101,))
+
+
 def test_cli_demo_and_zarr_format_2(tmp_path):
     from matplotlib.image import imread
 

@@ -363,6 +363,32 @@ def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_
     assert workflow_status(workflow)["tiles_pending"] == 0
 
 
+@pytest.mark.parametrize("side", ["north", "east"])
+def test_growth_by_part_of_a_tile_gives_the_store_of_a_full_run(tmp_path, side):
+    """A survey of 390 x 230 m in 80 m tiles: its northern tile row and
+    eastern column are partial, and so are the store's southern and eastern
+    chunks.  A block of 50 m grows it by 25 cells, no whole tile: the chunk
+    boundaries, counted from the north edge, move (the store's chunks are
+    written again from the cells they hold, no tile is computed for it), and
+    the partial tiles are computed again."""
+    archive, workflow = _first_run(tmp_path, 390.0, 230.0, 20_000)
+    out = Path(workflow.config.output)
+    before = TileGrid.from_dict(read_attrs(out)["grid"])
+    assert before.rows_share_chunks and before.nx % before.tile_cells
+    corner = {"north": (60.0, 230.0), "east": (390.0, 40.0)}[side]
+    _patch(archive, side, corner, seed=7, size=50.0)
+    status = workflow_status(workflow)
+    report = run_workflow(workflow, progress=False)
+    after = TileGrid.from_dict(read_attrs(out)["grid"])
+    grown = after.ny - before.ny if side == "north" else after.nx - before.nx
+    assert 0 < grown < after.tile_cells and after.extends(before)
+    assert isinstance(status["tiles_pending"], int), status
+    assert any(f"{status['tiles_pending']} of {after.n_tiles} tile(s) computed again" in n for n in report.notes)
+    far = after.n_cols if side == "north" else after.n_rows  # the southern row, or the western column
+    assert status["tiles_pending"] <= after.n_tiles - far
+    assert_same_store(out, _full_run(workflow, tmp_path / "full.zarr"))
+
+
 @pytest.mark.parametrize("side", ["south", "west"])
 def test_without_an_extent_growth_south_or_west_says_why_every_tile_is_pending(tmp_path, side):
     archive, workflow = _first_run(tmp_path, 240.0, 160.0, 12_000)
