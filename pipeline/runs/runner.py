@@ -285,7 +285,7 @@ def _execute(
     report = RunReport()
     t_start = t0 = time.perf_counter()
 
-    plan = plan_run(config)
+    plan = plan_run(config, keep_sizes=incremental)
     report.skipped_files = list(plan.skipped_files)
     report.notes.extend(plan.notes)
     report.tiles = plan.grid.n_tiles

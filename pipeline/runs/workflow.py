@@ -27,9 +27,11 @@ chunk rows come in at the north, never written again; written again from
 their cells where the new rows are not whole chunks), and the new tiles, the
 old grid's northern row or eastern column, and the tiles the new files or the
 moved hull touch are computed.  Growth to the south or west moves the grid's
-origin, and with it every tile; so does a change of the buffer or of the tile
-size (keep ``tile_size`` and ``buffer`` in the job file: their defaults follow
-the point density), and ``terrain workflow status`` says why.  A workflow may
+origin, and with it every tile, and ``terrain workflow status`` says why.
+A job file that leaves ``tile_size`` and ``buffer`` unset keeps the values
+its store's first run derived from the point density (recorded in the
+provenance as ``derived``, :func:`~pipeline.runs.plan.kept_sizes`): derived
+again from a grown archive they would change, and with them every tile.  A workflow may
 declare its planned ``extent``: files inside it never move the grid.
 """
 
@@ -182,7 +184,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
     from .resume import class_fallback, decide, plan_update, work_reusable
 
     try:
-        plan = plan_run(config)
+        plan = plan_run(config, keep_sizes=True)
         decision = decide(plan, incremental=True)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"

@@ -183,7 +183,7 @@ def test_shipped_examples_load(monkeypatch):
     assert len(jobs) >= 2
     for path in jobs:
         workflow = Workflow.load(path)
-        assert workflow.config.tile_size and workflow.config.buffer  # fixed, so runs stay incremental
+        assert workflow.config.tile_size and workflow.config.buffer  # written down (unset, the first run's are kept)
 
 
 def test_unset_variables_in_paths_are_named(tmp_path, monkeypatch):
@@ -387,6 +387,61 @@ def test_growth_by_part_of_a_tile_gives_the_store_of_a_full_run(tmp_path, side):
     far = after.n_cols if side == "north" else after.n_rows  # the southern row, or the western column
     assert status["tiles_pending"] <= after.n_tiles - far
     assert_same_store(out, _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_a_job_file_without_sizes_keeps_those_its_first_run_derived_and_grows_as_cheaply(tmp_path, monkeypatch):
+    """A job file that leaves tile_size and buffer to their defaults: its
+    first run derives them from the point density and records them; a dense
+    block to the north would change them (and with them every tile), so the
+    next runs keep them.  It then computes again only the tiles a job file
+    fixing those sizes computes again, and gives the same store as a full
+    run with them."""
+    from pipeline.runs import plan as planning
+
+    # tiles of a few thousand points, so that a small survey has several
+    monkeypatch.setattr(planning, "POINTS_PER_TILE", 3000)
+    monkeypatch.setattr(planning, "MIN_POINTS_PER_TILE", 1000)
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=400.0, height=400.0, points=20_000, files=2, seed=1))
+    unsized = JOB.replace("tile_size = 40.0\n", "").replace("buffer = 6.0\n", "")
+    default = tmp_path / "default.toml"
+    default.write_text(unsized.replace("out/archive.zarr", "out/default.zarr"))
+    workflow = Workflow.load(default)
+    assert workflow.config.tile_size is None and workflow.config.buffer is None
+    run_workflow(workflow, progress=False)
+    out = Path(workflow.config.output)
+    derived = read_attrs(out)["provenance"]["derived"]
+    assert set(derived) == {"tile_size", "buffer"}
+    assert read_attrs(out)["provenance"]["grid"]["tile_cells"] * 2.0 == derived["tile_size"]
+    fixed = tmp_path / "fixed.toml"  # the same job with those sizes written down
+    fixed.write_text(unsized.replace("out/archive.zarr", "out/fixed.zarr").replace(
+        "[run]\n", f"[run]\ntile_size = {derived['tile_size']!r}\nbuffer = {derived['buffer']!r}\n"))
+    fixed_workflow = Workflow.load(fixed)
+    run_workflow(fixed_workflow, progress=False)
+    assert "derived" not in read_attrs(fixed_workflow.config.output)["provenance"]
+
+    _patch(archive, "north", (60.0, 400.0), seed=7, size=100.0)
+    # derived again from the archive as it is now, the sizes would differ: every tile would move
+    fresh = planning.plan_run(workflow.config)
+    assert (fresh.grid.tile_cells * 2.0, fresh.buffer) != (derived["tile_size"], derived["buffer"])
+    status, fixed_status = workflow_status(workflow), workflow_status(fixed_workflow)
+    assert isinstance(status["tiles_pending"], int), status
+    assert status["tiles_pending"] == fixed_status["tiles_pending"]
+    before = TileGrid.from_dict(read_attrs(out)["grid"])
+    written = _spy_tile_writes(monkeypatch)
+    report = run_workflow(workflow, progress=False)
+    after = TileGrid.from_dict(read_attrs(out)["grid"])
+    assert after.extends(before) and after.n_rows > before.n_rows and after.nx == before.nx
+    assert any(f"{status['tiles_pending']} of {after.n_tiles} tile(s) computed again" in n for n in report.notes)
+    assert any("kept from the store" in n for n in report.notes), report.notes
+    # the new tiles and the old northern row: the southern rows, far from the block, are neither computed
+    # nor written again
+    assert status["tiles_pending"] == after.n_tiles - before.n_tiles + before.n_cols < after.n_tiles
+    assert not any(row < before.n_rows - 2 for row, _ in written) and before.n_rows > 2
+    assert read_attrs(out)["provenance"]["derived"] == derived  # recorded again, as derived
+    run_workflow(fixed_workflow, progress=False)
+    assert_same_store(out, Path(fixed_workflow.config.output))
+    assert_same_store(out, _full_run(fixed_workflow, tmp_path / "full.zarr"))
 
 
 @pytest.mark.parametrize("side", ["south", "west"])
