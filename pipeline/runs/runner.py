@@ -398,7 +398,9 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     variogram = None
     if config.surface == "smooth":
         t0 = time.perf_counter()
-        variogram, provenance["smooth_surface"] = run_variogram(work, plan.grid, config.duplicates, report.points_kept)
+        variogram, provenance["smooth_surface"] = run_variogram(
+            work, plan.grid, config.duplicates, report.points_kept, routed.hull
+        )
         report.stages["variogram"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     compiling.wait()
