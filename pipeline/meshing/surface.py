@@ -166,8 +166,9 @@ def _cells_in_order(grid: TileGrid, side: float, hull: NDArray[np.float64] | Non
         for k in range(0, index.size, step):
             cx, cy = (i[k : k + step] + 0.5) * side, (j[k : k + step] + 0.5) * side
             meets[k : k + step] = (_edge_sides(px, py, cx, cy) >= 0.0).all(axis=1)
-        corners = (np.floor(px / side).astype(np.int64) - first_i) * n_j + np.floor(py / side).astype(np.int64) - first_j
-        meets[corners] = True
+        corner_i = np.floor(px / side).astype(np.int64) - first_i
+        corner_j = np.floor(py / side).astype(np.int64) - first_j
+        meets[corner_i * n_j + corner_j] = True
         if meets.any():
             i, j = i[meets], j[meets]
     order = np.lexsort((j, i, _mix(i, j)))

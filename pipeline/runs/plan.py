@@ -172,7 +172,8 @@ def kept_sizes(config: RunConfig) -> dict[str, float]:
         return {}
     attrs = store.read_attrs(config.output) or {}
     derived = attrs.get("provenance", {}).get(DERIVED, {})
-    return {name: float(derived[name]) for name in ("tile_size", "buffer") if getattr(config, name) is None and name in derived}
+    unset = [name for name in ("tile_size", "buffer") if getattr(config, name) is None]
+    return {name: float(derived[name]) for name in unset if name in derived}
 
 
 def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, Any]]]:

@@ -31,8 +31,9 @@ origin, and with it every tile, and ``terrain workflow status`` says why.
 A job file that leaves ``tile_size`` and ``buffer`` unset keeps the values
 its store's first run derived from the point density (recorded in the
 provenance as ``derived``, :func:`~pipeline.runs.plan.kept_sizes`): derived
-again from a grown archive they would change, and with them every tile.  A workflow may
-declare its planned ``extent``: files inside it never move the grid.
+again from a grown archive they would change, and with them every tile.  A
+workflow may declare its planned ``extent``: files inside it never move the
+grid.
 """
 
 from __future__ import annotations
