@@ -126,11 +126,11 @@ class TileGrid:
 
     @property
     def rows_share_chunks(self) -> bool:
-        """Whether the store's chunk rows, counted from the north edge, each
-        hold parts of two tile rows, counted from the south: ``ny`` is not a
-        multiple of ``tile_cells``.  Tiles of neighbouring rows then write
-        parts of the same chunks."""
-        return self.ny % self.tile_cells != 0
+        """Whether the store's chunk rows, counted from the north edge, hold
+        parts of two tile rows, counted from the south: there are several,
+        and ``ny`` is not a multiple of ``tile_cells``.  Tiles of neighbouring
+        rows then write parts of the same chunks."""
+        return self.n_rows > 1 and self.ny % self.tile_cells != 0
 
     def _inner_edges(self, axis: int) -> NDArray[np.float64]:
         origin, count = (self.x0, self.n_cols) if axis == 0 else (self.y0, self.n_rows)
