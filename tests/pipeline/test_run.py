@@ -168,12 +168,24 @@ def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_pat
 
 
 def _grid_of(path) -> dict:
-    """What a store says of its grid, but for the chunk size: shape, x, y, the grid mapping."""
+    """What a store and its readers say of its grid, but for the chunk size:
+    shape, x, y, the grid mapping, the STAC item's projection, a DEM window's
+    coordinates through the Python API."""
+    import json
+
+    import pipeline
+
     with xr.open_zarr(path) as ds:
         grid = dict(ds.attrs["grid"])
         grid.pop("tile_cells")
-        return {"shape": ds["elevation"].shape, "x": ds["x"].values.tobytes(), "y": ds["y"].values.tobytes(),
-                "spatial_ref": dict(ds["spatial_ref"].attrs), "grid": grid}
+        found = {"shape": ds["elevation"].shape, "x": ds["x"].values.tobytes(), "y": ds["y"].values.tobytes(),
+                 "spatial_ref": dict(ds["spatial_ref"].attrs), "grid": grid}
+    stac = json.loads(path.with_suffix(".stac.json").read_text())["properties"]
+    found["stac"] = [stac[k] for k in ("proj:shape", "proj:transform", "proj:bbox")]
+    x0, y0, x1, y1 = (float(v) for v in stac["proj:bbox"])
+    window = pipeline.open(path).dem_window(x0, y1 - 10.0, x0 + 10.0, y1)  # the north-west corner
+    found["window"] = (window["x"].values.tobytes(), window["y"].values.tobytes())
+    return found
 
 
 def _bits(path, layer: str) -> np.ndarray:
