@@ -173,7 +173,7 @@ def _parser() -> argparse.ArgumentParser:
         help="write a store's layers as Cloud-Optimized GeoTIFFs (any GIS opens them), and its STAC item",
         description="Writes each raster layer as a COG with the store's CRS, nodata and overviews: the first "
         "layer to OUTPUT, each further one beside it as STEM_LAYER.tif. A layer above --max-file-cells is "
-        "written as one COG per block of tile rows plus a VRT (STEM.vrt) that mosaics them. Then rewrites "
+        "written as one COG per block of chunk rows plus a VRT (STEM.vrt) that mosaics them. Then rewrites "
         "the store's STAC item (STORE's name with .stac.json) with the files as assets. Needs rasterio "
         "(the geotiff extra).",
     )

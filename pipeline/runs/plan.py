@@ -1,7 +1,9 @@
 """A run's plan: what it fixes before it reads a point.
 
 :func:`plan_run` reads the inputs' headers, decides the CRS plan, the grid,
-the data extent and the buffer, and writes the provenance that a store keeps:
+the data extent and the buffer (an incremental run keeps the tile size and
+buffer that its store's first run derived, :func:`kept_sizes`), and writes
+the provenance that a store keeps:
 the same code for ``terrain run`` and for ``terrain workflow status``, which
 asks what the next run would do.  :func:`frame_moved`, :func:`frame_grew`
 and :func:`frame_change` compare the frame of two provenances (the entries
@@ -11,7 +13,7 @@ that fix the tiles).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,7 +30,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "RunPlan", "plan_run", "read_headers", "job_frame", "job_frame_record", "frame_moved", "frame_grew",
-    "frame_change", "union_bounds", "POINTS_PER_TILE", "SMOOTH_POINTS_PER_TILE",
+    "frame_change", "kept_sizes", "union_bounds", "POINTS_PER_TILE", "SMOOTH_POINTS_PER_TILE", "DERIVED",
 ]
 
 POINTS_PER_TILE = 500_000
@@ -90,11 +92,18 @@ class RunPlan:
     file_bounds: tuple[tuple[float, float, float, float] | None, ...]
     """Each input's header bounds in the target CRS."""
     provenance: dict[str, Any]
+    kept: dict[str, float] = field(default_factory=dict)
+    """The sizes (``tile_size``, ``buffer``) the config left unset that an
+    incremental run took from its store, as the store's first run derived them."""
 
     @property
     def notes(self) -> list[str]:
-        """What the plan's readers should know: the headers' notes, the CRS plan's, and tiles given too small."""
+        """What the plan's readers should know: the headers' notes, the CRS
+        plan's, sizes kept from the store, and tiles given too small."""
         notes = [f"{p}: {note}" for p, info in zip(self.paths, self.infos) for note in info.notes] + list(self.crs.notes)
+        if self.kept:
+            sizes = " and ".join(f"{name}={value:g}" for name, value in self.kept.items())
+            notes.append(f"{sizes} kept from the store, which derived them from the point density in its first run")
         tiles = self.grid.n_tiles
         points = sum(info.point_count for info in self.infos)
         if self.config.tile_size is not None and tiles > 1 and points < SMALL_TILE_POINTS * tiles:
@@ -107,17 +116,29 @@ class RunPlan:
         return notes
 
 
-def plan_run(config: RunConfig) -> RunPlan:
-    """The plan of a run of ``config`` over its inputs as they are now."""
+def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
+    """The plan of a run of ``config`` over its inputs as they are now.
+
+    ``keep_sizes``: an incremental run, which takes the tile size and buffer
+    that ``config`` leaves unset from its store's provenance (:func:`kept_sizes`),
+    so that a survey that grows keeps its tiles.  The provenance records the
+    sizes derived (or kept) under :data:`DERIVED`.
+    """
     from ..inputs.crs import resolve_crs
 
     paths, infos, skipped = read_headers(config)
     crs = resolve_crs(infos, config.in_crs, config.out_crs, override_crs=config.override_crs)
-    infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(config, paths, infos, crs)
+    kept = kept_sizes(config) if keep_sizes else {}
+    sized = replace(config, **kept)
+    infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(sized, paths, infos, crs)
+    tile_cells, _ = _auto_sizes(sized, bounds, sum(i.point_count for i in infos))
+    derived = {"tile_size": tile_cells * config.resolution, "buffer": buffer}
+    derived = {name: value for name, value in derived.items() if getattr(config, name) is None}
     provenance = {
         "software": "terrain-pipeline",
         "version": _version(),
         "parameters": config.to_dict(),
+        **({DERIVED: derived} if derived else {}),
         "inputs": [
             {
                 "path": str(i.path), "size": i.size_bytes, "points": i.point_count, **urls.version(i.path),
@@ -129,7 +150,30 @@ def plan_run(config: RunConfig) -> RunPlan:
         **job_frame_record(grid, bounds, buffer, crs),
     }
     return RunPlan(config, tuple(paths), tuple(infos), tuple(skipped), crs, grid, bounds, buffer, tuple(file_bounds),
-                   provenance)
+                   provenance, kept)
+
+
+DERIVED = "derived"
+"""The provenance's entry of the sizes a run derived because its parameters
+left them unset: ``{"tile_size": ..., "buffer": ...}`` (CRS units), each
+present only when its parameter is unset."""
+
+
+def kept_sizes(config: RunConfig) -> dict[str, float]:
+    """The sizes ``config`` leaves unset (``tile_size``, ``buffer``) that the
+    store at ``config.output`` recorded as derived: an incremental run keeps
+    them.  Derived again, they would follow the point density of the inputs
+    as they are now, and a new file would change them and with them every
+    tile.  Empty without a store, with ``overwrite``, or for a store that
+    recorded none."""
+    from ..store import zarr_store as store
+
+    if config.overwrite:
+        return {}
+    attrs = store.read_attrs(config.output) or {}
+    derived = attrs.get("provenance", {}).get(DERIVED, {})
+    unset = [name for name in ("tile_size", "buffer") if getattr(config, name) is None]
+    return {name: float(derived[name]) for name in unset if name in derived}
 
 
 def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, Any]]]:

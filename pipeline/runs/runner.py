@@ -8,8 +8,9 @@ Stages (each timed in the run report):
    core plus buffer holds it;
 3. *mesh*: one task per tile: its piece of the combined mesh (certified
    against its neighbours, see :mod:`pipeline.meshing.tiles`);
-4. *dem*: one task per tile: the DEM chunk from the stitched faces over it,
-   written straight into its own Zarr chunk (no locks);
+4. *dem*: one task per tile: the DEM of its cells from the stitched faces
+   over it, written straight into the store (no locks: tiles that share a
+   chunk run one after the other, see :func:`_dem_waves`);
 5. *write mesh*: one task per tile renumbers its piece's faces to global node
    ids, then one task per block of whole chunks writes the nodes and faces
    into the store's UGRID group (the tasks: :mod:`pipeline.store.assemble`).
@@ -284,7 +285,7 @@ def _execute(
     report = RunReport()
     t_start = t0 = time.perf_counter()
 
-    plan = plan_run(config)
+    plan = plan_run(config, keep_sizes=incremental)
     report.skipped_files = list(plan.skipped_files)
     report.notes.extend(plan.notes)
     report.tiles = plan.grid.n_tiles
@@ -397,7 +398,9 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     variogram = None
     if config.surface == "smooth":
         t0 = time.perf_counter()
-        variogram, provenance["smooth_surface"] = run_variogram(work, plan.grid, config.duplicates, report.points_kept)
+        variogram, provenance["smooth_surface"] = run_variogram(
+            work, plan.grid, config.duplicates, report.points_kept, routed.hull
+        )
         report.stages["variogram"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     compiling.wait()
@@ -662,8 +665,23 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
             valued += result
 
     tasks = [("dem", job) for job in pending] + [("number", job) for job in unnumbered]
-    map_tasks(client, dem_or_number, tasks, Progress("dem", len(tasks), show), lambda _: 0, done)
+    progress = Progress("dem", len(tasks), show)
+    for wave in _dem_waves(grid, tasks):
+        map_tasks(client, dem_or_number, wave, progress, lambda _: 0, done)
     return valued if len(pending) == len(tile_jobs) else None
+
+
+def _dem_waves(grid: TileGrid, tasks: list[tuple[str, TileJob]]) -> list[list[tuple[str, TileJob]]]:
+    """The DEM stage's tasks in the sets that run one after the other: one
+    set, unless the store's chunk rows each hold parts of two tile rows
+    (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).  Then the
+    tiles of even rows go first, with the numbering (which writes no chunk),
+    and those of odd rows after them: no two tiles writing parts of one
+    chunk run at the same time."""
+    if not grid.rows_share_chunks:
+        return [tasks]
+    odd = [task for task in tasks if task[0] == "dem" and task[1].row % 2]
+    return [[task for task in tasks if not (task[0] == "dem" and task[1].row % 2)], odd]
 
 
 def _tile_key(job: TileJob) -> str:

@@ -17,18 +17,23 @@ Each run remembers the input files it processed (path, size, modification
 time, SHA-256 of the content) and keeps its work folder.  The next run
 recomputes only the tiles whose points changed: the tiles that held points in
 the bounds of a new, changed or removed file, or near a changed part of the
-convex hull, plus the DEM of their neighbours; every other tile's DEM chunk is
-left untouched.  The result equals a full run over the current archive.
+convex hull, plus the DEM of their neighbours; every DEM chunk that holds no
+cell of those is left untouched.  The result equals a full run over the
+current archive.
 
 A survey that grows keeps its tiles when the grid only grows to the north or
-east: the store's layers are resized (their chunk files renamed where new
-tile rows come in at the north, never written again), and the new tiles, the
+east: the store's layers are resized (their chunk files renamed where whole
+chunk rows come in at the north, never written again; written again from
+their cells where the new rows are not whole chunks), and the new tiles, the
 old grid's northern row or eastern column, and the tiles the new files or the
 moved hull touch are computed.  Growth to the south or west moves the grid's
-origin, and with it every tile; so does a change of the buffer or of the tile
-size (keep ``tile_size`` and ``buffer`` in the job file: their defaults follow
-the point density), and ``terrain workflow status`` says why.  A workflow may
-declare its planned ``extent``: files inside it never move the grid.
+origin, and with it every tile, and ``terrain workflow status`` says why.
+A job file that leaves ``tile_size`` and ``buffer`` unset keeps the values
+its store's first run derived from the point density (recorded in the
+provenance as ``derived``, :func:`~pipeline.runs.plan.kept_sizes`): derived
+again from a grown archive they would change, and with them every tile.  A
+workflow may declare its planned ``extent``: files inside it never move the
+grid.
 """
 
 from __future__ import annotations
@@ -180,7 +185,7 @@ def _pending_after_changes(config: RunConfig, work, done) -> int | str:
     from .resume import class_fallback, decide, plan_update, work_reusable
 
     try:
-        plan = plan_run(config)
+        plan = plan_run(config, keep_sizes=True)
         decision = decide(plan, incremental=True)
     except PipelineError as exc:
         return f"unknown: the next run would stop: {exc}"

@@ -6,8 +6,8 @@ with a predictor, overviews, the store's CRS and nodata), through GDAL's COG
 driver (``rasterio``, the ``geotiff`` extra).
 
 A layer of more than ``max_file_cells`` cells is written as one COG per block
-of tile rows, beside a VRT that mosaics them (``STEM.vrt``), which GDAL, QGIS
-and rasterio open as one raster.
+of the store's chunk rows (counted from the north edge), beside a VRT that
+mosaics them (``STEM.vrt``), which GDAL, QGIS and rasterio open as one raster.
 
 Files are written under a temporary name and renamed into place once whole:
 a stopped export leaves no file that looks finished.
@@ -80,7 +80,7 @@ def export_geotiff(
     layers
         Layer names (default: every raster layer the store holds, elevation first).
     max_file_cells
-        Layers with more cells are written as row blocks of whole tiles plus a VRT.
+        Layers with more cells are written as blocks of whole chunk rows plus a VRT.
 
     Raises
     ------
@@ -135,12 +135,13 @@ def _rasterio():
 
 
 def _row_blocks(grid: TileGrid, max_file_cells: int) -> list[tuple[int, int]]:
-    """North-up (first row, row count) of each file: whole tile rows, at most
-    ``max_file_cells`` cells each (at least one tile row)."""
+    """North-up (first row, row count) of each file: whole chunk rows of the
+    store (``tile_cells`` rows from the north edge; the southern one may be
+    lower), at most ``max_file_cells`` cells each (at least one chunk row)."""
     if grid.nx * grid.ny <= max_file_cells:
         return [(0, grid.ny)]
-    tile_rows = max(1, max_file_cells // (grid.nx * grid.tile_cells))
-    step = tile_rows * grid.tile_cells
+    chunk_rows = max(1, max_file_cells // (grid.nx * grid.tile_cells))
+    step = chunk_rows * grid.tile_cells
     return [(top, min(step, grid.ny - top)) for top in range(0, grid.ny, step)]
 
 

@@ -29,12 +29,15 @@ Layout
 The root attribute ``complete`` is true only once every tile and the mesh are
 written; until then a rerun of the same job resumes.
 
-The raster layers are north-up (row 0 is the northern-most row), chunked in
-``tile_cells x tile_cells`` tiles, so each tile of the pipeline writes exactly
-one chunk of each layer and tiles can be written in parallel without locks.
-The grid's tiles are counted from the south-west, so the store requires ``ny``
-to be a multiple of ``tile_cells`` (see :class:`~pipeline.tiling.grid.TileGrid`): only then do the
-tiles' rows fall on the north-up chunk boundaries.
+The raster layers are north-up (row 0 is the northern-most row) and hold the
+grid's cells, no more, chunked in ``tile_cells x tile_cells`` blocks from the
+north-west corner: the chunks of the southern row and the eastern column may
+be partial.  A tile's column of cells is a column of chunks; its rows,
+counted from the south, are chunk rows only when ``ny`` is a multiple of
+``tile_cells``.  Otherwise a tile writes parts of two chunk rows, and so do
+its neighbours to the north and south: tiles of one row parity never share a
+chunk, so they are written in parallel without locks, one parity after the
+other (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).
 
 Both Zarr formats are written: 3 (the default, dimensions in
 ``dimension_names``) and 2 for older readers such as GDAL 3.6 (dimensions in
@@ -155,16 +158,15 @@ _LAYERS: dict[Layer, _LayerSpec] = {
 
 
 def _tile_window(grid: TileGrid, tile_row: int, tile_col: int) -> tuple[slice, slice]:
-    """North-up (rows, cols) of a tile's cells in the store: exactly one chunk."""
+    """North-up (rows, cols) of a tile's cells in the store: one chunk column,
+    one chunk row or parts of two (see the module's notes)."""
     if not (0 <= tile_row < grid.n_rows and 0 <= tile_col < grid.n_cols):
         raise UsageError(
             f"tile ({tile_row}, {tile_col}) is outside the grid's "
             f"{grid.n_rows} x {grid.n_cols} tiles"
         )
-    t = grid.tile_cells
-    top = (grid.n_rows - 1 - tile_row) * t
-    left = tile_col * t
-    return slice(top, top + t), slice(left, min(left + t, grid.nx))
+    r0, r1, c0, c1 = grid.cell_slice(tile_row, tile_col)
+    return slice(grid.ny - r1, grid.ny - r0), slice(c0, c1)
 
 
 # --------------------------------------------------------------------------
@@ -264,14 +266,19 @@ still has it was left half grown by a stopped run (and is made again)."""
 
 
 def grow_store(path: StorePath, before: TileGrid, after: TileGrid) -> None:
-    """Extend the store's grid to the north and east, keeping every chunk written.
+    """Extend the store's grid to the north and east, keeping every tile written.
 
     ``after`` has the origin, cells and tiles of ``before`` and at least its
     rows and columns.  Each layer is resized (Zarr ``resize``): a chunk keeps
-    its file and bytes.  New tile rows at the north move every chunk row of
-    the north-up layers down by as many: their files are renamed (on object
-    storage, copied within the bucket), never decoded or written again.  The
-    coordinates, the GeoTransform, the tiles' status and the ``grid``
+    its file and bytes, and the cells that the old northern and eastern
+    chunks held beyond the grid read as no data.  New rows at the north move
+    every cell of the north-up layers south by as many rows.  When they are
+    whole chunk rows, the chunk files are renamed (on object storage, copied
+    within the bucket), never decoded or written again; otherwise the chunk
+    boundaries, counted from the north edge, fall elsewhere in the cells, and
+    every chunk is written again from the cells it now holds (decoded and
+    encoded; no tile is computed again).  The coordinates, the GeoTransform,
+    the tiles' status (rows from the south: none move) and the ``grid``
     attribute follow; the new cells read as no data until their tiles are
     written.
 
@@ -287,14 +294,17 @@ def grow_store(path: StorePath, before: TileGrid, after: TileGrid) -> None:
         raise UsageError(f"grow_store: grid {after.to_store_attr()} does not extend {before.to_store_attr()} to the north and east")
     root = _open_group(path, mode="r+")
     root.attrs.update({GROWING_ATTR: {"from": before.to_store_attr(), "to": after.to_store_attr()}, "complete": False})
-    shift = after.n_rows - before.n_rows
+    shift = after.ny - before.ny
+    whole = shift % before.tile_cells == 0
     for layer in Layer:
         if layer.value not in root:
             continue
         array = root[layer.value]
-        if shift:
-            _shift_chunk_rows(path, array, before, shift)
+        if shift and whole:
+            _shift_chunk_rows(path, array, before, shift // before.tile_cells)
         array.resize((after.ny, after.nx))
+        if not whole:
+            _shift_rows(path, layer, before, after)
     for name, values in (("x", after.x), ("y", after.y)):
         old = root[name]
         _create_array(root, name, data=values, dims=(name,), attrs=_user_attrs(old), overwrite=True)
@@ -304,6 +314,26 @@ def grow_store(path: StorePath, before: TileGrid, after: TileGrid) -> None:
     root.attrs.update({"grid": after.to_store_attr()})
     root.attrs.pop(GROWING_ATTR)
     _consolidate(path)
+
+
+def _shift_rows(path: StorePath, layer: Layer, before: TileGrid, after: TileGrid) -> None:
+    """Move the cells of a north-up layer, already resized to ``after``,
+    ``after.ny - before.ny`` rows south, one chunk at a time, the southern
+    chunk rows first: a chunk row is written once the chunk rows south of it,
+    which take some of its cells, have read them.  The new northern rows are
+    no data."""
+    array = _open_array(path, layer)  # every chunk stored, as the tiles store theirs
+    shift, t = after.ny - before.ny, after.tile_cells
+    fill = _LAYERS[layer].fill
+    for k in reversed(range(-(-after.ny // t))):
+        top, bottom = k * t, min((k + 1) * t, after.ny)
+        first = max(top - shift, 0)  # the first row, before the move, that this chunk row takes
+        for left in range(0, after.nx, t):
+            cols = slice(left, min(left + t, after.nx))
+            block = np.full((bottom - top, cols.stop - cols.start), fill, dtype=array.dtype)
+            if bottom - shift > first:
+                block[first + shift - top:] = array[first : bottom - shift, cols]
+            array[top:bottom, cols] = block
 
 
 def _shift_chunk_rows(path: StorePath, array: zarr.Array, grid: TileGrid, shift: int) -> None:
@@ -364,7 +394,7 @@ def read_attrs(path: StorePath) -> dict[str, Any] | None:
 def write_tile(
     path: StorePath, grid: TileGrid, tile_row: int, tile_col: int, layers: Mapping[str, ArrayLike], *, run: str = ""
 ) -> None:
-    """Write one tile's layers, given south-up, into their north-up chunk.
+    """Write one tile's layers, given south-up, into their north-up cells.
 
     Parameters
     ----------
@@ -375,7 +405,8 @@ def write_tile(
         The tile, counted from the south-west tile ``(0, 0)``.
     layers : mapping of layer name to array
         Each of shape ``(rows, cols)`` of the tile's cells, ``(tile_cells,
-        tile_cells)`` except at the east edge; row 0 is the southern-most.
+        tile_cells)`` except at the north and east edges; row 0 is the
+        southern-most.
 
     run : str, optional
         Names a run during which the store's arrays keep their shape: the
@@ -383,8 +414,12 @@ def write_tile(
         tiles of the same run (a few milliseconds each).
 
     Each call opens only the arrays it writes (one small metadata read each)
-    and writes whole chunks no other tile touches: safe from many threads or
-    processes at once, without locks.
+    and writes cells no other tile holds, in chunks no tile of the same row
+    parity touches: tiles of one parity are safe from many threads or
+    processes at once, without locks.  Where ``grid.rows_share_chunks``, a
+    tile fills its part of a chunk that its northern or southern neighbour
+    fills too (Zarr reads the chunk and writes it back whole): the two must
+    not be written at the same time.
     """
     rows, cols = _tile_window(grid, tile_row, tile_col)
     shape = (rows.stop - rows.start, cols.stop - cols.start)

@@ -1,11 +1,14 @@
 """The global tile grid: one grid for the whole run, its tiles and their names.
 
-Its south-west corner is snapped to a multiple of the resolution, tiles are
-``tile_cells x tile_cells`` DEM cells.  A point is *owned* by the tile whose
-core holds it (half-open boxes; the outer tiles extend to infinity, so every
-point has exactly one owner).  This module needs no compiled kernel at
-import, so that the store and its commands start without them
-(:meth:`TileGrid.bins` loads :mod:`.binning` when first asked).
+The grid is the data's: its south-west corner is the data extent's snapped
+down to a multiple of the resolution, and it holds the cells up to the
+extent's north-east corner, whatever the tile size.  Tiles are
+``tile_cells x tile_cells`` DEM cells counted from that south-west corner;
+those of the northern row and the eastern column may be smaller.  A point is
+*owned* by the tile whose core holds it (half-open boxes; the outer tiles
+extend to infinity, so every point has exactly one owner).  This module needs
+no compiled kernel at import, so that the store and its commands start
+without them (:meth:`TileGrid.bins` loads :mod:`.binning` when first asked).
 """
 
 from __future__ import annotations
@@ -38,15 +41,17 @@ class TileGrid:
         Cell size (CRS units), > 0.
     tile_cells : int
         Tile (and store chunk) edge in cells.  Tile ``(0, 0)`` is the
-        south-west tile; tiles at the east edge may be narrower.
+        south-west tile; tiles at the north edge may be lower, those at the
+        east edge narrower.
     nx, ny : int
-        Cells along x and y.  ``ny`` must be a multiple of ``tile_cells``.
+        Cells along x and y: the data's extent, whatever ``tile_cells`` is.
 
-    Why ``ny`` is a whole number of tiles: the store is north-up, so its chunk
-    rows are counted from the north, while tiles are counted from the south.
-    They line up only if ``ny`` is a multiple of ``tile_cells``; otherwise
-    every tile would straddle two chunks and parallel writes would need locks.
-    :meth:`covering` rounds ``ny`` up (pads the north edge with no-data rows).
+    Tiles and the store's chunks: the store is north-up, so its chunk rows
+    are counted from the north edge, while tiles are counted from the south
+    (a grid that grows to the north keeps its tiles).  The two line up only
+    when ``ny`` is a multiple of ``tile_cells``; otherwise each chunk row
+    holds parts of two tile rows (:attr:`rows_share_chunks`), and the DEM of
+    tiles in neighbouring rows is not written at the same time.
 
     Two serialisations, with the same entries in two orders that stores have
     always had, so that their bytes do not change: :meth:`to_dict` (the
@@ -84,27 +89,18 @@ class TileGrid:
             value = getattr(self, name)
             if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
                 raise UsageError(f"TileGrid.{name} must be an integer >= 1, got {value!r}")
-        if self.ny % self.tile_cells:
-            padded = -(-self.ny // self.tile_cells) * self.tile_cells
-            raise UsageError(
-                f"TileGrid.ny={self.ny} is not a multiple of tile_cells={self.tile_cells}: tiles counted "
-                f"from the south would straddle the north-up store's chunks; use ny={padded} "
-                "(pad the north edge)"
-            )
 
     @classmethod
     def covering(cls, bounds: tuple[float, float, float, float], resolution: float, tile_cells: int) -> TileGrid:
-        """The grid whose cells cover ``bounds`` (xmin, ymin, xmax, ymax), in whole tile rows."""
+        """The grid whose cells cover ``bounds`` (xmin, ymin, xmax, ymax): the
+        same cells for any ``tile_cells``."""
         xmin, ymin, xmax, ymax = bounds
         x0 = math.floor(xmin / resolution) * resolution
         y0 = math.floor(ymin / resolution) * resolution
         nx = max(1, int(math.floor((xmax - x0) / resolution)) + 1)
         ny = max(1, int(math.floor((ymax - y0) / resolution)) + 1)
-        # a tile never outgrows the grid (one tile is the untiled case), and
-        # the grid has whole tiles north-south: the store is north-up, so its
-        # chunk rows line up with tile rows only when the grid ends on a tile edge
+        # a tile never outgrows the grid (one tile is the untiled case)
         tile_cells = max(1, min(int(tile_cells), max(nx, ny)))
-        ny = -(-ny // tile_cells) * tile_cells
         return cls(float(x0), float(y0), float(resolution), int(tile_cells), nx, ny)
 
     @property
@@ -127,6 +123,14 @@ class TileGrid:
     @property
     def n_tiles(self) -> int:
         return self.n_cols * self.n_rows
+
+    @property
+    def rows_share_chunks(self) -> bool:
+        """Whether the store's chunk rows, counted from the north edge, hold
+        parts of two tile rows, counted from the south: there are several,
+        and ``ny`` is not a multiple of ``tile_cells``.  Tiles of neighbouring
+        rows then write parts of the same chunks."""
+        return self.n_rows > 1 and self.ny % self.tile_cells != 0
 
     def _inner_edges(self, axis: int) -> NDArray[np.float64]:
         origin, count = (self.x0, self.n_cols) if axis == 0 else (self.y0, self.n_rows)
@@ -207,15 +211,15 @@ class TileGrid:
     def edge_tiles_moved_by(self, other: TileGrid) -> set[tuple[int, int]]:
         """The tiles of ``other`` (which this grid extends) whose window or
         box this grid changes: its northern row when rows were added (its
-        window reached to infinity), its eastern column when columns or cells
-        were (likewise, and its box is clipped to the grid).
+        window reached to infinity, and its box is clipped to the grid), its
+        eastern column when columns were (likewise).
 
         The strips along the data extent's edges that a tile holds from the
         start move with the extent too, but they only spare it rounds of
         loading: its piece is what its certificate says, whatever else it holds.
         """
         moved: set[tuple[int, int]] = set()
-        if self.n_rows > other.n_rows:
+        if self.ny > other.ny:
             moved.update((other.n_rows - 1, c) for c in range(other.n_cols))
         if self.nx > other.nx:
             moved.update((r, other.n_cols - 1) for r in range(other.n_rows))

@@ -157,7 +157,7 @@ def render_preview(
         raise UsageError(f"{store_path}: the DEM has no data to draw")
     xs, ys = ds["x"].values, ds["y"].values
     extent = (xs[0] - res / 2, xs[-1] + res / 2, ys[-1] - res / 2, ys[0] + res / 2)
-    # crop the overview to the cells with data (the grid is padded to whole tiles)
+    # crop the overview to the cells with data (the grid is the data's box, which a survey need not fill)
     rows = np.flatnonzero(np.isfinite(elev).any(axis=1))
     cols = np.flatnonzero(np.isfinite(elev).any(axis=0))
     elev = elev[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]

@@ -203,3 +203,23 @@ def test_tiles_without_buffer_certify_in_bounded_memory(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     report = xr.open_zarr(out).attrs["run_history"][-1]["report"]
     assert report["tile_expansions"] >= 5 and report["tiles_uncertified"] == 0
+
+
+def test_a_real_survey_keeps_its_grid_and_delaunay_dem_at_any_tile_size(tmp_path):
+    """41 x 48 m at 0.25 m cells: tiles of 10 m (40 cells) once padded its
+    194 rows to 200; the grid is the survey's at any tile size, and so is the
+    Delaunay DEM, bit for bit."""
+    path = sample("startinpy_small_extrabytes.laz")
+    outs = []
+    for tile in (10.0, None):  # None: the size from the density, one tile here
+        out = tmp_path / f"tile{tile}.zarr"
+        _run(path, out, resolution=0.25, tile_size=tile, triangle_measure="delaunay", quad_measure=None)
+        outs.append(out)
+    tiled, whole = (xr.open_zarr(out) for out in outs)
+    assert tiled["elevation"].shape == whole["elevation"].shape == (194, 165)
+    assert tiled["elevation"].chunks == ((40,) * 4 + (34,), (40,) * 4 + (5,))
+    for name in ("x", "y"):
+        assert np.array_equal(tiled[name].values, whole[name].values)
+    assert tiled["spatial_ref"].attrs == whole["spatial_ref"].attrs
+    bits = [store.read_layer(out, "elevation").view(np.uint32) for out in outs]
+    assert np.array_equal(bits[0], bits[1])

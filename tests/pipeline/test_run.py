@@ -143,7 +143,8 @@ def test_python_api_over_tiles(tiled):
     mesh, z = ts.tile_mesh(busy)
     assert mesh.faces.max() < len(mesh.vertices) and z.shape == (len(mesh.vertices),)
     window = ts.tile_dem(busy)
-    assert window["elevation"].shape == (ts.grid.tile_cells, min(ts.grid.tile_cells, ts.grid.nx - busy.col * ts.grid.tile_cells))
+    r0, r1, c0, c1 = ts.grid.cell_slice(busy.row, busy.col)  # a tile of the northern row may be lower
+    assert window["elevation"].shape == (r1 - r0, c1 - c0)
 
 
 def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_path):
@@ -164,6 +165,64 @@ def test_tile_dem_is_the_tiles_block_at_a_resolution_not_exact_in_binary(tmp_pat
         x0, y0, x1, y1 = tile.box  # cell centres inside the tile's box
         assert x0 < float(window.x.min()) and float(window.x.max()) < x1 and y0 < float(window.y.min())
         assert float(window.y.max()) < y1 and r1 - r0 <= t
+
+
+def _grid_of(path) -> dict:
+    """What a store and its readers say of its grid, but for the chunk size:
+    shape, x, y, the grid mapping, the STAC item's projection, a DEM window's
+    coordinates through the Python API."""
+    import json
+
+    import pipeline
+
+    with xr.open_zarr(path) as ds:
+        grid = dict(ds.attrs["grid"])
+        grid.pop("tile_cells")
+        found = {"shape": ds["elevation"].shape, "x": ds["x"].values.tobytes(), "y": ds["y"].values.tobytes(),
+                 "spatial_ref": dict(ds["spatial_ref"].attrs), "grid": grid}
+    stac = json.loads(path.with_suffix(".stac.json").read_text())["properties"]
+    found["stac"] = [stac[k] for k in ("proj:shape", "proj:transform", "proj:bbox")]
+    x0, y0, x1, y1 = (float(v) for v in stac["proj:bbox"])
+    window = pipeline.open(path).dem_window(x0, y1 - 10.0, x0 + 10.0, y1)  # the north-west corner
+    found["window"] = (window["x"].values.tobytes(), window["y"].values.tobytes())
+    return found
+
+
+def _bits(path, layer: str) -> np.ndarray:
+    """A layer's cells as stored, bit for bit (a float layer as unsigned integers)."""
+    values = store.read_layer(path, layer)
+    return values.view(f"u{values.dtype.itemsize}") if values.dtype.kind == "f" else values
+
+
+def test_the_grid_and_the_delaunay_dem_are_the_same_at_any_tile_size(tmp_path):
+    """Any tile size and buffer gives the grid of the data's extent (no rows
+    of no data up to a whole tile) and, for the Delaunay mesh, the same
+    cells, bit for bit."""
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=12_000, files=2, width=50.0, height=30.0, seed=8))
+    layers = ("slope", "face_kind", "point_count")
+    # 100 x 60 cells: tiles of 14, 25 and 40 cells (none divides the rows, one the columns), and one tile
+    sizes = [(7.0, None), (12.5, 0.0), (20.0, 9.0), (1000.0, None)]
+    stores = []
+    for tile_size, buffer in sizes:
+        out = tmp_path / f"tile{tile_size:g}.zarr"
+        report = _run(folder, out, resolution=0.5, tile_size=tile_size, buffer=buffer, layers=layers,
+                      triangle_measure="delaunay", quad_measure=None)
+        assert report.tiles_uncertified == 0
+        stores.append(out)
+    reference = _grid_of(stores[-1])
+    assert reference["shape"] == (61, 101)  # the data's 30 x 50 m at 0.5 m, whatever the tiles
+    chunks = []
+    for out in stores:
+        assert _grid_of(out) == reference, out.name
+        with xr.open_zarr(out) as ds:
+            chunks.append(ds["elevation"].chunks)
+        for layer in ("elevation", *layers):
+            assert np.array_equal(_bits(out, layer), _bits(stores[-1], layer)), (out.name, layer)
+    # chunks of a tile's size from the north-west corner: those of the southern row and the eastern column are partial
+    assert chunks[0] == ((14,) * 4 + (5,), (14,) * 7 + (3,))
+    assert chunks[1] == ((25,) * 2 + (11,), (25,) * 4 + (1,))
+    assert chunks[-1] == ((61,), (101,))
 
 
 def test_cli_demo_and_zarr_format_2(tmp_path):

@@ -30,8 +30,10 @@ def test_tiled_smooth_dem_is_the_untiled_one_bit_for_bit(tmp_path, seed, share, 
     tiled = _run(survey, tmp_path / "tiled.zarr", tile_size=tile, buffer=buffer_share * tile, **plain)
     whole = _run(survey, tmp_path / "whole.zarr", tile_size=tile * 20, **plain)
     assert tiled.tiles > 4 and whole.tiles == 1
-    a, b = xr.align(_elevation(tmp_path / "tiled.zarr"), _elevation(tmp_path / "whole.zarr"), join="inner")
-    assert a.size > 1000
+    a, b = _elevation(tmp_path / "tiled.zarr"), _elevation(tmp_path / "whole.zarr")
+    assert a.shape == b.shape and a.size > 1000  # one grid, the data's, at any tile size
+    np.testing.assert_array_equal(a.x.values, b.x.values)
+    np.testing.assert_array_equal(a.y.values, b.y.values)
     np.testing.assert_array_equal(a.values, b.values)
     prov = [zarr.open_group(str(tmp_path / name), mode="r").attrs["provenance"] for name in ("tiled.zarr", "whole.zarr")]
     assert prov[0]["smooth_surface"]["variogram"] == prov[1]["smooth_surface"]["variogram"]
@@ -40,6 +42,33 @@ def test_tiled_smooth_dem_is_the_untiled_one_bit_for_bit(tmp_path, seed, share, 
     variogram = meshcore.Variogram.from_dict(prov[0]["smooth_surface"]["variogram"])
     plan = meshcore.smooth_plan(meshcore.build_mesh(xy - xy.min(axis=0)), variogram)
     assert plan.refinement.ends.shape[0] > 10
+
+
+def test_a_sampled_variogram_is_the_same_at_any_tile_size_and_buffer(tmp_path, monkeypatch):
+    """A survey above the all-points threshold (lowered here) fits its
+    variogram from whole cells of a fixed lattice: two tilings draw the same
+    sample, every point of the cells and no other, and fit the same
+    variogram, bit for bit."""
+    from pipeline.meshing import surface
+
+    monkeypatch.setattr(surface, "SAMPLE_POINTS", 3000)
+    survey = tmp_path / "ground.las"
+    _survey(survey, 3, 250.0, 200.0)
+    plain = dict(triangle_measure="delaunay", quad_measure=None, resolution=2.5, surface="smooth")
+    runs = [_run(survey, tmp_path / "small.zarr", tile_size=25.0, buffer=7.5, **plain),
+            _run(survey, tmp_path / "large.zarr", tile_size=100.0, buffer=0.0, **plain)]
+    assert runs[0].tiles > runs[1].tiles > 1 and runs[0].points_kept > 3 * 3000
+    fitted = [zarr.open_group(str(tmp_path / name), mode="r").attrs["provenance"]["smooth_surface"]
+              for name in ("small.zarr", "large.zarr")]
+    assert fitted[0] == fitted[1]
+    drawn = fitted[0]["sample"]
+    assert drawn["points"] == "whole cells" and drawn["cell_side"] % 2.5 == 0.0
+    assert 3000 <= fitted[0]["sample_points"] < runs[0].vertices / 2 or len(drawn["cells"]) == surface.MAX_SAMPLE_CELLS
+    # the sample is every distinct point in its cells (the mesh's nodes are the distinct points kept)
+    x, y = (xr.open_zarr(tmp_path / "small.zarr", group="mesh")[name].values for name in ("node_x", "node_y"))
+    side = drawn["cell_side"]
+    in_cells = np.isin(np.floor(x / side) * 1e6 + np.floor(y / side), [i * 1e6 + j for i, j in drawn["cells"]])
+    assert fitted[0]["sample_points"] == int(np.count_nonzero(in_cells))
 
 
 def _assert_tiles_krig_from_the_whole_surveys_nearest_points(monkeypatch, run_it) -> None:

@@ -83,7 +83,29 @@ def test_too_many_cells_need_an_explicit_limit():
 def test_one_tile_never_outgrows_the_grid():
     g = TileGrid.covering((0.0, 0.0, 499.0, 299.0), 1.0, 65536)
     assert g.n_tiles == 1
-    assert g.tile_cells == 500 and (g.nx, g.ny) == (500, 500)
+    assert g.tile_cells == 500 and (g.nx, g.ny) == (500, 300)  # the data's rows: no padding to a whole tile
+
+
+@pytest.mark.parametrize("cells", [1, 7, 16, 25, 1000])
+def test_the_grid_is_the_datas_whatever_the_tile_size(cells):
+    bounds = (651000.37, 6861000.9, 651049.2, 6861030.1)
+    g = TileGrid.covering(bounds, 0.5, cells)
+    assert (g.x0, g.y0, g.nx, g.ny) == (651000.0, 6861000.5, 99, 60)
+    assert g.extent[2] - 0.5 <= bounds[2] < g.extent[2] and g.extent[3] - 0.5 <= bounds[3] < g.extent[3]
+    assert (g.n_rows, g.n_cols) == (math.ceil(60 / g.tile_cells), math.ceil(99 / g.tile_cells))
+    top = g.cell_slice(g.n_rows - 1, 0)
+    assert top[1] == 60 and 0 < top[1] - top[0] <= g.tile_cells  # the northern row holds the last rows, no more
+    assert g.rows_share_chunks == (60 % g.tile_cells != 0 and g.n_rows > 1)
+
+
+def test_a_grid_grown_north_moves_its_northern_row_even_within_a_tile_row():
+    before = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=25, ny=23)
+    taller = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=25, ny=27)  # still 3 tile rows
+    assert taller.extends(before) and taller.n_rows == before.n_rows
+    assert taller.edge_tiles_moved_by(before) == {(2, 0), (2, 1), (2, 2)}  # its box grew
+    wider = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=41, ny=23)
+    assert wider.edge_tiles_moved_by(before) == {(0, 2), (1, 2), (2, 2)}
+    assert before.edge_tiles_moved_by(before) == set()
 
 
 def test_uncovered_parts_are_exactly_the_box_minus_the_held_boxes(rng):

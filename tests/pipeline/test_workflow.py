@@ -15,6 +15,8 @@ from pipeline.errors import UsageError
 from pipeline.runs.runner import run
 from pipeline.tools.synthetic import SurveySpec, write_survey
 from pipeline.runs.workflow import Workflow, run_workflow, workflow_status
+from pipeline.store.zarr_store import read_attrs
+from pipeline.tiling.grid import TileGrid
 
 from .store_checks import assert_same_store
 
@@ -64,13 +66,41 @@ def _chunk_times(path: Path) -> dict[str, int]:
     return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file() and p.name != "zarr.json"}
 
 
+def _spy_tile_writes(monkeypatch) -> list[tuple[int, int]]:
+    """The tiles whose DEM the runs of this process write from now on (a run without a scheduler uses threads)."""
+    from pipeline.store import zarr_store
+
+    written: list[tuple[int, int]] = []
+    real = zarr_store.write_tile
+
+    def spy(path, grid, row, col, layers, **kwargs):
+        written.append((row, col))
+        return real(path, grid, row, col, layers, **kwargs)
+
+    monkeypatch.setattr(zarr_store, "write_tile", spy)
+    return written
+
+
+def _chunks_holding(path: Path, tiles) -> set[str]:
+    """The elevation chunk files (as :func:`_chunk_times` names them) that hold
+    cells of these tiles: the store's chunk rows count from the north edge,
+    tile rows from the south, so a tile's cells may lie in two chunk rows."""
+    grid = TileGrid.from_dict(read_attrs(path)["grid"])
+    t = grid.tile_cells
+    out = set()
+    for row, col in tiles:
+        r0, r1, _, _ = grid.cell_slice(row, col)
+        out.update(f"c/{i}/{col}" for i in range((grid.ny - r1) // t, (grid.ny - r0 - 1) // t + 1))
+    return out
+
+
 def _full_run(workflow: Workflow, out: Path) -> Path:
     values = workflow.config.to_dict() | {"output": str(out), "overwrite": True}
     run(RunConfig.from_dict(values), progress=False)
     return out
 
 
-def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
+def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path, monkeypatch):
     workflow = Workflow.load(job)
     assert workflow.config.output == str(tmp_path / "out" / "archive.zarr")
     assert workflow_status(workflow)["state"] == "never run"
@@ -91,13 +121,15 @@ def test_only_tiles_touched_by_changed_files_are_recomputed(job, tmp_path):
     total = status["tiles_total"]
     assert 0 < status["tiles_pending"] < total
 
+    written = _spy_tile_writes(monkeypatch)
     report = run_workflow(workflow, progress=False)
     assert any("inputs changed" in note for note in report.notes), report.notes
     # the status counted the tiles with the run's own decision
     assert any(f"{status['tiles_pending']} of {total} tile(s) computed again" in n for n in report.notes), report.notes
     after = _chunk_times(workflow.config.output)
-    untouched = [k for k in before if after.get(k) == before[k]]
-    assert 0 < len(untouched) < total  # far tiles were not written again, near ones were
+    untouched = {k for k in before if after.get(k) == before[k]}
+    assert 0 < len(set(written)) < total  # far tiles' DEM was not written again, near ones' was
+    assert untouched == set(before) - _chunks_holding(Path(workflow.config.output), written)  # nor their chunks
     assert report.points_read == 24_000 + 2 * 6000
     # the same store as a full run over the archive as it is now
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
@@ -151,7 +183,7 @@ def test_shipped_examples_load(monkeypatch):
     assert len(jobs) >= 2
     for path in jobs:
         workflow = Workflow.load(path)
-        assert workflow.config.tile_size and workflow.config.buffer  # fixed, so runs stay incremental
+        assert workflow.config.tile_size and workflow.config.buffer  # written down (unset, the first run's are kept)
 
 
 def test_unset_variables_in_paths_are_named(tmp_path, monkeypatch):
@@ -254,7 +286,7 @@ BLOCKS = {"north": (60.0, 160.0), "east": (240.0, 40.0), "south": (60.0, -80.0),
 
 
 @pytest.mark.parametrize("side", list(BLOCKS))
-def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touches(tmp_path, side):
+def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touches(tmp_path, side, monkeypatch):
     archive = tmp_path / "archive"
     write_survey(archive, SurveySpec(origin=ORIGIN, width=240.0, height=160.0, points=12_000, files=2, seed=1))
     extent = [ORIGIN[0] - 100.0, ORIGIN[1] - 100.0, ORIGIN[0] + 340.0, ORIGIN[1] + 260.0]
@@ -268,11 +300,14 @@ def test_a_new_block_inside_a_declared_extent_recomputes_only_the_tiles_it_touch
     status = workflow_status(workflow)
     assert status["new_files"] == [str(archive / f"{side}.laz")]
     assert 0 < status["tiles_pending"] < status["tiles_total"] / 2, status
+    written = _spy_tile_writes(monkeypatch)
     run_workflow(workflow, progress=False)
     after = _chunk_times(workflow.config.output)
     assert set(after) == set(before)  # the grid did not move
-    untouched = [k for k in before if after[k] == before[k]]
-    assert len(untouched) >= len(before) / 3  # far tiles' chunk files were not written again
+    untouched = {k for k in before if after[k] == before[k]}
+    assert len(set(written)) < status["tiles_total"]  # far tiles' DEM was not written again
+    assert untouched == set(before) - _chunks_holding(Path(workflow.config.output), written)  # nor their chunks
+    assert len(untouched) >= len(before) / 5
     assert_same_store(Path(workflow.config.output), _full_run(workflow, tmp_path / "full.zarr"))
 
 
@@ -326,6 +361,87 @@ def test_without_an_extent_growth_north_or_east_resizes_the_store_and_keeps_far_
     assert len(untouched) >= 5, (len(untouched), len(moved))
     assert_same_store(out, _full_run(workflow, tmp_path / "full.zarr"))
     assert workflow_status(workflow)["tiles_pending"] == 0
+
+
+@pytest.mark.parametrize("side", ["north", "east"])
+def test_growth_by_part_of_a_tile_gives_the_store_of_a_full_run(tmp_path, side):
+    """A survey of 390 x 230 m in 80 m tiles: its northern tile row and
+    eastern column are partial, and so are the store's southern and eastern
+    chunks.  A block of 50 m grows it by 25 cells, no whole tile: the chunk
+    boundaries, counted from the north edge, move (the store's chunks are
+    written again from the cells they hold, no tile is computed for it), and
+    the partial tiles are computed again."""
+    archive, workflow = _first_run(tmp_path, 390.0, 230.0, 20_000)
+    out = Path(workflow.config.output)
+    before = TileGrid.from_dict(read_attrs(out)["grid"])
+    assert before.rows_share_chunks and before.nx % before.tile_cells
+    corner = {"north": (60.0, 230.0), "east": (390.0, 40.0)}[side]
+    _patch(archive, side, corner, seed=7, size=50.0)
+    status = workflow_status(workflow)
+    report = run_workflow(workflow, progress=False)
+    after = TileGrid.from_dict(read_attrs(out)["grid"])
+    grown = after.ny - before.ny if side == "north" else after.nx - before.nx
+    assert 0 < grown < after.tile_cells and after.extends(before)
+    assert isinstance(status["tiles_pending"], int), status
+    assert any(f"{status['tiles_pending']} of {after.n_tiles} tile(s) computed again" in n for n in report.notes)
+    far = after.n_cols if side == "north" else after.n_rows  # the southern row, or the western column
+    assert status["tiles_pending"] <= after.n_tiles - far
+    assert_same_store(out, _full_run(workflow, tmp_path / "full.zarr"))
+
+
+def test_a_job_file_without_sizes_keeps_those_its_first_run_derived_and_grows_as_cheaply(tmp_path, monkeypatch):
+    """A job file that leaves tile_size and buffer to their defaults: its
+    first run derives them from the point density and records them; a dense
+    block to the north would change them (and with them every tile), so the
+    next runs keep them.  It then computes again only the tiles a job file
+    fixing those sizes computes again, and gives the same store as a full
+    run with them."""
+    from pipeline.runs import plan as planning
+
+    # tiles of a few thousand points, so that a small survey has several
+    monkeypatch.setattr(planning, "POINTS_PER_TILE", 3000)
+    monkeypatch.setattr(planning, "MIN_POINTS_PER_TILE", 1000)
+    archive = tmp_path / "archive"
+    write_survey(archive, SurveySpec(origin=ORIGIN, width=400.0, height=400.0, points=20_000, files=2, seed=1))
+    unsized = JOB.replace("tile_size = 40.0\n", "").replace("buffer = 6.0\n", "")
+    default = tmp_path / "default.toml"
+    default.write_text(unsized.replace("out/archive.zarr", "out/default.zarr"))
+    workflow = Workflow.load(default)
+    assert workflow.config.tile_size is None and workflow.config.buffer is None
+    run_workflow(workflow, progress=False)
+    out = Path(workflow.config.output)
+    derived = read_attrs(out)["provenance"]["derived"]
+    assert set(derived) == {"tile_size", "buffer"}
+    assert read_attrs(out)["provenance"]["grid"]["tile_cells"] * 2.0 == derived["tile_size"]
+    fixed = tmp_path / "fixed.toml"  # the same job with those sizes written down
+    fixed.write_text(unsized.replace("out/archive.zarr", "out/fixed.zarr").replace(
+        "[run]\n", f"[run]\ntile_size = {derived['tile_size']!r}\nbuffer = {derived['buffer']!r}\n"))
+    fixed_workflow = Workflow.load(fixed)
+    run_workflow(fixed_workflow, progress=False)
+    assert "derived" not in read_attrs(fixed_workflow.config.output)["provenance"]
+
+    _patch(archive, "north", (60.0, 400.0), seed=7, size=100.0)
+    # derived again from the archive as it is now, the sizes would differ: every tile would move
+    fresh = planning.plan_run(workflow.config)
+    assert (fresh.grid.tile_cells * 2.0, fresh.buffer) != (derived["tile_size"], derived["buffer"])
+    status, fixed_status = workflow_status(workflow), workflow_status(fixed_workflow)
+    assert isinstance(status["tiles_pending"], int), status
+    assert status["tiles_pending"] == fixed_status["tiles_pending"]
+    before = TileGrid.from_dict(read_attrs(out)["grid"])
+    written = _spy_tile_writes(monkeypatch)
+    report = run_workflow(workflow, progress=False)
+    after = TileGrid.from_dict(read_attrs(out)["grid"])
+    assert after.extends(before) and after.n_rows > before.n_rows and after.nx == before.nx
+    assert any(f"{status['tiles_pending']} of {after.n_tiles} tile(s) computed again" in n for n in report.notes)
+    assert any("kept from the store" in n for n in report.notes), report.notes
+    # the new tiles and the old northern row: the southern rows, far from the block, are neither computed
+    # nor written again
+    assert status["tiles_pending"] == after.n_tiles - before.n_tiles + before.n_cols < after.n_tiles
+    assert not any(row < before.n_rows - 2 for row, _ in written) and before.n_rows > 2
+    assert read_attrs(out)["provenance"]["derived"] == derived  # recorded again, as derived
+    run_workflow(fixed_workflow, progress=False)
+    assert_same_store(out, Path(fixed_workflow.config.output))
+    assert_same_store(out, _full_run(fixed_workflow, tmp_path / "full.zarr"))
 
 
 @pytest.mark.parametrize("side", ["south", "west"])
