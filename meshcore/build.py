@@ -11,7 +11,7 @@ from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay,
 from .errors import InvalidInputError
 from .certificate import _U, KnownRegion, WindowCertificate, initial_taint, open_hull_edges, safe_circle
 from .flip import _centroid_in, _meets_box, flip_edges
-from .merge import merge_candidates, merge_dependencies, merge_triangles
+from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import cross_rounded, lex_before
@@ -318,6 +318,7 @@ def _combined_mesh(
     nt = triangulation.triangles.shape[0] // 3
     escapes = None
     taint = None
+    source = None
     open_edges = None
     active = np.ones(nt, dtype=np.uint8)
     window = None if bounds is None else np.array(bounds, dtype=np.float64)
@@ -331,12 +332,13 @@ def _combined_mesh(
             triangulation.x, triangulation.y, triangulation.triangles, window_triangles, window, float(o[0]), float(o[1]),
             *region.box,
         )
-        taint = initial_taint(triangulation, region)
+        taint, circle_of = initial_taint(triangulation, region)
+        source = np.where(taint != 0, np.arange(nt), -1).astype(np.int64)
         open_edges = open_hull_edges(triangulation, region)
     flipped = None
     if tm is not TriangleMeasure.DELAUNAY:
         flipped = flip_edges(
-            triangulation, tm.value, active, taint=taint, open_edges=open_edges, assume_rounds=rounds,
+            triangulation, tm.value, active, taint=taint, source=source, open_edges=open_edges, assume_rounds=rounds,
             window=bounds,
         )
     if qm is None:
@@ -344,7 +346,9 @@ def _combined_mesh(
         candidates = None
     else:
         candidates = merge_candidates(triangulation, qm.value, active)
-        partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates)
+        order = None if mm is MergeMethod.OPTIMAL else greedy_order(triangulation, *candidates)
+        partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates, order=order)
+        candidates = (*candidates, order)
 
     certificate = None
     if bounds is None:
@@ -352,7 +356,8 @@ def _combined_mesh(
     else:
         owned = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles,
                              triangulation.halfedges, partner, window)
-        certificate = _certificate(triangulation, taint, owned, partner, candidates, flipped, mm, rounds)
+        certificate = _certificate(triangulation, taint, source, circle_of, owned, partner, candidates, flipped, mm,
+                                   rounds)
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     faces = _faces_kernel(
         triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, owned,
@@ -372,11 +377,10 @@ def _combined_mesh(
     )
 
 
-def _certificate(triangulation: Triangulation, taint, owned, partner, candidates, flipped, mm: MergeMethod,
-                 rounds: int) -> WindowCertificate:
+def _certificate(triangulation: Triangulation, taint, source, circle_of, owned, partner, candidates, flipped,
+                 mm: MergeMethod, rounds: int) -> WindowCertificate:
     """Whether a window piece's faces are the global mesh's, given that the
     global mesh makes no flip near the window after round ``rounds``."""
-    nt = triangulation.triangles.shape[0] // 3
     start = owned.copy()
     _mark_partners(partner, triangulation.halfedges, start)
     need = start.copy()
@@ -384,13 +388,17 @@ def _certificate(triangulation: Triangulation, taint, owned, partner, candidates
         # whether an edge of a face is a candidate at all reads the triangle beyond it
         _grow_ring(triangulation.halfedges, need)
         if mm is MergeMethod.GREEDY:
-            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start)
+            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start, order=candidates[2])
     if flipped is not None:
         need |= flipped.zone
-    clean = not bool(np.any(need & taint)) if nt else True
+    reached = np.flatnonzero(need & taint)
+    causes = np.unique(source[reached])
     last = 0 if flipped is None else flipped.last_window_round
-    return WindowCertificate(certified=clean, last_flip_round=last, assumed_rounds=int(rounds),
-                             rounds=0 if flipped is None else flipped.rounds)
+    return WindowCertificate(
+        certified=reached.size == 0, last_flip_round=last, assumed_rounds=int(rounds),
+        rounds=0 if flipped is None else flipped.rounds,
+        blocking=circle_of[causes[causes >= 0]], open_edges=bool(np.any(causes == -2)),
+    )
 
 
 @njit

@@ -57,13 +57,20 @@ class WindowCertificate:
     round ``assumed_rounds``; ``last_flip_round`` is the last round whose flips
     touched the window's triangles here (0: none), ``rounds`` the rounds the
     piece's point set flipped in.  A tiled run checks that no tile near this
-    one flipped after ``assumed_rounds``.
+    one flipped after ``assumed_rounds``.  When not certified, ``blocking``
+    and ``open_edges`` say what to hold more of.
     """
 
     certified: bool
     last_flip_round: int
     assumed_rounds: int
     rounds: int
+    blocking: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False)
+    """Where the doubt that reached the window came from: the circles ``(x, y, r)`` of
+    triangles whose points the tile may lack (their points, once held, may clear it)."""
+    open_edges: bool = False
+    """Whether doubt that reached the window came from a hull edge of the tile's points
+    that may not be the survey's (holding a wider box clears it)."""
 
 
 @njit
@@ -129,19 +136,22 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     return rows[:n].copy(), out[:n].copy()
 
 
-def initial_taint(triangulation: Triangulation, known: KnownRegion) -> NDArray[np.uint8]:
+def initial_taint(triangulation: Triangulation, known: KnownRegion) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
     """1 for the Delaunay triangles that may not be the global set's: their
-    circumcircle leaves ``known.box`` and ``known`` does not vouch for it."""
+    circumcircle leaves ``known.box`` and ``known`` does not vouch for it; and
+    those circles ``(x, y, r)``, one row per triangle (NaN for the others)."""
     t = triangulation
     nt = t.triangles.shape[0] // 3
     taint = np.zeros(nt, dtype=np.uint8)
+    circle_of = np.full((nt, 3), np.nan)
     if known.box == _EVERYWHERE or nt == 0:
-        return taint
+        return taint, circle_of
     rows, circles = _circles_leaving(t.x, t.y, t.triangles, float(t.origin[0]), float(t.origin[1]), *known.box)
     if rows.size:
         vouched = np.asarray(known.covers(circles), dtype=bool)
         taint[rows[~vouched]] = 1
-    return taint
+        circle_of[rows[~vouched]] = circles[~vouched]
+    return taint, circle_of
 
 
 def open_hull_edges(triangulation: Triangulation, known: KnownRegion) -> NDArray[np.uint8]:
