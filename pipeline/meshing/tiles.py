@@ -54,9 +54,10 @@ __all__ = [
 ]
 
 DEFAULT_ASSUMED_ROUNDS = 8
-"""The flip rounds a tile's certificate first allows its neighbours: on the
-surveys measured, no tile flipped past round 8 (a run checks it after meshing,
-and meshes again with more the tiles whose neighbours flipped later)."""
+"""The flip rounds a tile's certificate first allows the tiles around it.  On
+the real samples the survey's flips end by round 3 to 9 (``bench/bench_tiling.py``);
+a run checks the assumption after meshing and meshes again, assuming more, the
+tiles around which a tile flipped later.  Fewer made more tiles mesh twice."""
 
 
 @dataclass(frozen=True)
