@@ -9,8 +9,8 @@ from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zer
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import _U, KnownRegion, WindowCertificate, initial_taint, open_hull_edges, safe_circle
-from .flip import _centroid_in, _meets_box, flip_edges
+from .certificate import KnownRegion, WindowCertificate, circle_in_input_frame, initial_taint, open_hull_edges
+from .flip import _centroid, _centroid_in, _meets_box, flip_edges
 from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
@@ -35,25 +35,6 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
             f"(first at index {bad})"
         )
     return arr
-
-
-@njit
-def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
-    """Centroid of three points, in the input frame (local + origin, which is
-    exact), summed in lexicographic point order.
-
-    The order of the sum is fixed by the points themselves, so every run that
-    holds the same three points computes the same floats, whatever its vertex
-    numbering or local origin: tiles decide ownership of a shared triangle
-    identically.
-    """
-    if lex_before(bx, by, ax, ay):
-        ax, ay, bx, by = bx, by, ax, ay
-    if lex_before(cx, cy, bx, by):
-        bx, by, cx, cy = cx, cy, bx, by
-        if lex_before(bx, by, ax, ay):
-            ax, ay, bx, by = bx, by, ax, ay
-    return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
 
 
 @njit
@@ -105,11 +86,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
             x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
         ):
             continue
-        ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
-        ux += x[a] + ox
-        uy += y[a] + oy
-        # the sums' rounding moves the centre by at most an ulp of each coordinate
-        r += _U * 4.0 * (abs(ux) + abs(uy))
+        ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         if n == out.shape[0]:

@@ -23,7 +23,7 @@ from ._jit import empty, njit
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
-__all__ = ["KnownRegion", "WindowCertificate", "initial_taint", "open_hull_edges"]
+__all__ = ["KnownRegion", "WindowCertificate", "initial_taint", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
 
 _U = 2.0**-53
 """The unit roundoff of float64."""
@@ -112,6 +112,18 @@ def safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
 
 
 @njit
+def circle_in_input_frame(x, y, a: int, b: int, c: int, ox: float, oy: float) -> tuple[float, float, float]:
+    """:func:`safe_circle` of the triangle ``a, b, c`` of local coordinates
+    ``x, y``, its centre in the input frame (plus ``ox, oy``)."""
+    ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
+    ux += x[a] + ox
+    uy += y[a] + oy
+    # the sums' rounding moves the centre by at most an ulp of each coordinate
+    r += _U * 4.0 * (abs(ux) + abs(uy))
+    return ux, uy, r
+
+
+@njit
 def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     """The triangles whose circumcircle (input frame) is not inside the box, and the circles."""
     nt = tri.shape[0] // 3
@@ -122,10 +134,7 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
-        ux += x[a] + ox
-        uy += y[a] + oy
-        r += _U * 4.0 * (abs(ux) + abs(uy))
+        ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         rows[n] = t

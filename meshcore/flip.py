@@ -162,23 +162,32 @@ def _known_beaten(x, y, tri, he, imp, taint, open_edge, e: int) -> bool:
     return False
 
 
-@njit_helper
-def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
-    """Whether the centroid of triangle ``t`` (input frame, summed in the
-    corners' coordinate order, so the same bits in every run) lies in the
-    half-open ``window``."""
-    a = tri[3 * t]
-    b = tri[3 * t + 1]
-    c = tri[3 * t + 2]
-    ax, ay, bx, by, cx, cy = x[a], y[a], x[b], y[b], x[c], y[c]
+@njit
+def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
+    """Centroid of three points, in the input frame (local + origin, which is
+    exact), summed in lexicographic point order.
+
+    The order of the sum is fixed by the points themselves, so every run that
+    holds the same three points computes the same floats, whatever its vertex
+    numbering or local origin: tiles decide ownership of a shared triangle
+    identically.
+    """
     if lex_before(bx, by, ax, ay):
         ax, ay, bx, by = bx, by, ax, ay
     if lex_before(cx, cy, bx, by):
         bx, by, cx, cy = cx, cy, bx, by
         if lex_before(bx, by, ax, ay):
             ax, ay, bx, by = bx, by, ax, ay
-    gx = ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0
-    gy = ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
+    return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
+
+
+@njit_helper
+def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
+    """Whether the centroid of triangle ``t`` (see :func:`_centroid`) lies in the half-open ``window``."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    gx, gy = _centroid(x[a], y[a], x[b], y[b], x[c], y[c], ox, oy)
     return window[0] <= gx < window[2] and window[1] <= gy < window[3]
 
 
