@@ -35,8 +35,11 @@ A point is tested against the faces of its bucket: inside the face's bounding
 box, then the edge orientation tests (barycentric coordinates for triangles,
 four edge tests for quadrangles) with a relative tolerance of
 ``_INSIDE_TOL``, so points on edges and vertices are always found.  A point on
-an edge shared by two faces takes either: the value is the same up to
-rounding.  Points outside the mesh (its convex hull) give NaN.
+an edge shared by two faces takes the one whose corners come first by
+coordinates (:func:`face_after`), so the answer, value and gradient, does
+not depend on the order of the faces: a tile that holds its neighbours'
+faces in another order reads the same bits.  Points outside the mesh (its
+convex hull) give NaN.
 :mod:`meshcore.rasterize` uses the same bounding boxes and inside tests, so
 both cover exactly the same points.
 
@@ -357,6 +360,23 @@ def _face_contains(vertices: np.ndarray, faces: np.ndarray, f: int, px: float, p
     )
 
 
+@njit_helper
+def face_after(vertices: np.ndarray, faces: np.ndarray, f: int, g: int) -> bool:
+    """Whether face ``f`` comes after face ``g`` by its first two corners'
+    coordinates (x, then y, of the first corner, then of the second; the
+    index when both are the same point pairs, which a conforming mesh's
+    counter-clockwise faces never share).  Where faces overlap only within
+    the inside tests' tolerance, this rule of the geometry picks the face
+    that answers, whatever the faces' order."""
+    for k in range(2):
+        a = faces[f, k]
+        b = faces[g, k]
+        for c in range(2):
+            if vertices[a, c] != vertices[b, c]:
+                return vertices[a, c] > vertices[b, c]
+    return f > g
+
+
 # --------------------------------------------------------------------------
 # Array kernels: bucket grid, location, evaluation
 # --------------------------------------------------------------------------
@@ -431,9 +451,9 @@ def _locate_kernel(
             if (
                 x >= bbox[f, 0] and x <= bbox[f, 2] and y >= bbox[f, 1] and y <= bbox[f, 3]
                 and _face_contains(vertices, faces, f, x, y)
+                and (out_face[k] < 0 or face_after(vertices, faces, out_face[k], f))
             ):
-                out_face[k] = f
-                break
+                out_face[k] = f  # on a shared edge: the first face by coordinates
 
 
 @njit

@@ -10,8 +10,11 @@ inside test, evaluating the surface there.  Bounding boxes, inside test
 (inclusive, with a small relative tolerance) and surface formulas are those of
 :mod:`meshcore.interpolate`, so a cell gets a value exactly when
 :func:`meshcore.interpolate.interpolate` gives one at its centre, and the same
-value up to rounding.  A centre on an edge shared by two faces is written by
-both, with values equal up to rounding since the surface is continuous.
+value up to rounding.  A centre on an edge shared by two faces (within the
+inside tests' tolerance) takes the face that comes first by its corners'
+coordinates (:func:`meshcore.interpolate.face_after`), as
+:func:`meshcore.interpolate.interpolate` does: the grid does not depend on
+the order of the faces.
 
 Faces are taken in blocks of ``_CHUNK``: their corners and values are first
 copied into a small buffer by a loop without data-dependent branches, so the
@@ -27,7 +30,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, larger, njit, njit_helper, smaller
+from ._jit import empty, full, larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 from .interpolate import (
     _INSIDE_TOL,
@@ -40,6 +43,7 @@ from .interpolate import (
     _quad_value_and_gradient,
     _triangle_contains,
     _triangle_value_and_gradient,
+    face_after,
     surface_arrays,
 )
 from .mesh import Mesh, mesh_arrays, vertex_values
@@ -125,6 +129,7 @@ def _rasterize_kernel(
     ny, nx = out.shape
     inv_res = 1.0 / resolution
     n_f = faces.shape[0]
+    writer = full((ny, nx), -1, dtype=np.int64)  # the face each cell's value came from
     xy = empty((_CHUNK, 8))
     zs = empty((_CHUNK, 4))
     for start in range(0, n_f, _CHUNK):
@@ -166,8 +171,12 @@ def _rasterize_kernel(
                     qx = _centre(x0, i, resolution)
                     if qx < bx0 or qx > bx1:
                         continue
+                    f = start + k
+                    if writer[j, i] >= 0 and not face_after(vertices, faces, writer[j, i], f):
+                        continue  # a shared edge's centre, taken by a face that comes first
                     if not is_quad:
                         if _triangle_contains(ax, ay, bx, by, cx, cy, qx, qy):
+                            writer[j, i] = f
                             if nodes is not None:
                                 out[j, i] = triangle_patch(
                                     ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2],
@@ -178,6 +187,7 @@ def _rasterize_kernel(
                                     ax, ay, bx, by, cx, cy, zs[k, 0], zs[k, 1], zs[k, 2], qx, qy
                                 )[0]
                     elif _quad_contains(ax, ay, bx, by, cx, cy, dx, dy, qx, qy):
+                        writer[j, i] = f
                         if nodes is not None:
                             u, v = _bilinear_inverse(ax, ay, bx, by, cx, cy, dx, dy, qx, qy)
                             out[j, i] = quad_patch(

@@ -967,33 +967,9 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     kinds = np.concatenate([(p["faces"][:, 3] >= 0).astype(np.int8) + 1 for p in parts])
     mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), faces, np.arange(v.shape[0]))
     z = np.ascontiguousarray(v[:, 2])
-    return _in_geometric_order(mesh, z, kinds, _smooth_surface(mesh, z, parts) if smooth else None)
-
-
-def _geometric_face_order(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The faces ordered by their first two corners' coordinates (faces start at
-    their smallest corner, and no two faces share a first directed edge)."""
-    a, b = vertices[faces[:, 0]], vertices[faces[:, 1]]
-    return np.lexsort((b[:, 1], b[:, 0], a[:, 1], a[:, 0]))
-
-
-def _in_geometric_order(mesh: meshcore.Mesh, z, kinds, smooth: meshcore.SmoothSurface | None):
-    """The tile's faces (and the smooth surface's) in an order fixed by the
-    geometry: a cell centre on an edge two faces share takes the value and the
-    slope of the face the rasterizer meets last, the same whatever tiles the
-    faces came from."""
-    order = _geometric_face_order(mesh.vertices, mesh.faces)
-    mesh = meshcore.Mesh(mesh.vertices, mesh.faces[order], mesh.input_to_vertex)
-    kinds = kinds[order]
-    if smooth is not None:
-        rank = np.empty_like(order)
-        rank[order] = np.arange(order.size)
-        cut = _geometric_face_order(smooth.mesh.vertices, smooth.mesh.faces)
-        smooth = meshcore.SmoothSurface(
-            meshcore.Mesh(smooth.mesh.vertices, smooth.mesh.faces[cut], smooth.mesh.input_to_vertex),
-            smooth.z, smooth.nodes[cut], rank[smooth.parent[cut]],
-        )
-    return mesh, z, kinds, smooth
+    # the faces in the pieces' order: a cell centre on an edge two faces share reads the face that comes
+    # first by coordinates, whatever the order (meshcore.rasterize)
+    return mesh, z, kinds, _smooth_surface(mesh, z, parts) if smooth else None
 
 
 #: the smooth surface's arrays of a piece (:func:`_piece_surface`)

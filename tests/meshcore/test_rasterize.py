@@ -321,3 +321,29 @@ def test_sampled_faces_are_those_that_hold_a_cell_centre(rng, resolution, shift)
         sampled_faces(grid, 0.0, 0.0, -1.0, 3, 3)
     with pytest.raises(InvalidInputError, match="nx"):
         sampled_faces(grid, 0.0, 0.0, 1.0, 0, 3)
+
+
+@pytest.mark.parametrize("surface", ["linear", "smooth"])
+def test_the_grid_does_not_depend_on_the_order_of_the_faces(rng, surface):
+    """A centre on an edge two faces share reads the face first by coordinates,
+    in rasterize, interpolate and gradient alike: shuffled faces give the same
+    bits (a tile holds its neighbours' faces in another order than the whole
+    survey does)."""
+    mesh = grid_mesh(rng, 8, 6, jitter=0.0)  # centres on grid lines and diagonals
+    z = np.sin(3.0 * mesh.vertices[:, 0]) + mesh.vertices[:, 1] ** 2  # faces' slopes differ at every edge
+    kw = {} if surface == "linear" else {"surface": meshcore.smooth_surface(mesh, z)}
+    x, y = cell_centres(-0.125, -0.125, 0.25, 33, 25)
+    grid = rasterize(mesh, z, -0.125, -0.125, 0.25, 33, 25, **kw)
+    values = interpolate(mesh, z, x, y, **kw)
+    slope = meshcore.gradient(mesh, z, x, y, **kw)
+    assert np.isfinite(grid).all()
+    for _ in range(3):
+        order = rng.permutation(mesh.faces.shape[0])
+        shuffled = Mesh(mesh.vertices, mesh.faces[order], mesh.input_to_vertex)
+        kw2 = {} if surface == "linear" else {"surface": meshcore.smooth_surface(shuffled, z)}
+        assert_array_equal(rasterize(shuffled, z, -0.125, -0.125, 0.25, 33, 25, **kw2), grid)
+        assert_array_equal(interpolate(shuffled, z, x, y, **kw2), values)
+        for got, want in zip(meshcore.gradient(shuffled, z, x, y, **kw2), slope):
+            assert_array_equal(got, want)
+    # the rule is the one of meshcore.interpolate: the grid is its values at the centres, bit for bit
+    assert_array_equal(grid, values)
