@@ -425,35 +425,57 @@ def _merge_boxes(boxes: list) -> list:
 
 def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     """Strips along the data extent's edges that the tile's box reaches, a
-    twentieth of the buffer deep (with the smooth surface, at least four
-    point spacings) and one tile longer than the box on either side.
+    buffer deep (with the smooth surface, at least four point spacings) and
+    one tile longer than the box on either side.
 
     Near a straight survey edge the Delaunay triangles are slivers whose
-    circumcircles reach far along the edge, just inside it; holding these
+    circumcircles reach far along the edge, just inside it, and whose flips
+    read their neighbours for rounds: the slivers that meet the window are
+    as long as the gaps between the points on the edge.  Holding these
     strips from the start spares most edge tiles a second build.
     """
     x0, y0, x1, y1 = job.extent
     reach = min(job.grid.tile_size, 32.0 * job.buffer)
-    # the lenses of those circles inside the survey are centimetres deep: a
-    # twentieth of the buffer (about half a point spacing) holds them; a whole
-    # buffer read up to twice a small edge tile's points for the same rounds
-    depth = job.buffer / 20.0
+    # the lenses of the slivers' circles inside the survey are centimetres deep, but their flips read
+    # the triangles a few rings around, round after round: on the throughput bench's corner tiles a
+    # twentieth of the buffer left 5-8 circles open (4-6 builds), a buffer none
+    depth = job.buffer
     if job.surface == "smooth" and job.variogram is not None and job.variogram.spacing is not None:
         # the nodes of those slivers are kriged from disks of about 2.3
         # spacings around cells of 1.4: 4 spacings hold them
         depth = max(depth, 4.0 * job.variogram.spacing)
     lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
     lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
+    hull = None if job.hull is None else job.hull[:, :2]
     bands = []
     if box[1] <= y0:
-        bands.append((lo_x, y0, hi_x, min(y1, y0 + depth)))
+        a, b = _along_hull(hull, 1, y0, depth, lo_x, hi_x)
+        bands.append((a, y0, b, min(y1, y0 + depth)))
     if box[3] >= y1:
-        bands.append((lo_x, max(y0, y1 - depth), hi_x, y1))
+        a, b = _along_hull(hull, 1, y1, depth, lo_x, hi_x)
+        bands.append((a, max(y0, y1 - depth), b, y1))
     if box[0] <= x0:
-        bands.append((x0, lo_y, min(x1, x0 + depth), hi_y))
+        a, b = _along_hull(hull, 0, x0, depth, lo_y, hi_y)
+        bands.append((x0, a, min(x1, x0 + depth), b))
     if box[2] >= x1:
-        bands.append((max(x0, x1 - depth), lo_y, x1, hi_y))
+        a, b = _along_hull(hull, 0, x1, depth, lo_y, hi_y)
+        bands.append((max(x0, x1 - depth), a, x1, b))
     return bands
+
+
+def _along_hull(hull: NDArray[np.float64] | None, axis: int, side: float, depth: float, lo: float, hi: float):
+    """``lo, hi`` grown to the ends of the hull edges that run within ``depth`` of
+    the extent's side ``axis = side`` and overlap the span: a straight survey edge
+    holds few points exactly on it, and the slivers on a hull edge between two
+    of them (hundreds of metres apart) meet every tile along it."""
+    if hull is None or hull.shape[0] < 2:
+        return lo, hi
+    p, q = hull, np.roll(hull, -1, axis=0)
+    on_side = (np.abs(p[:, axis] - side) <= depth) & (np.abs(q[:, axis] - side) <= depth)
+    a, b = np.minimum(p[:, 1 - axis], q[:, 1 - axis])[on_side], np.maximum(p[:, 1 - axis], q[:, 1 - axis])[on_side]
+    meets = (b >= lo) & (a <= hi)  # (the edges they then reach run on along the side: not taken)
+    # and ``depth`` past the ends: a sliver's lens is known to its rounding, not to the end's bits
+    return (min(lo, float(a[meets].min(initial=lo)) - depth), max(hi, float(b[meets].max(initial=hi)) + depth))
 
 
 class _HeldRegion(meshcore.KnownRegion):
