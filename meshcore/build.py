@@ -9,7 +9,7 @@ from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zer
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import KnownRegion, WindowCertificate, circle_in_input_frame, initial_taint, open_hull_edges
+from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_taint, open_hull_edges
 from .flip import _centroid, _centroid_in, _meets_box, flip_edges
 from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
@@ -71,35 +71,19 @@ def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
 
 
 @njit
-def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
-    """Circumcircles (cx, cy, r; input frame) that leave the box, of the triangles
-    that meet the window (the window's piece is exact once all of these are).
-    ``active`` marks triangles known to meet it (their centroid is inside)."""
-    out = empty((16, 3))
-    n = 0
+def _meeting_window(x, y, tri, rows, window, ox, oy) -> np.ndarray:
+    """Which of the triangles ``rows`` meet the window (or nearly: see :func:`_meets_box`)."""
+    out = empty(rows.shape[0], dtype=np.bool_)
     slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
-    for t in range(tri.shape[0] // 3):
+    for k in range(rows.shape[0]):
+        t = rows[k]
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        if not active[t] and not _meets_box(
+        out[k] = _meets_box(
             x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
-        ):
-            continue
-        ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
-        if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
-            continue
-        if n == out.shape[0]:
-            grown = empty((2 * n, 3))
-            for i in range(n):  # element by element: see delaunay._merge_sort_run
-                for j in range(3):
-                    grown[i, j] = out[i, j]
-            out = grown
-        out[n, 0] = ux
-        out[n, 1] = uy
-        out[n, 2] = r
-        n += 1
-    return out[:n].copy()
+        )
+    return out
 
 
 @njit_borrowing
@@ -302,14 +286,13 @@ def _combined_mesh(
     o = triangulation.origin
     if bounds is not None:
         region = known if known is not None else KnownRegion()
-        window_triangles = _window_mask(
-            triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles, *bounds
-        )
-        escapes = _escaping_circles(
-            triangulation.x, triangulation.y, triangulation.triangles, window_triangles, window, float(o[0]), float(o[1]),
-            *region.box,
-        )
-        taint, circle_of = initial_taint(triangulation, region)
+        # the circles that leave the box held whole, computed once: those of the triangles that meet the
+        # window are the Delaunay certificate's, and those the tile does not vouch for start the doubt
+        leaving = circles_leaving(triangulation, region.box)
+        escapes = leaving[1][_meeting_window(
+            triangulation.x, triangulation.y, triangulation.triangles, leaving[0], window, float(o[0]), float(o[1])
+        )]
+        taint, circle_of = initial_taint(triangulation, region, leaving)
         source = np.where(taint != 0, np.arange(nt), -1).astype(np.int64)
         open_edges = open_hull_edges(triangulation, region)
     flipped = None

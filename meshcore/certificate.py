@@ -23,7 +23,7 @@ from ._jit import empty, njit
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
-__all__ = ["KnownRegion", "WindowCertificate", "initial_taint", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
+__all__ = ["KnownRegion", "WindowCertificate", "circles_leaving", "disk_box_in", "lens_boxes", "initial_taint", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
 
 _U = 2.0**-53
 """The unit roundoff of float64."""
@@ -145,17 +145,30 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     return rows[:n].copy(), out[:n].copy()
 
 
-def initial_taint(triangulation: Triangulation, known: KnownRegion) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+def circles_leaving(triangulation: Triangulation, box) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The triangles whose circumcircle is not inside ``box`` (``x_lo, y_lo,
+    x_hi, y_hi``), in order, and those circles ``(x, y, r)`` in the input
+    frame (:func:`safe_circle`: they hold the exact circles)."""
+    t = triangulation
+    if tuple(box) == _EVERYWHERE or t.triangles.shape[0] == 0:
+        return np.empty(0, dtype=np.int64), np.empty((0, 3))
+    return _circles_leaving(t.x, t.y, t.triangles, float(t.origin[0]), float(t.origin[1]), *box)
+
+
+def initial_taint(triangulation: Triangulation, known: KnownRegion,
+                  leaving: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
+                  ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
     """1 for the Delaunay triangles that may not be the global set's: their
     circumcircle leaves ``known.box`` and ``known`` does not vouch for it; and
-    those circles ``(x, y, r)``, one row per triangle (NaN for the others)."""
+    those circles ``(x, y, r)``, one row per triangle (NaN for the others).
+    ``leaving``: :func:`circles_leaving` of ``known.box``, when known."""
     t = triangulation
     nt = t.triangles.shape[0] // 3
     taint = np.zeros(nt, dtype=np.uint8)
     circle_of = np.full((nt, 3), np.nan)
     if known.box == _EVERYWHERE or nt == 0:
         return taint, circle_of
-    rows, circles = _circles_leaving(t.x, t.y, t.triangles, float(t.origin[0]), float(t.origin[1]), *known.box)
+    rows, circles = circles_leaving(t, known.box) if leaving is None else leaving
     if rows.size:
         vouched = np.asarray(known.covers(circles), dtype=bool)
         taint[rows[~vouched]] = 1
@@ -188,4 +201,113 @@ def open_hull_edges(triangulation: Triangulation, known: KnownRegion) -> NDArray
         j = index.get((bx[k], by[k]))
         if i is None or j is None or j != (i + 1) % h:
             out[e] = 1
+    return out
+
+
+@njit
+def disk_box_in(cx: float, cy: float, r: float, x0: float, y0: float, x1: float, y1: float):
+    """Bounding box of (disk ``(cx, cy, r)`` ∩ box), rounded outwards; ``(False, ...)``
+    when they do not meet.  An infinite radius gives the whole box."""
+    if not math.isfinite(r):
+        return True, x0, y0, x1, y1
+    yc = min(max(cy, y0), y1)
+    xc = min(max(cx, x0), x1)
+    # r^2 - d^2 loses the digits r and d share: near a tangent the half-chord is
+    # far less certain than either
+    hx = r * r - (yc - cy) ** 2 + 4 * _U * (r * r + (yc - cy) ** 2)
+    hy = r * r - (xc - cx) ** 2 + 4 * _U * (r * r + (xc - cx) ** 2)
+    if hx < 0 or hy < 0:
+        return False, x0, y0, x1, y1
+    grow = 4 * _U * (abs(cx) + abs(cy) + r)
+    hx = math.sqrt(hx) + grow
+    hy = math.sqrt(hy) + grow
+    lo_x, lo_y, hi_x, hi_y = max(x0, cx - hx), max(y0, cy - hy), min(x1, cx + hx), min(y1, cy + hy)
+    return not (lo_x > hi_x or lo_y > hi_y), lo_x, lo_y, hi_x, hi_y
+
+
+@njit
+def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
+    polygon ``hull`` (counter-clockwise ``(h, 2)``) ∩ ``box``), rounded
+    outwards by a bound of its rounding errors; a row of NaN when they do
+    not meet.
+
+    No point lies outside a point set's hull, so the part of a circle beyond
+    it needs no points: along a straight survey edge the circles of the
+    slivers reach far out of the hull but only a thin lens into it.  The
+    box's corners are those of the polygon inside the disk, the crossings of
+    its edges with the circle, and the disk's own extreme points inside the
+    polygon.  An infinite radius (a triangle too thin to bound its circle)
+    gives the whole of ``box``; a hull of fewer than three points, the disk's
+    box in ``box``.
+    """
+    n = circles.shape[0]
+    h = hull.shape[0]
+    out = empty((n, 4))
+    big = 0.0
+    for j in range(h):
+        big = max(big, max(abs(hull[j, 0]), abs(hull[j, 1])))
+    for i in range(n):
+        cx, cy, r = circles[i, 0], circles[i, 1], circles[i, 2]
+        ok, fx0, fy0, fx1, fy1 = disk_box_in(cx, cy, r, box[0], box[1], box[2], box[3])
+        if not ok:
+            out[i, :] = np.nan
+            continue
+        if h < 3 or not math.isfinite(r):
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = fx0, fy0, fx1, fy1
+            continue
+        # centred: rounding relative to r; the centring's rounding, as a larger circle
+        r = r + 4 * _U * (abs(cx) + abs(cy) + r + big)
+        lo_x, lo_y, hi_x, hi_y = math.inf, math.inf, -math.inf, -math.inf
+        grow = 0.0
+        for j in range(h):
+            k = j + 1 if j + 1 < h else 0
+            px, py = hull[j, 0] - cx, hull[j, 1] - cy
+            dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
+            a = dx * dx + dy * dy
+            b = px * dx + py * dy
+            c = px * px + py * py - r * r  # <= 0: the corner is in the disk
+            err_c = 4 * _U * (px * px + py * py + r * r)
+            if c <= err_c:
+                lo_x, hi_x, lo_y, hi_y = min(lo_x, px), max(hi_x, px), min(lo_y, py), max(hi_y, py)
+            disc = b * b - a * c
+            err_disc = 8 * _U * ((abs(px * dx) + abs(py * dy)) ** 2 + a * abs(c)) + a * err_c
+            if not (a > 0 and disc + err_disc >= 0):
+                continue
+            root = math.sqrt(max(disc, 0.0))
+            # how far a crossing may be from where it is computed, along its edge
+            spread = math.sqrt(max(disc + err_disc, 0.0)) - math.sqrt(max(disc - err_disc, 0.0))
+            dt = (spread + 8 * _U * (abs(b) + root)) / a
+            for sign in (-1.0, 1.0):
+                t = (-b + sign * root) / a
+                if t >= -dt and t <= 1.0 + dt:
+                    tc = min(max(t, 0.0), 1.0)
+                    qx, qy = px + tc * dx, py + tc * dy
+                    lo_x, hi_x, lo_y, hi_y = min(lo_x, qx), max(hi_x, qx), min(lo_y, qy), max(hi_y, qy)
+                    grow = max(grow, dt * math.sqrt(a))
+        # the disk's extreme points (east, west, north, south) inside the polygon
+        for m in range(4):
+            ex = r if m == 0 else (-r if m == 1 else 0.0)
+            ey = r if m == 2 else (-r if m == 3 else 0.0)
+            inside = True
+            for j in range(h):
+                k = j + 1 if j + 1 < h else 0
+                px, py = hull[j, 0] - cx, hull[j, 1] - cy
+                dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
+                side = dx * (ey - py) - dy * (ex - px)
+                if side < -8 * _U * math.sqrt(dx * dx + dy * dy) * (r + math.sqrt(px * px + py * py)):
+                    inside = False
+                    break
+            if inside:
+                lo_x, hi_x, lo_y, hi_y = min(lo_x, ex), max(hi_x, ex), min(lo_y, ey), max(hi_y, ey)
+        if not math.isfinite(lo_x):  # no part of the polygon in the disk
+            out[i, :] = np.nan
+            continue
+        grow += 8 * _U * (abs(cx) + abs(cy) + 2 * r)
+        x0, y0 = max(fx0, cx + lo_x - grow), max(fy0, cy + lo_y - grow)
+        x1, y1 = min(fx1, cx + hi_x + grow), min(fy1, cy + hi_y + grow)
+        if x0 > x1 or y0 > y1:
+            out[i, :] = np.nan
+        else:
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x0, y0, x1, y1
     return out

@@ -207,10 +207,16 @@ def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
 def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
     """Whether the counter-clockwise triangle abc meets the closed box (conservative:
     near misses within ``slack`` count as meeting).  Infinite box sides are fine."""
-    x_lo = larger(x_lo, smaller(ax, smaller(bx, cx)) - slack)
-    x_hi = smaller(x_hi, larger(ax, larger(bx, cx)) + slack)
-    y_lo = larger(y_lo, smaller(ay, smaller(by, cy)) - slack)
-    y_hi = smaller(y_hi, larger(ay, larger(by, cy)) + slack)
+    tx_lo = smaller(ax, smaller(bx, cx))
+    tx_hi = larger(ax, larger(bx, cx))
+    ty_lo = smaller(ay, smaller(by, cy))
+    ty_hi = larger(ay, larger(by, cy))
+    if tx_lo >= x_lo and tx_hi <= x_hi and ty_lo >= y_lo and ty_hi <= y_hi:
+        return True  # inside the box: most triangles of a window
+    x_lo = larger(x_lo, tx_lo - slack)
+    x_hi = smaller(x_hi, tx_hi + slack)
+    y_lo = larger(y_lo, ty_lo - slack)
+    y_hi = smaller(y_hi, ty_hi + slack)
     if x_lo > x_hi or y_lo > y_hi:
         return False
     # the box is now finite: separated only when it lies right of an edge

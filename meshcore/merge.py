@@ -117,7 +117,7 @@ def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
 def greedy_order(triangulation: Triangulation, edges: np.ndarray, gains: np.ndarray) -> np.ndarray:
     """Indices by decreasing gain; equal gains by the edges' endpoints (the one
     first by coordinates, then the other), so the order is the geometry's."""
-    order = np.argsort(-gains, kind="stable")
+    order = np.argsort(-gains)  # (not stable: the runs of equal gains are sorted next)
     _order_ties_by_endpoints(order, gains, edges, triangulation.triangles, triangulation.x, triangulation.y)
     return order
 

@@ -187,24 +187,8 @@ _U = 2.0**-53
 
 def _disk_box_in(cx: float, cy: float, r: float, box: tuple[float, float, float, float]):
     """Bounding box of (disk ∩ box), rounded outwards, or None when they do not meet."""
-    x0, y0, x1, y1 = box
-    if not math.isfinite(r):
-        return box
-    yc = min(max(cy, y0), y1)
-    xc = min(max(cx, x0), x1)
-    # r^2 - d^2 loses the digits r and d share: near a tangent the half-chord is
-    # far less certain than either
-    hx = r * r - (yc - cy) ** 2 + 4 * _U * (r * r + (yc - cy) ** 2)
-    hy = r * r - (xc - cx) ** 2 + 4 * _U * (r * r + (xc - cx) ** 2)
-    if hx < 0 or hy < 0:
-        return None
-    grow = 4 * _U * (abs(cx) + abs(cy) + r)
-    hx = math.sqrt(hx) + grow
-    hy = math.sqrt(hy) + grow
-    out = (max(x0, cx - hx), max(y0, cy - hy), min(x1, cx + hx), min(y1, cy + hy))
-    if out[0] > out[2] or out[1] > out[3]:
-        return None
-    return out
+    ok, *out = meshcore.certificate.disk_box_in(float(cx), float(cy), float(r), *(float(v) for v in box))
+    return tuple(out) if ok else None
 
 
 def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDArray[np.float64]:
@@ -215,89 +199,47 @@ def _edge_sides(px: NDArray[np.float64], py: NDArray[np.float64], qx, qy) -> NDA
     return ex[None, :] * (np.asarray(qy)[:, None] - py[None, :]) - ey[None, :] * (np.asarray(qx)[:, None] - px[None, :])
 
 
-#: circles times hull vertices that :func:`_disk_boxes_in_hull` computes at once (about 100 MiB
-#: of arrays): thousands of open disks of a smooth tile against the thousands of vertices of a
-#: hull cut on a curve took 1.4 GiB at once
+#: circles times hull vertices that :func:`_inside_hull` computes at once (about 100 MiB of
+#: arrays): thousands of open disks of a smooth tile against the thousands of vertices of a hull
+#: cut on a curve took 1.4 GiB at once
 _HULL_CHUNK = 1 << 19
 
 
 def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box) -> list:
     """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
-    polygon ``hull_xy`` (counter-clockwise) ∩ ``box``), rounded outwards by a
-    bound of its rounding errors, or None when they do not meet.
+    polygon ``hull_xy`` (counter-clockwise) ∩ ``box``), rounded outwards, or
+    None when they do not meet (:func:`meshcore.certificate.lens_boxes`).
 
     No point lies outside the global hull, so the part of an escaping circle
     beyond it needs no points loaded: along a survey edge the circles of the
     slivers there reach far out of the hull but only a thin lens into it.
-    The box's corners are those of the polygon inside the disk, the crossings
-    of its edges with the circle, and the disk's own extreme points inside the
-    polygon.  An infinite radius (a triangle too thin to bound its circle)
-    gives the whole of ``box``.  The circles are computed together, as many
-    at once as :data:`_HULL_CHUNK` allows.
     """
-    step = max(1, _HULL_CHUNK // max(hull_xy.shape[0], 1))
-    if circles.shape[0] > step:
-        return [b for k in range(0, circles.shape[0], step) for b in _disk_boxes_in_hull(circles[k:k + step], hull_xy, box)]
-    clipped = [_disk_box_in(float(cx), float(cy), float(r), box) for cx, cy, r in circles]
-    out: list = list(clipped)
-    finite = np.array([c is not None and math.isfinite(r) for c, r in zip(clipped, circles[:, 2])], dtype=bool)
-    if hull_xy.shape[0] < 3 or not finite.any():
-        return out
-    rows = np.flatnonzero(finite)
-    cx, cy, r = (circles[rows, k][:, None] for k in range(3))
-    px, py = hull_xy[None, :, 0] - cx, hull_xy[None, :, 1] - cy  # centred: rounding relative to r
-    # the centring's rounding, as a larger circle
-    r = r + 4 * _U * (np.abs(cx) + np.abs(cy) + r + float(np.abs(hull_xy).max()))
-    dx, dy = np.roll(px, -1, axis=1) - px, np.roll(py, -1, axis=1) - py
-    a = dx * dx + dy * dy
-    b = px * dx + py * dy
-    c = px * px + py * py - r * r  # <= 0: the corner is in the disk
-    err_c = 4 * _U * (px * px + py * py + r * r)
-    xs_lo, xs_hi, ys_lo, ys_hi = [], [], [], []
+    if circles.shape[0] == 0:
+        return []
+    boxes = meshcore.certificate.lens_boxes(
+        np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
+        np.ascontiguousarray(hull_xy, dtype=np.float64).reshape(-1, 2), np.array(box, dtype=np.float64),
+    )
+    return [None if math.isnan(b[0]) else tuple(b) for b in boxes.tolist()]
 
-    def take(mask, x, y):
-        xs_lo.append(np.where(mask, x, np.inf).min(axis=1))
-        xs_hi.append(np.where(mask, x, -np.inf).max(axis=1))
-        ys_lo.append(np.where(mask, y, np.inf).min(axis=1))
-        ys_hi.append(np.where(mask, y, -np.inf).max(axis=1))
 
-    take(c <= err_c, px, py)
-    disc = b * b - a * c
-    err_disc = 8 * _U * ((np.abs(px * dx) + np.abs(py * dy)) ** 2 + a * np.abs(c)) + a * err_c
-    ok = (a > 0) & (disc + err_disc >= 0)
-    safe_a = np.where(ok, a, 1.0)
-    root = np.sqrt(np.maximum(disc, 0.0))
-    # how far a crossing may be from where it is computed, along its edge
-    spread = np.sqrt(np.maximum(disc + err_disc, 0.0)) - np.sqrt(np.maximum(disc - err_disc, 0.0))
-    dt = (spread + 8 * _U * (np.abs(b) + root)) / safe_a
-    grow = np.zeros(rows.size)
-    for sign in (-1.0, 1.0):
-        t = np.where(ok, (-b + sign * root) / safe_a, -np.inf)
-        on = ok & (t >= -dt) & (t <= 1.0 + dt)
-        tc = np.clip(t, 0.0, 1.0)
-        take(on, px + tc * dx, py + tc * dy)
-        grow = np.maximum(grow, np.where(on, dt * np.sqrt(a), 0.0).max(axis=1))
-    # the disk's extreme points (east, west, north, south) inside the polygon
-    ex = np.concatenate([r, -r, 0 * r, 0 * r], axis=1)[:, :, None]
-    ey = np.concatenate([0 * r, 0 * r, r, -r], axis=1)[:, :, None]
-    sides = dx[:, None, :] * (ey - py[:, None, :]) - dy[:, None, :] * (ex - px[:, None, :])
-    tol = 8 * _U * np.hypot(dx, dy)[:, None, :] * (r[:, :, None] + np.hypot(px, py)[:, None, :])
-    inside = (sides >= -tol).all(axis=2)
-    take(inside, ex[:, :, 0], ey[:, :, 0])
-    lo_x, hi_x = np.min(xs_lo, axis=0), np.max(xs_hi, axis=0)
-    lo_y, hi_y = np.min(ys_lo, axis=0), np.max(ys_hi, axis=0)
-    grow += 8 * _U * (np.abs(cx[:, 0]) + np.abs(cy[:, 0]) + 2 * r[:, 0])
-    for k, i in enumerate(rows.tolist()):
-        if not math.isfinite(lo_x[k]):  # no part of the polygon in the disk
-            out[i] = None
-            continue
-        full = clipped[i]
-        x0, y0 = float(cx[k, 0]), float(cy[k, 0])
-        lens = (
-            max(full[0], x0 + float(lo_x[k]) - grow[k]), max(full[1], y0 + float(lo_y[k]) - grow[k]),
-            min(full[2], x0 + float(hi_x[k]) + grow[k]), min(full[3], y0 + float(hi_y[k]) + grow[k]),
-        )
-        out[i] = None if lens[0] > lens[2] or lens[1] > lens[3] else lens
+def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box, held: list) -> list:
+    """The circles whose lens in the hull (:func:`_disk_boxes_in_hull`) is not
+    inside the held boxes: ``(index, the parts of its box outside them)``."""
+    if circles.shape[0] == 0:
+        return []
+    boxes = meshcore.certificate.lens_boxes(
+        np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
+        np.ascontiguousarray(hull_xy, dtype=np.float64).reshape(-1, 2), np.array(box, dtype=np.float64),
+    )
+    open_ = ~np.isnan(boxes[:, 0])
+    for h in held:  # most lie inside one held box: settled at once
+        open_ &= ~((boxes[:, 0] >= h[0]) & (boxes[:, 1] >= h[1]) & (boxes[:, 2] <= h[2]) & (boxes[:, 3] <= h[3]))
+    out = []
+    for i in np.flatnonzero(open_).tolist():
+        parts = _uncovered(tuple(boxes[i].tolist()), held)
+        if parts:
+            out.append((i, parts))
     return out
 
 
@@ -505,8 +447,8 @@ class _HeldRegion(meshcore.KnownRegion):
         rest = np.flatnonzero(~out & ~past)
         if rest.size:
             hull = self.hull if self.hull is not None else np.empty((0, 2))
-            boxes = _disk_boxes_in_hull(circles[rest], hull, self._extent)
-            out[rest] = [box is None or not _uncovered(box, self._held) for box in boxes]
+            out[rest] = True
+            out[rest[[i for i, _ in _open_lenses(circles[rest], hull, self._extent, self._held)]]] = False
         return out
 
 
@@ -635,10 +577,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         return meshcore.with_vertices(mesh, since[:, :2]), np.concatenate([meshed, since])
 
     ext = job.extent
-    # what stays true while the mesh grows: the boxes of its faces' circles
-    # (until it is built again), and its points' hull covering the window
-    # (points are only ever added)
-    escape_boxes: tuple = (None, [])
+    # what stays true while the mesh grows: its points' hull covering the
+    # window (points are only ever added)
     covered = False
     grown = 0.0  # how far the box held whole grew beyond the buffer, for the certificate
     while True:
@@ -650,17 +590,11 @@ def mesh_tile(job: TileJob) -> TileSummary:
         reach = g.tile_size * 2.0**expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
-        if escape_boxes[0] is not mesh.window_escapes:
-            escape_boxes = (mesh.window_escapes, _disk_boxes_in_hull(mesh.window_escapes, hull_xy, ext))
-        open_circles = list(zip(mesh.window_escapes, escape_boxes[1]))
+        wanted = mesh.window_escapes
         if plan is not None:  # the smoother's neighbourhoods must be held too
-            disks = _open_disks(plan.disks, held[0])
-            open_circles += zip(disks, _disk_boxes_in_hull(disks, hull_xy, ext))
-        for (cx, cy, r), box in open_circles:
-            rest = [] if box is None else _uncovered(box, held)
-            if not rest:
-                continue
-            circles.append((cx, cy, r))
+            wanted = np.concatenate([wanted, _open_disks(plan.disks, held[0])])
+        for i, rest in _open_lenses(wanted, hull_xy, ext, held):
+            circles.append(tuple(wanted[i]))
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
         covered = covered or _covers_window(meshed[:, :2], window, hull_xy)
         gap = not covered
