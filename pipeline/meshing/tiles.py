@@ -232,14 +232,42 @@ def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box
         np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
         np.ascontiguousarray(hull_xy, dtype=np.float64).reshape(-1, 2), np.array(box, dtype=np.float64),
     )
+    held_array = np.array(held, dtype=np.float64).reshape(-1, 4)
     open_ = ~np.isnan(boxes[:, 0])
-    for h in held:  # most lie inside one held box: settled at once
+    for h in held_array:  # most lie inside one held box: settled at once
         open_ &= ~((boxes[:, 0] >= h[0]) & (boxes[:, 1] >= h[1]) & (boxes[:, 2] <= h[2]) & (boxes[:, 3] <= h[3]))
-    out = []
-    for i in np.flatnonzero(open_).tolist():
-        parts = _uncovered(tuple(boxes[i].tolist()), held)
-        if parts:
-            out.append((i, parts))
+    rows = np.flatnonzero(open_)
+    rows = rows[_outside_boxes(np.ascontiguousarray(boxes[rows]), held_array)]
+    return [(i, _uncovered(tuple(boxes[i].tolist()), held)) for i in rows.tolist()]
+
+
+@meshcore.kernel
+def _outside_boxes(boxes: NDArray[np.float64], held: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Whether each box ``(x0, y0, x1, y1)`` has a part outside every one of
+    the closed boxes ``held``: :func:`_uncovered` is not empty."""
+    n, h = boxes.shape[0], held.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    # depth first: a part, and the first held box it may still meet; each level pushes at most 4
+    stack = empty((4 * h + 4, 5))
+    for i in range(n):
+        stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4] = boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3], 0.0
+        top = 1
+        while top > 0 and not out[i]:
+            top -= 1
+            p0, p1, p2, p3 = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+            j = np.int64(stack[top, 4])
+            while j < h and (max(p0, held[j, 0]) > min(p2, held[j, 2]) or max(p1, held[j, 1]) > min(p3, held[j, 3])):
+                j += 1
+            if j == h:
+                out[i] = True  # a part meets no held box
+                break
+            c0, c1, c2, c3 = max(p0, held[j, 0]), max(p1, held[j, 1]), min(p2, held[j, 2]), min(p3, held[j, 3])
+            # up to four slabs of p around the cut (edges shared: closed boxes), as _uncovered cuts them
+            for s0, s1, s2, s3, keep in ((p0, p1, p2, c1, p1 < c1), (p0, c3, p2, p3, c3 < p3),
+                                         (p0, c1, c0, c3, p0 < c0), (c2, c1, p2, c3, c2 < p2)):
+                if keep:
+                    stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3], stack[top, 4] = s0, s1, s2, s3, j + 1.0
+                    top += 1
     return out
 
 
