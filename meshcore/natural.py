@@ -1,0 +1,807 @@
+"""Natural-neighbour coordinates of places far from every point: the smooth surface's fill of voids.
+
+Kriging from the points nearest a place in a void (under a building, over
+water, in a scan shadow) reads one side of the void's rim only, and its
+linear drift carries that side's tilt across the void (:mod:`meshcore.smooth`).
+Natural-neighbour interpolation reads the whole rim.  The natural neighbours
+of a place ``q`` are the points it would be joined to in the Delaunay
+triangulation, were it a point: the corners of the triangles whose
+circumcircles hold ``q`` (the *cavity*), in order around it (its *star*).
+Their Laplace coordinates (Belikov and Semenov's non-Sibsonian
+coordinates) weigh each neighbour ``x`` by the length of the Voronoi edge
+``q`` would share with it, over the distance ``|q - x|``:
+
+    lambda_x = |c_prev - c_next| / |q - x|,   then normalised to sum to 1,
+
+where ``c_prev`` and ``c_next`` are the circumcentres of the triangles of
+the star on either side of ``x``.  The weights are positive, so a value lies
+within the range of the neighbours' (no ring, no bowl), and they reproduce
+linear functions; the interpolant does not depend on how a triangulation
+cuts a void (Sibson's weights, by stolen areas, were as accurate here, at
+more cost).
+
+Which points a place's coordinates read: the star's triangles, when their
+circles hold no point, are the place's triangles in the Delaunay
+triangulation of the points and the place, and they alone give its
+coordinates.  :func:`natural_coordinates` triangulates the points around the
+places only, and takes more until every circle of every place is empty (a
+disk around the place that holds them all, each point of it taken; or,
+where a circle reaches far, as beside the hull, each circle on its own).
+Those disks are returned: a piece of a survey that holds every point inside
+them gets the survey's star (ties broken by
+:func:`meshcore.predicates.incircle_sos`, as the triangulation breaks them),
+and computes the same coordinates, to the bit: each from the neighbours in
+one order (counter-clockwise from the first in coordinate order), in
+coordinates relative to the place.  A place on the line of an edge of the
+hull (to rounding) has no star; it gets no coordinates, and reads the side
+beyond the edge (:data:`_FAR`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
+from .delaunay import _locate, delaunay
+from .predicates import incircle_sos, lex_before, orient2d
+
+__all__ = ["NaturalCoordinates", "natural_coordinates", "natural_values", "take_places", "join_places"]
+
+
+class NaturalCoordinates(NamedTuple):
+    """The natural-neighbour coordinates of some places (:func:`natural_coordinates`).
+
+    Attributes
+    ----------
+    first : (q + 1,) int64, place ``i``'s neighbours are ``index[first[i]:first[i + 1]]`` (none: no coordinates)
+    index : (m,) int64, the points, counter-clockwise around each place from the first in coordinate order
+    weight : (m,) float64, their weights (positive, summing to 1 for each place)
+    disks : (c, 3) float64, rows ``(x, y, r)``: the closed disks the coordinates read points from
+    owner : (c,) int64, the place each disk is read for (ascending)
+    """
+
+    first: NDArray[np.int64]
+    index: NDArray[np.int64]
+    weight: NDArray[np.float64]
+    disks: NDArray[np.float64]
+    owner: NDArray[np.int64]
+
+
+_MAX_ROUNDS = 12
+"""Triangulations of the points around the places tried before all the points are taken."""
+
+_ALL_POINTS = 0.3
+"""When the points around the places are more than this share of all, all are taken at once."""
+
+
+@njit_helper
+def _grown_ints(a: np.ndarray, need: int) -> np.ndarray:
+    """``a`` with room for at least ``need`` items, its items kept."""
+    if a.shape[0] >= need:
+        return a
+    out = empty(larger(2 * a.shape[0], need), dtype=np.int64)
+    for i in range(a.shape[0]):
+        out[i] = a[i]
+    return out
+
+
+@njit_helper
+def _grown_floats(a: np.ndarray, need: int) -> np.ndarray:
+    """``a`` with room for at least ``need`` items, its items kept."""
+    if a.shape[0] >= need:
+        return a
+    out = empty(larger(2 * a.shape[0], need))
+    for i in range(a.shape[0]):
+        out[i] = a[i]
+    return out
+
+
+@njit_helper
+def _grown_rows(a: np.ndarray, need: int) -> np.ndarray:
+    """``a`` (rows of 3) with room for at least ``need`` rows, its rows kept."""
+    if a.shape[0] >= need:
+        return a
+    out = empty((larger(2 * a.shape[0], need), 3), dtype=np.int64)
+    for i in range(a.shape[0]):
+        for k in range(3):
+            out[i, k] = a[i, k]
+    return out
+
+
+@njit
+def _mark_within_kernel(sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
+                        start: np.ndarray, centres: np.ndarray, radius: np.ndarray, left: np.ndarray,
+                        left_block: np.ndarray, skip: np.ndarray, mark: np.ndarray, hit: np.ndarray,
+                        marking: bool, limit: int) -> bool:
+    """For every disk ``(centres[s], radius[s])``: ``mark[p] = True`` for the points
+    ``p`` of the bucket grid within it that are not ``skip``, and ``hit[s]``
+    whether there was one (only ``mark`` when ``marking``, until ``limit`` points
+    are marked (-1: no limit); returns whether it stopped there).  ``left[b]``: how many
+    points of bucket ``b`` are not ``skip`` (a bucket with none is passed over),
+    ``left_block``: of each block of buckets (:func:`_left_kernel`)."""
+    px = math.nan
+    py = math.nan
+    pr = -1.0
+    marked = 0
+    for s in range(centres.shape[0]):
+        cx = centres[s, 0]
+        cy = centres[s, 1]
+        r = radius[s]
+        r2 = r * r
+        hit[s] = False
+        if (s > 0 and (marking or not hit[s - 1])
+                and math.sqrt((cx - px) * (cx - px) + (cy - py) * (cy - py)) + r < pr * (1.0 - 1e-12)):
+            # inside the disk before (the places come cell by cell): its points are marked, and
+            # it held none not ``skip``, or only ``mark`` is wanted
+            continue
+        px = cx
+        py = cy
+        pr = r
+        i_lo = larger(np.int64(math.floor(larger((cx - r - x0) / cell, -1.0))) - 1, 0)
+        i_hi = smaller(np.int64(math.floor(smaller((cx + r - x0) / cell, nbx + 1.0))) + 1, nbx - 1)
+        j_lo = larger(np.int64(math.floor(larger((cy - r - y0) / cell, -1.0))) - 1, 0)
+        j_hi = smaller(np.int64(math.floor(smaller((cy + r - y0) / cell, nby + 1.0))) + 1, nby - 1)
+        # blocks of _BLOCK x _BLOCK buckets first: those with no point left are passed over whole
+        nbx_b = (nbx + _BLOCK - 1) // _BLOCK
+        for jb in range(j_lo // _BLOCK, j_hi // _BLOCK + 1):
+            for ib in range(i_lo // _BLOCK, i_hi // _BLOCK + 1):
+                if left_block[jb * nbx_b + ib] == 0:
+                    continue
+                for j in range(larger(j_lo, jb * _BLOCK), smaller(j_hi, jb * _BLOCK + _BLOCK - 1) + 1):
+                    for i in range(larger(i_lo, ib * _BLOCK), smaller(i_hi, ib * _BLOCK + _BLOCK - 1) + 1):
+                        b = j * nbx + i
+                        if left[b] == 0:
+                            continue
+                        for t in range(start[b], start[b + 1]):
+                            p = items[t]
+                            if skip[p]:
+                                continue
+                            dx = sxy[t, 0] - cx
+                            dy = sxy[t, 1] - cy
+                            if dx * dx + dy * dy <= r2:
+                                if not mark[p]:
+                                    marked += 1
+                                    if marked == limit:
+                                        return True
+                                mark[p] = True
+                                hit[s] = True
+    return False
+
+
+_BLOCK = 8
+"""Buckets a side of the blocks :func:`_mark_within_kernel` passes over when they have no point left."""
+
+
+@njit
+def _left_kernel(items: np.ndarray, start: np.ndarray, nbx: int, skip: np.ndarray, out: np.ndarray,
+                 out_block: np.ndarray) -> None:
+    """``out[b]``: how many points of bucket ``b`` are not ``skip``; ``out_block``: of each block."""
+    nbx_b = (nbx + _BLOCK - 1) // _BLOCK
+    for k in range(out_block.shape[0]):
+        out_block[k] = 0
+    for b in range(start.shape[0] - 1):
+        count = 0
+        for t in range(start[b], start[b + 1]):
+            if not skip[items[t]]:
+                count += 1
+        out[b] = count
+        out_block[((b // nbx) // _BLOCK) * nbx_b + (b % nbx) // _BLOCK] += count
+
+
+@njit_helper
+def _walk(tri: np.ndarray, he: np.ndarray, x: np.ndarray, y: np.ndarray, px: float, py: float, start: int,
+          seed: int) -> tuple[int, int, int]:
+    """:func:`meshcore.delaunay._locate`'s visibility walk from triangle ``start``:
+    ``(triangle, seed, -1)`` with a triangle holding ``p``, or ``(-1, seed, e)``
+    with the hull's half-edge ``e`` that ``p`` lies beyond."""
+    t = start
+    state = seed
+    steps = 0
+    limit = 4 * (tri.shape[0] // 3) + 16
+    while steps < limit:
+        steps += 1
+        state = (state * 1103515245 + 12345) & 0x7FFFFFFF
+        r = state % 3
+        moved = False
+        for k in range(3):
+            e = 3 * t + (k + r) % 3
+            a = tri[e]
+            b = tri[3 * t + ((k + r) % 3 + 1) % 3]
+            if orient2d(x[a], y[a], x[b], y[b], px, py) < 0:
+                f = he[e]
+                if f == -1:
+                    return -1, state, e
+                t = f // 3
+                moved = True
+                break
+        if not moved:
+            return t, state, -1
+    t, state = _locate(tri, he, x, y, px, py, 0, state)  # a walk this long: a broken triangulation
+    return t, state, -1
+
+
+@njit_helper
+def _cavity(gx: np.ndarray, gy: np.ndarray, tri: np.ndarray, he: np.ndarray, px: float, py: float, t0: int, q: int,
+            stamp: np.ndarray, seen: np.ndarray, stack: np.ndarray, cavity: np.ndarray) -> int:
+    """The triangles whose circumcircle holds ``p`` (``incircle_sos`` > 0), found from
+    ``t0`` (which holds ``p``) across their edges, into ``cavity``; ``stamp[t] == q`` marks them.
+    Returns their number, 0 when ``t0``'s own circle does not hold ``p`` (degenerate)."""
+    a = tri[3 * t0]
+    b = tri[3 * t0 + 1]
+    c = tri[3 * t0 + 2]
+    seen[t0] = q
+    if incircle_sos(gx[a], gy[a], gx[b], gy[b], gx[c], gy[c], px, py) <= 0:
+        return 0
+    stamp[t0] = q
+    n_stack = 1
+    stack[0] = t0
+    count = 0
+    while n_stack > 0:
+        n_stack -= 1
+        t = stack[n_stack]
+        cavity[count] = t
+        count += 1
+        for k in range(3):
+            f = he[3 * t + k]
+            if f < 0:
+                continue
+            u = f // 3
+            if seen[u] == q:
+                continue
+            seen[u] = q
+            a = tri[3 * u]
+            b = tri[3 * u + 1]
+            c = tri[3 * u + 2]
+            if incircle_sos(gx[a], gy[a], gx[b], gy[b], gx[c], gy[c], px, py) > 0:
+                stamp[u] = q
+                stack[n_stack] = u
+                n_stack += 1
+    return count
+
+
+@njit
+def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np.ndarray, he: np.ndarray,
+                        places: np.ndarray, near: np.ndarray, cap: np.ndarray):
+    """The Laplace coordinates of every place in the triangulation ``tri, he`` of the
+    points ``(gx, gy)`` (``ids``: their numbers in the caller's points), each
+    found from a triangle of its point ``near[i]`` (a vertex of the
+    triangulation, or -1).
+
+    Returns ``first, index, weight, status, reach, edge, circles``: per place
+    its neighbours (``ids``) and weights, its status (0: done, 1: outside the
+    triangulation, 2: degenerate: on the line of a hull edge, to rounding), how
+    far the circles of the triangles it would make with its natural neighbours,
+    were it a point, reach from it, whether one of those triangles lies on an
+    edge of the triangulation's hull, and, for each place whose circles reach
+    farther than ``cap``, those triangles as rows ``(place, a, b)``
+    (counter-clockwise).
+    """
+    n_q = places.shape[0]
+    n_t = tri.shape[0] // 3
+    n_v = gx.shape[0]
+    stamp = full(n_t, -1, dtype=np.int64)
+    seen = full(n_t, -1, dtype=np.int64)
+    room = larger(n_t, 1)
+    stack = empty(room, dtype=np.int64)
+    cavity = empty(room, dtype=np.int64)
+    # the cavity's boundary edges: start, end, the triangle beyond (-1: none)
+    b_start = empty(room, dtype=np.int64)
+    b_end = empty(room, dtype=np.int64)
+    b_out = empty(room, dtype=np.int64)
+    edge_of = full(larger(n_v, 1), -1, dtype=np.int64)
+    edge_stamp = full(larger(n_v, 1), -1, dtype=np.int64)
+    ring = empty(room, dtype=np.int64)
+    ring_out = empty(room, dtype=np.int64)
+    ux = empty(room)
+    uy = empty(room)
+    lam = empty(room)
+    ox = empty(room)
+    oy = empty(room)
+    first = zeros(n_q + 1, dtype=np.int64)
+    index = empty(larger(8 * n_q, 16), dtype=np.int64)
+    weight = empty(larger(8 * n_q, 16))
+    status = zeros(n_q, dtype=np.int8)
+    reach = full(n_q, math.inf)
+    edge = zeros(n_q, dtype=np.bool_)
+    circles = empty((16, 3), dtype=np.int64)
+    n_circles = 0
+    # a triangle of every vertex, where the walk to a place near it starts
+    corner_of = full(larger(n_v, 1), 0, dtype=np.int64)
+    for e in range(tri.shape[0]):
+        corner_of[tri[e]] = e // 3
+    n_out = 0
+    start = 0
+    state = 12345
+    for q in range(n_q):
+        first[q] = n_out
+        px = places[q, 0]
+        py = places[q, 1]
+        if n_t == 0:
+            status[q] = 1
+            continue
+        if near[q] >= 0:
+            start = corner_of[near[q]]
+        t0, state, e = _walk(tri, he, gx, gy, px, py, start, state)
+        if t0 < 0:
+            # beyond the hull's edge ``e`` (a place on it, rounded out): read, as on it, beyond that edge
+            status[q] = 1
+            if e >= 0:
+                circles = _grown_rows(circles, n_circles + 1)
+                circles[n_circles, 0] = q
+                circles[n_circles, 1] = tri[e]
+                circles[n_circles, 2] = tri[3 * (e // 3) + (e % 3 + 1) % 3]
+                n_circles += 1
+            continue
+        start = t0
+        count = _cavity(gx, gy, tri, he, px, py, t0, q, stamp, seen, stack, cavity)
+        if count == 0:
+            status[q] = 2
+            continue
+        # its boundary, counter-clockwise around the place
+        m = 0
+        for i in range(count):
+            t = cavity[i]
+            for k in range(3):
+                e = 3 * t + k
+                f = he[e]
+                if f >= 0 and stamp[f // 3] == q:
+                    continue
+                a = tri[e]
+                if edge_stamp[a] == q:  # a point twice on the boundary: not a star around the place
+                    m = -1
+                    break
+                b_start[m] = a
+                b_end[m] = tri[3 * t + (k + 1) % 3]
+                b_out[m] = f // 3 if f >= 0 else -1
+                edge_stamp[a] = q
+                edge_of[a] = m
+                m += 1
+            if m < 0:
+                break
+        if m < 3:
+            status[q] = 2
+            continue
+        # from the first point in coordinate order, so that every piece takes them alike
+        lead = 0
+        for i in range(1, m):
+            a = b_start[i]
+            c = b_start[lead]
+            if lex_before(gx[a], gy[a], gx[c], gy[c]):
+                lead = i
+        i = lead
+        closed = True
+        for s in range(m):
+            if s > 0 and i == lead:  # back at the start early: two loops
+                closed = False
+                break
+            ring[s] = b_start[i]
+            ring_out[s] = b_out[i]
+            nxt = b_end[i]
+            if edge_stamp[nxt] != q:
+                closed = False
+                break
+            i = edge_of[nxt]
+        if not closed or i != lead:
+            status[q] = 2
+            continue
+        # the triangles the place would make with each boundary edge, counter-clockwise:
+        # centre s is that of (place, ring[s], ring[s + 1]), relative to the place
+        for s in range(m):
+            ux[s] = gx[ring[s]] - px
+            uy[s] = gy[ring[s]] - py
+            if ring_out[s] < 0:
+                edge[q] = True
+        flat = False
+        far = 0.0
+        for s in range(m):
+            j = (s + 1) % m
+            d = 2.0 * (ux[s] * uy[j] - uy[s] * ux[j])
+            if not d > 0.0:  # the place on the line of an edge of the hull (or as near as rounding tells)
+                flat = True
+                ox[s] = math.nan
+                oy[s] = math.nan
+                far = math.inf
+                continue
+            ls = ux[s] * ux[s] + uy[s] * uy[s]
+            lj = ux[j] * ux[j] + uy[j] * uy[j]
+            ox[s] = (uy[j] * ls - uy[s] * lj) / d
+            oy[s] = (ux[s] * lj - ux[j] * ls) / d
+            # how far its circle reaches from the place: to the centre and on, by the
+            # farthest of its three points from the centre (against the centre's rounding)
+            r2 = larger(ox[s] * ox[s] + oy[s] * oy[s], larger((ox[s] - ux[s]) ** 2 + (oy[s] - uy[s]) ** 2,
+                                                               (ox[s] - ux[j]) ** 2 + (oy[s] - uy[j]) ** 2))
+            far = larger(far, math.sqrt(ox[s] * ox[s] + oy[s] * oy[s]) + math.sqrt(r2))
+        # these circles are the place's Delaunay triangles, were it a point, when
+        # no point lies in them: they alone give its natural neighbours.  Near,
+        # they are read as one disk around the place; far (beside the hull) each
+        # on its own, as most of a far one lies beyond the hull
+        far = far * (1.0 + 1e-9) + 1e-12 * (abs(px) + abs(py))
+        reach[q] = far
+        if not far <= cap[q]:
+            circles = _grown_rows(circles, n_circles + m)
+            for s in range(m):
+                circles[n_circles, 0] = q
+                circles[n_circles, 1] = ring[s]
+                circles[n_circles, 2] = ring[(s + 1) % m]
+                n_circles += 1
+        if flat:
+            status[q] = 2
+            continue
+        # Laplace coordinates: point s's Voronoi edge with the place runs from centre s - 1 to centre s
+        total = 0.0
+        for s in range(m):
+            p = (s + m - 1) % m
+            lam[s] = math.hypot(ox[s] - ox[p], oy[s] - oy[p]) / math.sqrt(ux[s] * ux[s] + uy[s] * uy[s])
+            total += lam[s]
+        if not (total > 0.0 and math.isfinite(total)):
+            status[q] = 2
+            continue
+        index = _grown_ints(index, n_out + m)
+        weight = _grown_floats(weight, n_out + m)
+        for s in range(m):
+            index[n_out + s] = ids[ring[s]]
+            weight[n_out + s] = lam[s] / total
+        n_out += m
+    first[n_q] = n_out
+    return first, index[:n_out].copy(), weight[:n_out].copy(), status, reach, edge, circles[:n_circles].copy()
+
+
+_FAR = 1e6
+"""A place on the line of a hull edge (to rounding) reads the side beyond the edge
+up to this many times its distances to the edge's ends (a disk touching the
+line there): a survey has no point farther along that side that would make
+the edge one of its inner edges."""
+
+
+@njit_helper
+def _star_disk(qx: float, qy: float, ax: float, ay: float, bx: float, by: float) -> tuple[float, float, float, bool]:
+    """A closed disk ``(x, y, r)`` holding the circle through the place ``q`` and the
+    points ``a, b`` (counter-clockwise), and whether it is flat (the place on the
+    line ``a b`` to rounding: then the disk beyond ``a b`` of :data:`_FAR`)."""
+    ux = ax - qx
+    uy = ay - qy
+    vx = bx - qx
+    vy = by - qy
+    d = 2.0 * (ux * vy - uy * vx)
+    if d > 0.0:
+        lu = ux * ux + uy * uy
+        lv = vx * vx + vy * vy
+        ox = (vy * lu - uy * lv) / d
+        oy = (ux * lv - vx * lu) / d
+        r2 = larger(ox * ox + oy * oy, larger((ox - ux) ** 2 + (oy - uy) ** 2, (ox - vx) ** 2 + (oy - vy) ** 2))
+        r = math.sqrt(r2) * (1.0 + 1e-9) + 1e-12 * (abs(qx) + abs(qy))
+        if math.isfinite(r) and math.isfinite(ox) and math.isfinite(oy):
+            return qx + ox, qy + oy, r, False
+    # beyond the edge, outwards (right of a -> b): touching the line at the edge's middle
+    ex = bx - ax
+    ey = by - ay
+    length = math.sqrt(ex * ex + ey * ey)
+    far = _FAR * (math.sqrt(ux * ux + uy * uy) + math.sqrt(vx * vx + vy * vy))
+    mx = 0.5 * (ax + bx)
+    my = 0.5 * (ay + by)
+    return mx + far * ey / length, my - far * ex / length, (far + length) * (1.0 + 1e-9), True
+
+
+@njit
+def _star_disks_kernel(places: np.ndarray, points: np.ndarray, rows: np.ndarray, out: np.ndarray,
+                       flat: np.ndarray) -> None:
+    """:func:`_star_disk` of every row ``(place, a, b)``."""
+    for s in range(rows.shape[0]):
+        q = rows[s, 0]
+        a = rows[s, 1]
+        b = rows[s, 2]
+        x, y, r, f = _star_disk(places[q, 0], places[q, 1], points[a, 0], points[a, 1], points[b, 0], points[b, 1])
+        out[s, 0] = x
+        out[s, 1] = y
+        out[s, 2] = r
+        flat[s] = f
+
+
+@njit
+def _intruders_kernel(sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
+                      start: np.ndarray, left: np.ndarray, left_block: np.ndarray, places: np.ndarray,
+                      points: np.ndarray, rows: np.ndarray, disks: np.ndarray, flat: np.ndarray, taken: np.ndarray,
+                      found: np.ndarray, hit: np.ndarray) -> None:
+    """For every row ``(place, a, b)``: ``found[p] = True`` for the points ``p`` not
+    ``taken`` inside its circle (``incircle_sos`` of the place, ``a`` and ``b``;
+    for a flat one, beyond the line ``a b`` within its disk), and ``hit[s]``
+    whether there was one.  ``disks`` (:func:`_star_disk`) bound the circles;
+    ``left`` and ``left_block`` count the points not taken (:func:`_left_kernel`)."""
+    for s in range(rows.shape[0]):
+        hit[s] = False
+        q = rows[s, 0]
+        qx = places[q, 0]
+        qy = places[q, 1]
+        ax = points[rows[s, 1], 0]
+        ay = points[rows[s, 1], 1]
+        bx = points[rows[s, 2], 0]
+        by = points[rows[s, 2], 1]
+        cx = disks[s, 0]
+        cy = disks[s, 1]
+        r = disks[s, 2]
+        i_lo = larger(np.int64(math.floor(larger((cx - r - x0) / cell, -1.0))) - 1, 0)
+        i_hi = smaller(np.int64(math.floor(smaller((cx + r - x0) / cell, nbx + 1.0))) + 1, nbx - 1)
+        j_lo = larger(np.int64(math.floor(larger((cy - r - y0) / cell, -1.0))) - 1, 0)
+        j_hi = smaller(np.int64(math.floor(smaller((cy + r - y0) / cell, nby + 1.0))) + 1, nby - 1)
+        margin = 1e-6 * cell
+        nbx_b = (nbx + _BLOCK - 1) // _BLOCK
+        # a circle far larger than its edge a b (the place near the line a b, beside
+        # the hull) lies beyond the line but for a lens of height under
+        # length^2 / (4 r): each row of buckets is read only where it meets that side
+        ex = bx - ax
+        ey = by - ay
+        length = math.sqrt(ex * ex + ey * ey)
+        wide = flat[s] or r > 8.0 * length
+        nx = ey / length if length > 0.0 else 0.0
+        ny = -ex / length if length > 0.0 else 0.0
+        lens = (length * length / (2.0 * r) if not flat[s] else 0.0) + 1e-9 * (abs(ax) + abs(ay) + length) + margin
+        for j in range(j_lo, j_hi + 1):
+            row_lo = i_lo
+            row_hi = i_hi
+            if wide and length > 0.0:
+                # n . (p - a) >= -lens for some y of the row
+                g0 = -lens - ny * ((y0 + j * cell - margin) - ay)
+                g1 = -lens - ny * ((y0 + (j + 1) * cell + margin) - ay)
+                g = smaller(g0, g1)
+                if abs(nx) < 1e-12:
+                    if g > 0.0:
+                        continue
+                elif nx > 0.0:
+                    row_lo = larger(row_lo, np.int64(math.floor(larger((ax + g / nx - x0) / cell, -1.0))) - 1)
+                else:
+                    row_hi = smaller(row_hi, np.int64(math.floor(smaller((ax + g / nx - x0) / cell, nbx + 1.0))) + 1)
+            for i in range(row_lo, row_hi + 1):
+                if left_block[(j // _BLOCK) * nbx_b + i // _BLOCK] == 0:
+                    continue
+                b = j * nbx + i
+                if left[b] == 0:
+                    continue
+                # the bucket's box against the disk
+                dx = larger(larger((x0 + i * cell - margin) - cx, cx - (x0 + (i + 1) * cell + margin)), 0.0)
+                dy = larger(larger((y0 + j * cell - margin) - cy, cy - (y0 + (j + 1) * cell + margin)), 0.0)
+                if dx * dx + dy * dy > r * r:
+                    continue
+                for t in range(start[b], start[b + 1]):
+                    p = items[t]
+                    if taken[p]:
+                        continue
+                    px = sxy[t, 0]
+                    py = sxy[t, 1]
+                    if flat[s]:
+                        inside = (orient2d(ax, ay, bx, by, px, py) < 0
+                                  and (px - cx) * (px - cx) + (py - cy) * (py - cy) <= r * r)
+                    else:
+                        inside = incircle_sos(qx, qy, ax, ay, bx, by, px, py) > 0
+                    if inside:
+                        found[p] = True
+                        hit[s] = True
+
+
+def natural_coordinates(
+    points: NDArray[np.float64], places: NDArray[np.float64], reach: NDArray[np.float64], cap: NDArray[np.float64],
+    near: NDArray[np.integer] | None = None,
+) -> NaturalCoordinates:
+    """The Laplace coordinates of ``places`` among ``points`` (see the module docstring).
+
+    A place outside the points' hull, or on the line of one of its edges to
+    rounding, gets no coordinates (nor does one where the points around are
+    too few or collinear).  A place's coordinates, and whether it has any,
+    depend only on the points inside its rows of the disks returned: one disk
+    around it when its circles reach no farther than ``cap[i]`` from it, each
+    circle on its own when they do (as beside the hull, where most of a
+    circle lies beyond it and a piece of a survey holds only the part inside),
+    the disk of radius ``cap[i]`` around a place found in no star.
+
+    ``reach``: how far around each place to take points for the first
+    triangulation (any gives the same coordinates; the nearer to how far its
+    circles reach, the fewer rounds).  ``near``: a point near each place (its
+    nearest, say; -1: none), where the search for it starts.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    >>> nat = natural_coordinates(square, np.array([[1.0, 1.0]]), np.array([1.5]), np.array([5.0]))
+    >>> nat.index.tolist(), nat.weight.round(6).tolist()
+    ([0, 1, 2, 3], [0.25, 0.25, 0.25, 0.25])
+    """
+    from .smooth import _bucket_grid
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    places = np.ascontiguousarray(places, dtype=np.float64)
+    cap = np.ascontiguousarray(cap, dtype=np.float64)
+    n_q = places.shape[0]
+    near = np.full(n_q, -1, dtype=np.int64) if near is None else np.asarray(near, dtype=np.int64)
+    if n_q == 0 or points.shape[0] < 3:
+        return NaturalCoordinates(np.zeros(n_q + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0),
+                                  np.column_stack([places, cap]) if n_q else np.empty((0, 3)), np.arange(n_q))
+    grid = _bucket_grid(points)
+
+    def counts(skip: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """How many points not ``skip`` each bucket and each block of buckets holds."""
+        left = np.empty(grid.start.size - 1, dtype=np.int64)
+        left_block = np.empty(-(-grid.nbx // _BLOCK) * -(-grid.nby // _BLOCK), dtype=np.int64)
+        _left_kernel(grid.items, grid.start, grid.nbx, skip, left, left_block)
+        return left, left_block
+
+    def within(rows: NDArray[np.int64], radius: NDArray[np.float64], skip: NDArray[np.bool_],
+               mark: NDArray[np.bool_], marking: bool = False, limit: int = -1):
+        """Marks the points not ``skip`` within ``radius`` of the places ``rows``; which of
+        them had one (``marking``: whether ``limit`` points were marked, and then stops)."""
+        hit = np.empty(rows.size, dtype=bool)
+        left, left_block = counts(skip)
+        full_ = _mark_within_kernel(grid.sxy, grid.items, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start,
+                                    np.ascontiguousarray(places[rows]), np.ascontiguousarray(radius), left, left_block,
+                                    skip, mark, hit, marking, limit)
+        return full_ if marking else hit
+
+    taken = np.zeros(points.shape[0], dtype=bool)
+    reach = np.minimum(np.asarray(reach, dtype=np.float64), cap)
+    covered = reach.copy()  # how far around each place every point is taken
+    limit = int(_ALL_POINTS * points.shape[0]) + 1
+    if within(np.arange(n_q), covered, taken, taken, marking=True, limit=limit):
+        taken[:] = True  # the places are everywhere: every point, in one round
+        covered[:] = np.inf
+    # how far a place read by its circles, or beside the hull of the points
+    # taken, takes every point before its circles are checked one by one:
+    # what lies beyond is then likely the survey's hull
+    before = np.minimum(2.0 * reach, cap)
+    # each place's result, kept once every point its disks hold is taken: a
+    # place is done again only while a round finds a point it had not
+    rounds = []
+    read = np.zeros(n_q)  # the disk around each place it reads, or 0: its circles, each on its own
+    todo = np.arange(n_q)
+    for round_ in range(_MAX_ROUNDS + 1):
+        if round_ == _MAX_ROUNDS:
+            taken[:] = True  # all of them: nothing is left to find
+            covered[:] = np.inf
+        ids = np.flatnonzero(taken)
+        triangulation = delaunay(points[ids])
+        ids = ids[triangulation.order]
+        gx = np.ascontiguousarray(points[ids, 0])
+        gy = np.ascontiguousarray(points[ids, 1])
+        vertex_of = np.full(points.shape[0] + 1, -1, dtype=np.int64)  # the last: no point
+        vertex_of[ids] = np.arange(ids.size)
+        first, index, weight, status, reach_of, edge, rows = _coordinates_kernel(
+            gx, gy, ids, triangulation.triangles, triangulation.halfedges, np.ascontiguousarray(places[todo]),
+            vertex_of[near[todo]], cap[todo])
+        rows = np.column_stack([todo[rows[:, 0]], ids[rows[:, 1]], ids[rows[:, 2]]]) if rows.size else rows
+        by_circles = np.zeros(n_q, dtype=bool)
+        by_circles[rows[:, 0]] = True
+        # outside the points taken with no edge of their hull before it, or
+        # found in no star: farther each time, up to ``cap``
+        lost = (status != 0) & ~by_circles[todo]
+        grow = todo[lost & (covered[todo] >= before[todo])]
+        before[grow] = np.minimum(2.0 * before[grow], cap[grow])
+        short = np.zeros(n_q, dtype=bool)
+        short[todo] = (by_circles[todo] | lost) & (covered[todo] < before[todo])
+        # the disk around each place that it reads, or 0: its circles
+        read[todo] = np.where(short[todo], before[todo], np.where(by_circles[todo], 0.0,
+                              np.where(status == 0, reach_of, cap[todo])))
+        disks = np.empty((rows.shape[0], 3))
+        flat = np.empty(rows.shape[0], dtype=bool)
+        _star_disks_kernel(places, points, rows, disks, flat)
+        rounds.append((todo, first, index, weight, rows, disks))
+        if taken.all():
+            break
+        more = np.zeros(points.shape[0], dtype=bool)
+        # a place whose disk lies within what was taken around it is done; one
+        # short of points is done again, with them
+        open_ = todo[read[todo] > covered[todo]]
+        again = open_[within(open_, read[open_], taken, more)]
+        covered[open_] = read[open_]
+        again = np.union1d(again, todo[short[todo]])
+        # one read by its circles is done when none holds a point not taken (a
+        # circle within what was taken around its place holds none)
+        owner_xy = places[rows[:, 0]]
+        mine = ~short[rows[:, 0]] & (np.hypot(disks[:, 0] - owner_xy[:, 0], disks[:, 1] - owner_xy[:, 1]) + disks[:, 2]
+                                     > covered[rows[:, 0]])
+        checked = rows[mine]
+        hit = np.zeros(checked.shape[0], dtype=bool)
+        if checked.size:
+            left, left_block = counts(taken)
+            _intruders_kernel(grid.sxy, grid.items, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start, left,
+                              left_block, places, points, checked, disks[mine], flat[mine], taken, more, hit)
+        again = np.union1d(again, checked[hit, 0])
+        if not again.size:
+            break
+        taken |= more
+        todo = again
+    first, index, weight = _last_rows(n_q, rounds)
+    # the disks each place reads, from the round that computed it last
+    last = np.empty(n_q, dtype=np.int64)
+    for r, (todo, *_) in enumerate(rounds):
+        last[todo] = r
+    circles = [disks[last[rows[:, 0]] == r] for r, (*_, rows, disks) in enumerate(rounds)]
+    owners = [rows[last[rows[:, 0]] == r, 0] for r, (*_, rows, disks) in enumerate(rounds)]
+    around = np.flatnonzero(read > 0.0)
+    owner = np.concatenate([around] + owners)
+    order = np.argsort(owner, kind="stable")
+    disks = np.concatenate([np.column_stack([places[around], read[around]])] + circles)[order]
+    return NaturalCoordinates(first, index, weight, disks, owner[order])
+
+
+def _last_rows(n_q: int, rounds: list) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """``first, index, weight`` of every place from the last round that computed it
+    (rounds of ``(places, first, index, weight, ...)``)."""
+    last = np.empty(n_q, dtype=np.int64)
+    at = np.empty(n_q, dtype=np.int64)
+    for r, (todo, *_) in enumerate(rounds):
+        last[todo] = r
+        at[todo] = np.arange(todo.size)
+    counts = np.empty(n_q, dtype=np.int64)
+    for r, (todo, first, *_) in enumerate(rounds):
+        mine = todo[last[todo] == r]
+        counts[mine] = np.diff(first)[at[mine]]
+    out_first = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    index = np.empty(out_first[-1], dtype=np.int64)
+    weight = np.empty(out_first[-1])
+    for r, (todo, first, found, w, *_) in enumerate(rounds):
+        mine = todo[last[todo] == r]
+        n = counts[mine]
+        rank = _ranks(n)
+        src = np.repeat(first[at[mine]], n) + rank
+        dst = np.repeat(out_first[mine], n) + rank
+        index[dst] = found[src]
+        weight[dst] = w[src]
+    return out_first, index, weight
+
+
+def _ranks(counts: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``0 .. counts[i] - 1`` for each ``i``, one after the other."""
+    total = int(counts.sum())
+    starts = np.repeat(np.cumsum(counts) - counts, counts)
+    return np.arange(total) - starts
+
+
+def take_places(coordinates: NaturalCoordinates, places: NDArray[np.int64]) -> NaturalCoordinates:
+    """The coordinates of the ``places`` (indices, in their order), renumbered ``0 .. len(places) - 1``."""
+    places = np.asarray(places, dtype=np.int64)
+    counts = np.diff(coordinates.first)[places]
+    rank = _ranks(counts)
+    src = np.repeat(coordinates.first[places], counts) + rank
+    where = np.full(coordinates.first.size - 1, -1, dtype=np.int64)
+    where[places] = np.arange(places.size)
+    owner = where[coordinates.owner]
+    kept = owner >= 0
+    order = np.argsort(owner[kept], kind="stable")
+    return NaturalCoordinates(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), coordinates.index[src],
+                              coordinates.weight[src], coordinates.disks[kept][order], owner[kept][order])
+
+
+def join_places(*parts: NaturalCoordinates) -> NaturalCoordinates:
+    """The coordinates of the places of ``parts``, one part's after the other's."""
+    firsts, owners = [np.zeros(1, dtype=np.int64)], []
+    offset = 0
+    places = 0
+    for part in parts:
+        firsts.append(part.first[1:] + offset)
+        owners.append(part.owner + places)
+        offset += int(part.first[-1])
+        places += part.first.size - 1
+    return NaturalCoordinates(np.concatenate(firsts), np.concatenate([p.index for p in parts]),
+                              np.concatenate([p.weight for p in parts]), np.concatenate([p.disks for p in parts]),
+                              np.concatenate(owners))
+
+
+@njit
+def _values_kernel(first: np.ndarray, index: np.ndarray, weight: np.ndarray, z: np.ndarray, out: np.ndarray) -> None:
+    for q in range(first.shape[0] - 1):
+        if first[q + 1] == first[q]:
+            out[q] = math.nan
+            continue
+        s = 0.0
+        for k in range(first[q], first[q + 1]):
+            s += weight[k] * z[index[k]]
+        out[q] = s
+
+
+def natural_values(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The natural-neighbour interpolant of the points' values ``z`` at the places (NaN where none)."""
+    out = np.empty(coordinates.first.shape[0] - 1)
+    _values_kernel(coordinates.first, coordinates.index, coordinates.weight, np.ascontiguousarray(z, dtype=np.float64), out)
+    return out
