@@ -31,6 +31,17 @@ kriging with a linear drift:
   crest may rise above the points beside it (:func:`_clamps_inside`);
 - a system whose neighbours are collinear (no plane fits) gives its nodes
   the linear surface's values;
+- a node in a void (farther than :data:`VOID_NEAR` spacings from its
+  cell's points) is blended, by its distance from them, into the void's
+  fill: the linear surface, then half of it and half the natural-neighbour
+  interpolant of the points around the void (:mod:`meshcore.natural`).
+  There the cell's points lie on one side of the rim, and kriging carries
+  that side's tilt and noise across the void: beyond a few spacings it was
+  worse than the TIN; the fill reads the whole rim, stays within its values
+  and reproduces linear functions.  The blend depends on the node's
+  position and its cell's points alone, so edges stay C0 and tiles seamless;
+  a node's natural neighbours are read from disks that :attr:`Neighbourhoods.disks`
+  reports with the cells' (:func:`_void_blend`);
 - first, faces with an edge longer than a few spacings are cut
   (:func:`smooth_plan`, :mod:`meshcore.refine`): the edge is split into
   equal pieces by its length alone, the new points are kriged from their
@@ -56,12 +67,14 @@ from numpy.typing import ArrayLike, NDArray
 from ._jit import LANES, empty, full, lanes_scale, lanes_subtract_products, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
+from .natural import NaturalCoordinates, join_places, natural_coordinates, natural_values, take_places
 from .patches import NODES_PER_FACE
 from .refine import Refinement, _first_end, refine_long_faces
 
 __all__ = [
     "MODELS", "CELL_PER_SPACING", "Variogram", "Neighbourhoods", "AddedPoints", "SmoothPlan", "SmoothSurface", "fit_variogram",
-    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS",
+    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS", "VoidFill",
+    "VOID_NEAR", "VOID_NATURAL", "VOID_FAR", "VOID_NATURAL_SHARE", "VOID_REACH",
 ]
 
 DEFAULT_NEIGHBOURS = 16
@@ -840,9 +853,10 @@ def _solve_systems(
 def _nodes_kriged_kernel(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
     positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, pattern_weights: np.ndarray,
-    nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, out: np.ndarray,
+    nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, gap: np.ndarray, fill: np.ndarray,
+    near: float, natural: float, far: float, out: np.ndarray,
 ) -> None:
-    """Krig the nodes of every system (a cell) and clamp them.
+    """Krig the nodes of every system (a cell), clamp them, and blend those in voids into the fill.
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
     ``first[s] .. first[s + 1] - 1``.  A node is clamped to the
@@ -851,7 +865,10 @@ def _nodes_kriged_kernel(
     lie to one side of the centre (:func:`_one_sided`); a
     singular system, or one that meets an unknown z, gives its nodes the
     linear surface's value (the corners' weights, row ``pattern[n]`` of
-    ``pattern_weights``).
+    ``pattern_weights``).  A node farther than ``near`` from its nearest
+    neighbour (``gap[n]``) is blended into the void's fill (:func:`_void_blend`,
+    from ``near`` and ``natural`` to ``far``): the linear surface's value, and
+    ``fill[n]``, the natural-neighbour interpolant there (NaN: none).
     """
     k = neighbours.shape[1]
     room = _kriging_scratch(k)
@@ -898,13 +915,43 @@ def _nodes_kriged_kernel(
                     value = values[n - first[s]]
                     out[n] = smaller(larger(value, low), high) if clamp else value
                 else:
-                    linear = 0.0
-                    for j in range(4):
-                        v = corners[n, j]
-                        if v >= 0 and math.isfinite(z[v]):
-                            linear += pattern_weights[pattern[n], j] * z[v]
-                    out[n] = linear
+                    out[n] = _linear_value(z, corners, pattern_weights, pattern[n], n)
+                if gap[n] > near:
+                    out[n] = _void_blend(out[n], _linear_value(z, corners, pattern_weights, pattern[n], n), fill[n],
+                                         gap[n], near, natural, far)
         s0 += lanes
+
+
+@njit_helper
+def _linear_value(z: np.ndarray, corners: np.ndarray, pattern_weights: np.ndarray, row: int, n: int) -> float:
+    """The linear surface at node ``n``: its corners' values by the weights of ``pattern_weights[row]``."""
+    linear = 0.0
+    for j in range(4):
+        v = corners[n, j]
+        if v >= 0 and math.isfinite(z[v]):
+            linear += pattern_weights[row, j] * z[v]
+    return linear
+
+
+@njit_helper
+def _void_blend(value: float, linear: float, natural: float, gap: float, near: float, start: float,
+                far: float) -> float:
+    """A node's value ``gap`` from its nearest point: its kriged ``value`` up to ``near``,
+    the void's fill from ``far`` on, in between a blend linear in the distance.
+
+    The fill is the linear surface, blended from ``start`` to ``far`` into
+    :data:`VOID_NATURAL_SHARE` of the natural-neighbour interpolant
+    (``natural``; NaN where it has none) and the rest of the linear surface.
+    All three lie within the values of the points around the void, and
+    reproduce linear functions: so does the blend."""
+    fill = linear
+    if gap > start and math.isfinite(natural):
+        share = _NATURAL_SHARE * smaller((gap - start) / (far - start), 1.0)
+        fill = linear + share * (natural - linear)
+    if gap >= far:
+        return fill
+    w = (far - gap) / (far - near)
+    return fill + w * (value - fill)
 
 
 class Neighbourhoods(NamedTuple):
@@ -927,6 +974,9 @@ class Neighbourhoods(NamedTuple):
     pattern : (n,) uint8, where the node lies in its face: the row of
         :data:`_PATTERN_WEIGHTS` that gives the linear surface's weights of its corners
     cell : float, the side of the cells
+    gap : (n,) float64, the distance from each node to the nearest of its cell's neighbours
+        (exact beyond :data:`VOID_NEAR` spacings; nearer, any distance up to it)
+    fill : VoidFill, the nodes in voids (``gap`` over :data:`VOID_NATURAL` spacings) and their natural neighbours
     """
 
     centres: NDArray[np.float64]
@@ -938,6 +988,8 @@ class Neighbourhoods(NamedTuple):
     corners: NDArray[np.int32]
     pattern: NDArray[np.uint8]
     cell: float
+    gap: NDArray[np.float64]
+    fill: "VoidFill"
 
     @property
     def weights(self) -> NDArray[np.float64]:
@@ -946,8 +998,36 @@ class Neighbourhoods(NamedTuple):
 
     @property
     def disks(self) -> NDArray[np.float64]:
-        """``(m, 3)`` rows ``(x, y, r)``: the closed disks the node values read points from."""
-        return np.column_stack([self.centres, self.radius])
+        """``(m, 3)`` rows ``(x, y, r)``: the closed disks the node values read points from
+        (the cells' neighbourhoods, then the circles of the voids' natural neighbours)."""
+        return np.concatenate([np.column_stack([self.centres, self.radius]), self.fill.coordinates.disks])
+
+
+class VoidFill(NamedTuple):
+    """The nodes (or added points) of a smooth surface in voids, and their
+    natural-neighbour coordinates (:func:`meshcore.natural.natural_coordinates`).
+
+    Attributes
+    ----------
+    rows : (q,) int64, the nodes, ascending
+    coordinates : NaturalCoordinates, one row for each
+    """
+
+    rows: NDArray[np.int64]
+    coordinates: NaturalCoordinates
+
+    def values(self, z: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+        """``(n,)``: the natural-neighbour interpolant of the points' values ``z`` at
+        the nodes in voids, NaN at the others (and where a node has no coordinates)."""
+        out = np.full(n, np.nan)
+        out[self.rows] = natural_values(self.coordinates, z)
+        return out
+
+
+_NO_ENDS = np.zeros((0, 2), dtype=np.int64)
+
+_NO_FILL = VoidFill(np.zeros(0, dtype=np.int64), NaturalCoordinates(
+    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)), np.zeros(0, dtype=np.int64)))
 
 
 _THIRD = 1.0 / 3.0
@@ -1222,6 +1302,180 @@ per edge and face (five per point), within the noise of the test; at 2
 spacings they grow."""
 
 
+VOID_NEAR = 1.5
+"""A node (or added point) farther than this many point spacings from the nearest
+of its cell's points lies in a void: from here to :data:`VOID_FAR` its kriged
+value is blended into the void's fill (:func:`_void_blend`)."""
+
+VOID_NATURAL = 2.0
+"""The void's fill is the linear surface up to this many spacings; from here to
+:data:`VOID_FAR` the natural-neighbour interpolant joins it, to
+:data:`VOID_NATURAL_SHARE` of it (only nodes this far get natural neighbours:
+more of them cost more than they gave)."""
+
+VOID_FAR = 3.5
+"""From this many spacings on a node is the void's fill alone.
+
+Why (``bench/bench_accuracy.py``, block cross-validation): in a void every
+cell's 16 nearest points lie on one side of the rim, and the kriged value
+carries that side's tilt (its linear drift) and noise across; up to 1-2
+spacings from the rim it still beats the TIN, farther it loses to it.
+Measured: blends from 1-3 to 2-4 spacings all kept the surface below the
+TIN's errors in voids of 5 to 40 units on every sample; the nearer ones
+keep less of kriging's gains on smooth, sparse ground (autzen_trim) and more
+on flat, dense, noisy ground (extra_byte_blocks, where kriging beside a void
+is worse than the TIN); the point-CV errors moved by 0.1 point at most."""
+
+VOID_NATURAL_SHARE = 0.5
+"""The void's fill: this share of the natural-neighbour interpolant, the rest of the linear surface.
+
+Measured as :data:`VOID_FAR`: the natural-neighbour interpolant alone was
+2-25% better than the TIN inside most voids, but worse in a void across
+startinpy_small's noisy ground (+2 to +4%); the linear surface of the combined
+mesh, a triangulation of the rim as arbitrary as the TIN's, was up to 17%
+worse in some (4_6_crop at 10 ft) and better in others.  Their errors differ
+enough that their mean was the steadiest: better than the TIN in every void
+tested, where either alone was not."""
+
+_NATURAL_SHARE = VOID_NATURAL_SHARE
+
+VOID_REACH = 3.0
+"""A node's natural neighbours are read as one disk around it while their circles
+reach no farther than this many times the distance to its edge's (its face's,
+its cut face's parent's) farthest corner; beyond (beside the hull, where the
+circles run far out of it) circle by circle, which a piece of a survey holds
+where they meet the hull.  It changes no value, only how the disks are told."""
+
+
+@njit
+def _nearest_points_kernel(vertices: np.ndarray, neighbours: np.ndarray, owner: np.ndarray, positions: np.ndarray,
+                           rows: np.ndarray, out: np.ndarray) -> None:
+    for t in range(rows.shape[0]):
+        n = rows[t]
+        s = owner[n]
+        best = math.inf
+        out[t] = -1
+        for i in range(neighbours.shape[1]):
+            v = neighbours[s, i]
+            if v < 0:
+                break
+            dx = vertices[v, 0] - positions[n, 0]
+            dy = vertices[v, 1] - positions[n, 1]
+            if dx * dx + dy * dy < best:
+                best = dx * dx + dy * dy
+                out[t] = v
+
+
+def _nearest_points(vertices: NDArray[np.float64], positions: NDArray[np.float64], neighbours: NDArray[np.int64],
+                    first: NDArray[np.int64], rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The nearest of its system's neighbours of each node ``rows`` (-1: none)."""
+    owner = np.full(positions.shape[0], -1, dtype=np.int64)
+    owner[rows] = np.searchsorted(first, rows, side="right") - 1
+    out = np.empty(rows.size, dtype=np.int64)
+    _nearest_points_kernel(vertices, neighbours, owner, np.ascontiguousarray(positions), rows, out)
+    return out
+
+
+@njit
+def _gaps_kernel(vertices: np.ndarray, neighbours: np.ndarray, first: np.ndarray, positions: np.ndarray, near: float,
+                 out: np.ndarray) -> None:
+    """``out[n]``: the distance from node ``n`` to the nearest of its system's neighbours
+    (system ``s`` holds the nodes ``first[s] .. first[s + 1] - 1``; infinite without
+    one), or, once one is found within ``near``, that one's."""
+    near2 = near * near
+    for s in range(neighbours.shape[0]):
+        for n in range(first[s], first[s + 1]):
+            px = positions[n, 0]
+            py = positions[n, 1]
+            best = math.inf
+            for i in range(neighbours.shape[1]):
+                v = neighbours[s, i]
+                if v < 0:
+                    break
+                dx = vertices[v, 0] - px
+                dy = vertices[v, 1] - py
+                best = smaller(best, dx * dx + dy * dy)
+                if best <= near2:
+                    break
+            out[n] = math.sqrt(best)
+
+
+def _gaps(vertices: NDArray[np.float64], neighbours: NDArray[np.int64], first: NDArray[np.int64],
+          positions: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
+    """How far each node lies from its system's points: :func:`_gaps_kernel` (the nodes in system
+    order), exact beyond :data:`VOID_NEAR` (for cells of side ``cell``)."""
+    out = np.empty(positions.shape[0])
+    _gaps_kernel(vertices, neighbours, first, positions, _void_distances(cell)[0], out)
+    return out
+
+
+def _void_distances(cell: float) -> tuple[float, float, float]:
+    """:data:`VOID_NEAR`, :data:`VOID_NATURAL` and :data:`VOID_FAR` for nodes in cells of
+    side ``cell`` (from the cell, which every plan of a survey shares bit for bit)."""
+    return (cell * (VOID_NEAR / CELL_PER_SPACING), cell * (VOID_NATURAL / CELL_PER_SPACING),
+            cell * (VOID_FAR / CELL_PER_SPACING))
+
+
+@njit
+def _spans_kernel(positions: np.ndarray, vertices: np.ndarray, corners: np.ndarray, data: int, ends: np.ndarray,
+                  out: np.ndarray) -> None:
+    for n in range(positions.shape[0]):
+        best = 0.0
+        for j in range(corners.shape[1]):
+            c = corners[n, j]
+            if c < 0:
+                continue
+            for e in range(2):
+                v = c if c < data else ends[c - data, e]
+                dx = vertices[v, 0] - positions[n, 0]
+                dy = vertices[v, 1] - positions[n, 1]
+                best = larger(best, dx * dx + dy * dy)
+        out[n] = math.sqrt(best)
+
+
+def _spans(positions: NDArray[np.float64], vertices: NDArray[np.float64], corners: NDArray[np.integer], data: int,
+           ends: NDArray[np.int64]) -> NDArray[np.float64]:
+    """The distance from each node to the farthest point of its ``corners`` (``-1``
+    pads): a corner among the first ``data`` vertices, or else both ends of the
+    edge it was added on (``ends[corner - data]``), so that a node of a face cut
+    reaches as far as the face's own corners."""
+    out = np.empty(positions.shape[0])
+    _spans_kernel(np.ascontiguousarray(positions), vertices, np.ascontiguousarray(corners, dtype=np.int64), data,
+                  np.ascontiguousarray(ends, dtype=np.int64), out)
+    return out
+
+
+def _void_fills(vertices: NDArray[np.float64], data: int, ends: NDArray[np.int64], cell: float,
+                *groups: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64],
+                               NDArray[np.integer]], rows: list[NDArray[np.int64]] | None = None) -> list[VoidFill]:
+    """For each group ``(positions, gap, index, first, corners)`` of nodes (``index``
+    and ``first``: their systems; ``corners``: their edges' or faces' corners, as
+    :func:`_spans` takes them): those in voids (or ``rows``) and their natural
+    neighbours among the first ``data`` of ``vertices``, each read within
+    :data:`VOID_REACH` times the distance to its farthest corner; one
+    triangulation for all."""
+    _, natural, _ = _void_distances(cell)
+    if rows is None:
+        rows = [np.flatnonzero(gap > natural) for _, gap, *_ in groups]
+    if not any(r.size for r in rows):
+        return [VoidFill(r, _NO_FILL.coordinates._replace(first=np.zeros(r.size + 1, dtype=np.int64))) for r in rows]
+    points = np.ascontiguousarray(vertices[:data])
+    places = np.concatenate([positions[r] for (positions, *_), r in zip(groups, rows)])
+    reach = np.concatenate([4.0 * gap[r] for (_, gap, *_), r in zip(groups, rows)])
+    cap = np.concatenate([VOID_REACH * _spans(positions[r], vertices, corners[r], data, ends)
+                          for (positions, _, _, _, corners), r in zip(groups, rows)])
+    # each from its nearest point, where the search for its natural neighbours starts
+    start = np.concatenate([_nearest_points(points, positions, index, first, r)
+                            for (positions, _, index, first, _), r in zip(groups, rows)])
+    found = natural_coordinates(points, places, reach, cap, start)
+    out = []
+    lo = 0
+    for r in rows:
+        out.append(VoidFill(r, take_places(found, np.arange(lo, lo + r.size))))
+        lo += r.size
+    return out
+
+
 def _face_mask(faces: ArrayLike, n_f: int) -> NDArray[np.bool_]:
     mask = np.asarray(faces)
     if mask.dtype != np.bool_ or mask.shape != (n_f,):
@@ -1262,7 +1516,9 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     ``data_vertices``: only the first this many vertices are kriged from (the
     others are points a refined mesh added, :mod:`meshcore.refine`).
     ``faces``: a mask of the faces that get nodes (default: all); the others'
-    rows of ``take`` are -1, and no system serves them alone.
+    rows of ``take`` are -1, and no system serves them alone.  The nodes in
+    voids get their natural neighbours too (``.fill``), whose circles are
+    among the disks.
 
     Examples
     --------
@@ -1272,6 +1528,12 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     >>> bool(np.all(hoods.disks[:, 2] > 0)), hoods.cell == 0.15 * CELL_PER_SPACING
     (True, True)
     """
+    return _neighbourhoods(mesh, neighbours, spacing, data_vertices, faces, True)
+
+
+def _neighbourhoods(mesh: Mesh, neighbours: int, spacing: float | None, data_vertices: int | None,
+                    faces: ArrayLike | None, fills: bool) -> Neighbourhoods:
+    """:func:`smooth_neighbourhoods`, the voids' natural neighbours left out unless ``fills``."""
     k = _check_neighbours(neighbours)
     vertices, mesh_faces = mesh_arrays(mesh)
     if spacing is None:
@@ -1291,7 +1553,13 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
     data = vertices if data_vertices is None else np.ascontiguousarray(vertices[:data_vertices])
     index, d2 = _nearest(data, centres, k)
-    return Neighbourhoods(np.ascontiguousarray(centres), index, _radii(d2), first, positions, take, corners, pattern, cell)
+    gap = _gaps(data, index, first, positions, cell)
+    if fills:
+        (fill,) = _void_fills(vertices, data.shape[0], _NO_ENDS, cell, (positions, gap, index, first, corners))
+    else:
+        fill = _NO_FILL
+    return Neighbourhoods(np.ascontiguousarray(centres), index, _radii(d2), first, positions, take, corners, pattern, cell,
+                          gap, fill)
 
 
 def smooth_nodes(
@@ -1358,10 +1626,11 @@ def smooth_nodes(
                                 f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
     rows = hoods.pattern.astype(np.int32)  # as the added points give theirs: one kernel for both, compiled and loaded once
+    near, natural, far = _void_distances(hoods.cell)
     _nodes_kriged_kernel(
         vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
-        _clamps_inside(variogram), values,
+        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size), near, natural, far, values,
     )
     _scatter_nodes(values, hoods.take, out)
     return out
@@ -1470,6 +1739,9 @@ class AddedPoints(NamedTuple):
     centres : (c, 2) the cells' centres
     index : (c, k) their nearest input vertices, nearest first (``-1`` pads)
     radius : (c,) the distance from each centre to its last neighbour
+    gap : (m,) the distance from each point (in the order of ``order``) to the nearest of its
+        cell's neighbours, as :attr:`Neighbourhoods.gap`
+    fill : VoidFill, the points in voids (rows in the order of ``order``) and their natural neighbours
     """
 
     order: NDArray[np.int64]
@@ -1477,11 +1749,14 @@ class AddedPoints(NamedTuple):
     centres: NDArray[np.float64]
     index: NDArray[np.int64]
     radius: NDArray[np.float64]
+    gap: NDArray[np.float64]
+    fill: VoidFill
 
     @property
     def disks(self) -> NDArray[np.float64]:
-        """``(c, 3)`` rows ``(x, y, r)``: the closed disks the added points' values read points from."""
-        return np.column_stack([self.centres, self.radius])
+        """``(c, 3)`` rows ``(x, y, r)``: the closed disks the added points' values read points from
+        (the cells' neighbourhoods, then the circles of the voids' natural neighbours)."""
+        return np.concatenate([np.column_stack([self.centres, self.radius]), self.fill.coordinates.disks])
 
 
 class SmoothPlan(NamedTuple):
@@ -1541,12 +1816,52 @@ def _radii(d2: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _added_points(data: NDArray[np.float64], positions: NDArray[np.float64], cell: float, k: int) -> AddedPoints:
+    """The systems of the points added at ``positions`` (their fill left to :func:`_void_fills`)."""
     order, first, centres = _cells(positions, cell)
     if centres.shape[0] == 0:
-        return AddedPoints(order, first, centres, np.empty((0, k), dtype=np.int64), np.empty(0))
+        return AddedPoints(order, first, centres, np.empty((0, k), dtype=np.int64), np.empty(0), np.empty(0), _NO_FILL)
     # the cells of the added points are few and scattered: searched around each, not over a grid of every vertex
     index, d2 = _nearest_around(data, centres, k, 6.0 * cell)
-    return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2))
+    gap = _gaps(data, index, first, np.ascontiguousarray(positions[order]), cell)
+    return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2), gap, _NO_FILL)
+
+
+def _with_fills(vertices: NDArray[np.float64], data: int, nodes: Neighbourhoods, added: AddedPoints,
+                ends: NDArray[np.int64], new: NDArray[np.float64] | None = None) -> tuple[Neighbourhoods, AddedPoints]:
+    """``nodes`` and ``added`` with the natural neighbours of those in voids, found together
+    (``vertices``: the refined mesh's, its first ``data`` the points; ``ends``: the added points' edges).
+
+    With ``new`` (points added to the vertices since ``nodes.fill`` and
+    ``added.fill`` were found), only the nodes in voids whose disks hold one
+    of them are found again (no node joins the voids: a gap only shrinks as
+    points are added)."""
+    where = np.ascontiguousarray(vertices[data:][added.order])
+    groups = ((nodes.positions, nodes.gap, nodes.index, nodes.first, nodes.corners),
+              (where, added.gap, added.index, added.first, ends[added.order]))
+    if new is None:
+        fills = _void_fills(vertices, data, ends, nodes.cell, *groups)
+        return nodes._replace(fill=fills[0]), added._replace(fill=fills[1])
+    _, natural, _ = _void_distances(nodes.cell)
+    old = (nodes.fill, added.fill)
+    rows = [np.flatnonzero(gap > natural) for _, gap, *_ in groups]
+    # each kept node's place among the old ones, and those whose disks hold a new point
+    kept = [np.searchsorted(f.rows, r) for f, r in zip(old, rows)]
+    again = []
+    for f, k in zip(old, kept):
+        holds = np.zeros(f.rows.size, dtype=bool)
+        hit = _disks_holding(f.coordinates.disks[:, :2], f.coordinates.disks[:, 2], new)
+        holds[f.coordinates.owner[hit]] = True
+        again.append(holds[k])
+    if not any(a.any() for a in again) and all(k.size == f.rows.size for f, k in zip(old, kept)):
+        return nodes, added
+    found = _void_fills(vertices, data, ends, nodes.cell, *groups, rows=[r[a] for r, a in zip(rows, again)])
+    fills = []
+    for f, r, k, a, fresh in zip(old, rows, kept, again, found):
+        # the old rows of the nodes kept as they were, then the new ones, put back in order
+        both = join_places(take_places(f.coordinates, k[~a]), fresh.coordinates)
+        order = np.argsort(np.concatenate([np.flatnonzero(~a), np.flatnonzero(a)]), kind="stable")
+        fills.append(VoidFill(r, take_places(both, order)))
+    return nodes._replace(fill=fills[0]), added._replace(fill=fills[1])
 
 
 def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS,
@@ -1592,8 +1907,10 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     refinement = refine_long_faces(mesh, spacing, longer_than, piece)
     n = vertices.shape[0]
     wanted = None if faces is None else _face_mask(faces, mesh_faces.shape[0])[refinement.parent]
-    nodes = smooth_neighbourhoods(refinement.mesh, k, spacing, data_vertices=n, faces=wanted)
-    added = _added_points(vertices, np.ascontiguousarray(refinement.mesh.vertices[n:]), nodes.cell, k)
+    nodes = _neighbourhoods(refinement.mesh, k, spacing, n, wanted, False)
+    added_positions = np.ascontiguousarray(refinement.mesh.vertices[n:])
+    added = _added_points(vertices, added_positions, nodes.cell, k)
+    nodes, added = _with_fills(refinement.mesh.vertices, n, nodes, added, refinement.ends)
     return SmoothPlan(refinement, nodes, added)
 
 
@@ -1642,11 +1959,16 @@ def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float6
     else:
         refined = mesh
     index, radius = searched_again(nodes.centres, nodes.index, nodes.radius, lambda c: _nearest(vertices, c, k))
-    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners))
+    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners),
+                           gap=_gaps(vertices, index, nodes.first, nodes.positions, nodes.cell) if index is not nodes.index else nodes.gap)
     # as _added_points searches them
     index, radius = searched_again(added.centres, added.index, added.radius,
                                    lambda c: _nearest_around(vertices, c, k, 6.0 * nodes.cell))
-    added = added._replace(index=index, radius=radius)
+    if index is not added.index:
+        added_positions = np.ascontiguousarray(refined.vertices[n:][added.order])
+        added = added._replace(index=index, radius=radius, gap=_gaps(vertices, index, added.first, added_positions, nodes.cell))
+    # the voids' natural neighbours again, of the nodes whose disks hold a new vertex
+    nodes, added = _with_fills(refined.vertices, n, nodes, added, refinement.ends, new)
     return SmoothPlan(refinement._replace(mesh=refined), nodes, added)
 
 
@@ -1701,18 +2023,20 @@ def smooth_surface(
     z_all = np.empty(n + m)
     z_all[:n] = zv
     if m:
-        z_all[n:] = _krige_added(vertices, zv, variogram, plan.added, refined.vertices[n:], refinement.ends, refinement.t)
+        z_all[n:] = _krige_added(vertices, zv, variogram, plan.added, refined.vertices[n:], refinement.ends, refinement.t,
+                                 plan.nodes.cell)
     nodes = smooth_nodes(refined, z_all, variogram, k, neighbourhoods=plan.nodes)
     return SmoothSurface(refined, z_all, nodes, refinement.parent)
 
 
 def _krige_added(
     vertices: NDArray[np.float64], z: NDArray[np.float64], variogram: Variogram, added: AddedPoints,
-    positions: NDArray[np.float64], ends: NDArray[np.int64], t: NDArray[np.float64],
+    positions: NDArray[np.float64], ends: NDArray[np.int64], t: NDArray[np.float64], cell: float,
 ) -> NDArray[np.float64]:
     """The added points' values, kriged as the nodes are: each from its cell's system,
-    clamped as they are (to the neighbours' and its edge's ends' range); a
-    singular system gives the linear value ``(1 - t) z[first] + t z[second]``."""
+    clamped as they are (to the neighbours' and its edge's ends' range), those
+    in voids blended into the fill; a singular system gives the linear value
+    ``(1 - t) z[first] + t z[second]``."""
     n = positions.shape[0]
     order = added.order
     corners = np.full((n, 4), -1, dtype=np.int32)
@@ -1721,10 +2045,12 @@ def _krige_added(
     weights[:, 0] = 1.0 - t[order]
     weights[:, 1] = t[order]
     values = np.empty(n)
+    near, natural, far = _void_distances(cell)
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
         np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
-        MODELS.index(variogram.model), _clamps_inside(variogram), values,
+        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n), near, natural, far,
+        values,
     )
     out = np.empty(n)
     out[order] = values
