@@ -45,6 +45,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from ._buckets import _bucket_grid
 from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import _locate, delaunay
 from .predicates import incircle_sos, lex_before, orient2d
@@ -609,8 +610,6 @@ def natural_coordinates(
     >>> nat.index.tolist(), nat.weight.round(6).tolist()
     ([0, 1, 2, 3], [0.25, 0.25, 0.25, 0.25])
     """
-    from .smooth import _bucket_grid
-
     points = np.ascontiguousarray(points, dtype=np.float64)
     places = np.ascontiguousarray(places, dtype=np.float64)
     cap = np.ascontiguousarray(cap, dtype=np.float64)

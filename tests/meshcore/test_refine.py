@@ -123,7 +123,7 @@ def test_window_pieces_split_their_shared_long_edges_alike(rng):
 
 
 def test_nearest_around_a_few_centres_is_the_exact_nearest(rng):
-    from meshcore.smooth import _nearest, _nearest_around
+    from meshcore._buckets import _nearest, _nearest_around
 
     xy = rng.random((5000, 2)) * 100.0 + OFFSET
     xy[:50] = xy[50:100]  # ties
@@ -145,7 +145,7 @@ def test_nearest_around_a_few_centres_is_the_exact_nearest(rng):
 def test_disks_holding_a_point_are_all_found(rng):
     """Every closed disk that holds a point is found, a point on its circle too; the
     others only when a point comes within a billionth of the radius."""
-    from meshcore.smooth import _disks_holding
+    from meshcore._buckets import _disks_holding
 
     points = rng.random((300, 2)) * 100.0 + OFFSET
     centres = rng.random((2000, 2)) * 140.0 + OFFSET - 20.0
@@ -235,7 +235,7 @@ def test_an_outlier_far_away_costs_little(rng):
     rings between them quickly and exactly."""
     import time
 
-    from meshcore.smooth import _nearest
+    from meshcore._buckets import _nearest
 
     near = rng.random((3000, 2)) * [70.0, 80.0] + [6.51e5, 6.861e6]
     far = rng.random((3000, 2)) * [70.0, 80.0] + [6.51e5, 0.0]

@@ -17,8 +17,9 @@ from meshcore.interpolate import _surface_at, gradient, interpolate
 from meshcore.mesh import Mesh
 
 from .mesh_checks import edge_faces, hand_mesh
+from meshcore._buckets import _nearest
 from meshcore.smooth import (
-    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _loo_errors_kernel, _nearest,
+    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _loo_errors_kernel,
     _solve_systems,
     fit_variogram, smooth_neighbourhoods, smooth_nodes,
 )

@@ -76,7 +76,7 @@ def test_a_sampled_variogram_is_the_same_at_any_tile_size_and_buffer(tmp_path, m
 def _assert_tiles_krig_from_the_whole_surveys_nearest_points(monkeypatch, run_it) -> None:
     """Every kriging system of every tile of ``run_it()`` (its nodes' and its
     added points') has the neighbours it has in the whole survey."""
-    from meshcore.smooth import _nearest
+    from meshcore._buckets import _nearest
 
     plans = []
     surface = meshcore.smooth_surface
