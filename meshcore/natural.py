@@ -50,7 +50,8 @@ from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import _locate, delaunay
 from .predicates import incircle_sos, lex_before, orient2d
 
-__all__ = ["NaturalCoordinates", "natural_coordinates", "natural_values", "take_places", "join_places"]
+__all__ = ["NaturalCoordinates", "natural_coordinates", "natural_values", "natural_ranges", "tin_values", "take_places",
+           "join_places"]
 
 
 class NaturalCoordinates(NamedTuple):
@@ -63,6 +64,8 @@ class NaturalCoordinates(NamedTuple):
     weight : (m,) float64, their weights (positive, summing to 1 for each place)
     disks : (c, 3) float64, rows ``(x, y, r)``: the closed disks the coordinates read points from
     owner : (c,) int64, the place each disk is read for (ascending)
+    triangle : (q, 3) int64, the Delaunay triangle that holds each place with coordinates (-1: none)
+    linear : (q, 3) float64, the linear interpolant's weights of its corners there (the TIN's)
     """
 
     first: NDArray[np.int64]
@@ -70,6 +73,8 @@ class NaturalCoordinates(NamedTuple):
     weight: NDArray[np.float64]
     disks: NDArray[np.float64]
     owner: NDArray[np.int64]
+    triangle: NDArray[np.int64]
+    linear: NDArray[np.float64]
 
 
 _MAX_ROUNDS = 12
@@ -264,6 +269,66 @@ def _cavity(gx: np.ndarray, gy: np.ndarray, tri: np.ndarray, he: np.ndarray, px:
     return count
 
 
+@njit_helper
+def _canonical(gx: np.ndarray, gy: np.ndarray, a: int, b: int, c: int) -> tuple[int, int, int]:
+    """Triangle ``a b c`` from its first corner in coordinate order, turning the same way."""
+    if lex_before(gx[b], gy[b], gx[a], gy[a]) and lex_before(gx[b], gy[b], gx[c], gy[c]):
+        return b, c, a
+    if lex_before(gx[c], gy[c], gx[a], gy[a]) and lex_before(gx[c], gy[c], gx[b], gy[b]):
+        return c, a, b
+    return a, b, c
+
+
+@njit_helper
+def _centre(gx: np.ndarray, gy: np.ndarray, a: int, b: int, c: int, px: float, py: float) -> tuple[float, float]:
+    """The circumcentre of triangle ``a b c`` relative to ``p``, from its first corner in
+    coordinate order: the same bits whichever corner a triangulation lists first."""
+    a, b, c = _canonical(gx, gy, a, b, c)
+    ax = gx[a] - px
+    ay = gy[a] - py
+    dx = gx[b] - gx[a]
+    dy = gy[b] - gy[a]
+    ex = gx[c] - gx[a]
+    ey = gy[c] - gy[a]
+    d = 2.0 * (dx * ey - dy * ex)
+    return (ax + (ey * (dx * dx + dy * dy) - dy * (ex * ex + ey * ey)) / d,
+            ay + (dx * (ex * ex + ey * ey) - ex * (dx * dx + dy * dy)) / d)
+
+
+@njit_helper
+def _triangle_before(gx: np.ndarray, gy: np.ndarray, tri: np.ndarray, t: int, u: int) -> bool:
+    """Whether triangle ``t`` comes before ``u`` in coordinate order of their corners (canonically turned)."""
+    ta = _canonical(gx, gy, tri[3 * t], tri[3 * t + 1], tri[3 * t + 2])
+    ua = _canonical(gx, gy, tri[3 * u], tri[3 * u + 1], tri[3 * u + 2])
+    for k in range(3):
+        if ta[k] != ua[k]:
+            return lex_before(gx[ta[k]], gy[ta[k]], gx[ua[k]], gy[ua[k]])
+    return False
+
+
+@njit_helper
+def _linear_weights(gx: np.ndarray, gy: np.ndarray, a: int, b: int, c: int, px: float, py: float, ids: np.ndarray,
+                    corners: np.ndarray, weights: np.ndarray) -> None:
+    """The linear interpolant's weights at ``p`` of triangle ``a b c``'s corners (``ids``), canonically turned."""
+    a, b, c = _canonical(gx, gy, a, b, c)
+    ax = gx[a] - px
+    ay = gy[a] - py
+    bx = gx[b] - px
+    by = gy[b] - py
+    cx = gx[c] - px
+    cy = gy[c] - py
+    wa = bx * cy - by * cx
+    wb = cx * ay - cy * ax
+    wc = ax * by - ay * bx
+    total = wa + wb + wc
+    corners[0] = ids[a]
+    corners[1] = ids[b]
+    corners[2] = ids[c]
+    weights[0] = wa / total
+    weights[1] = wb / total
+    weights[2] = wc / total
+
+
 @njit
 def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np.ndarray, he: np.ndarray,
                         places: np.ndarray, near: np.ndarray, cap: np.ndarray):
@@ -293,10 +358,15 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
     b_start = empty(room, dtype=np.int64)
     b_end = empty(room, dtype=np.int64)
     b_out = empty(room, dtype=np.int64)
+    b_edge = empty(room, dtype=np.int64)
     edge_of = full(larger(n_v, 1), -1, dtype=np.int64)
     edge_stamp = full(larger(n_v, 1), -1, dtype=np.int64)
     ring = empty(room, dtype=np.int64)
     ring_out = empty(room, dtype=np.int64)
+    ring_edge = empty(room, dtype=np.int64)
+    # the cavity's triangles' circumcentres, relative to the place
+    tcx = empty(room)
+    tcy = empty(room)
     ux = empty(room)
     uy = empty(room)
     lam = empty(room)
@@ -308,6 +378,8 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
     status = zeros(n_q, dtype=np.int8)
     reach = full(n_q, math.inf)
     edge = zeros(n_q, dtype=np.bool_)
+    corners = full((n_q, 3), -1, dtype=np.int64)
+    linear = full((n_q, 3), math.nan)
     circles = empty((16, 3), dtype=np.int64)
     n_circles = 0
     # a triangle of every vertex, where the walk to a place near it starts
@@ -358,6 +430,7 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
                 b_start[m] = a
                 b_end[m] = tri[3 * t + (k + 1) % 3]
                 b_out[m] = f // 3 if f >= 0 else -1
+                b_edge[m] = e
                 edge_stamp[a] = q
                 edge_of[a] = m
                 m += 1
@@ -381,6 +454,7 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
                 break
             ring[s] = b_start[i]
             ring_out[s] = b_out[i]
+            ring_edge[s] = b_edge[i]
             nxt = b_end[i]
             if edge_stamp[nxt] != q:
                 closed = False
@@ -432,15 +506,55 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
         if flat:
             status[q] = 2
             continue
-        # Laplace coordinates: point s's Voronoi edge with the place runs from centre s - 1 to centre s
+        # the triangle that holds the place, the one first in coordinate order where
+        # two do (the place on their edge), and its linear weights
+        t_in = t0
+        for k in range(3):
+            a = tri[3 * t0 + k]
+            b = tri[3 * t0 + (k + 1) % 3]
+            f = he[3 * t0 + k]
+            if f >= 0 and orient2d(gx[a], gy[a], gx[b], gy[b], px, py) == 0:
+                if _triangle_before(gx, gy, tri, f // 3, t_in):
+                    t_in = f // 3
+        _linear_weights(gx, gy, tri[3 * t_in], tri[3 * t_in + 1], tri[3 * t_in + 2], px, py, ids, corners[q], linear[q])
+        # Sibson's coordinates: the area of the cell the place would take from each
+        # neighbour s, bounded by its new Voronoi edge (from centre s - 1 to centre
+        # s) and the old Voronoi vertices of the cavity's triangles around s
+        for i in range(count):
+            t = cavity[i]
+            x, y = _centre(gx, gy, tri[3 * t], tri[3 * t + 1], tri[3 * t + 2], px, py)
+            tcx[t] = x
+            tcy[t] = y
         total = 0.0
+        good = True
         for s in range(m):
             p = (s + m - 1) % m
-            lam[s] = math.hypot(ox[s] - ox[p], oy[s] - oy[p]) / math.sqrt(ux[s] * ux[s] + uy[s] * uy[s])
+            # the polygon c(s - 1), c(s), then the cavity's centres around s back to the edge from s - 1
+            x0, y0 = ox[p], oy[p]
+            x1, y1 = ox[s], oy[s]
+            area = x0 * y1 - x1 * y0
+            e = ring_edge[s]
+            steps = 0
+            while True:
+                t = e // 3
+                area += x1 * tcy[t] - tcx[t] * y1
+                x1, y1 = tcx[t], tcy[t]
+                back = 3 * t + (e % 3 + 2) % 3  # the half-edge into s in this triangle
+                f = he[back]
+                steps += 1
+                if f < 0 or stamp[f // 3] != q or steps > count:
+                    break
+                e = f
+            area += x1 * y0 - x0 * y1
+            lam[s] = 0.5 * area
+            if not lam[s] >= -1e-9 * abs(area) - 1e-300:
+                good = False
             total += lam[s]
-        if not (total > 0.0 and math.isfinite(total)):
+        if not (good and total > 0.0 and math.isfinite(total)):
             status[q] = 2
             continue
+        for s in range(m):
+            lam[s] = larger(lam[s], 0.0)
         index = _grown_ints(index, n_out + m)
         weight = _grown_floats(weight, n_out + m)
         for s in range(m):
@@ -448,7 +562,8 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
             weight[n_out + s] = lam[s] / total
         n_out += m
     first[n_q] = n_out
-    return first, index[:n_out].copy(), weight[:n_out].copy(), status, reach, edge, circles[:n_circles].copy()
+    return (first, index[:n_out].copy(), weight[:n_out].copy(), status, reach, edge, circles[:n_circles].copy(), corners,
+            linear)
 
 
 _FAR = 1e6
@@ -617,7 +732,8 @@ def natural_coordinates(
     near = np.full(n_q, -1, dtype=np.int64) if near is None else np.asarray(near, dtype=np.int64)
     if n_q == 0 or points.shape[0] < 3:
         return NaturalCoordinates(np.zeros(n_q + 1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0),
-                                  np.column_stack([places, cap]) if n_q else np.empty((0, 3)), np.arange(n_q))
+                                  np.column_stack([places, cap]) if n_q else np.empty((0, 3)), np.arange(n_q),
+                                  np.full((n_q, 3), -1, dtype=np.int64), np.full((n_q, 3), np.nan))
     grid = _bucket_grid(points)
 
     def counts(skip: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -653,6 +769,8 @@ def natural_coordinates(
     # place is done again only while a round finds a point it had not
     rounds = []
     read = np.zeros(n_q)  # the disk around each place it reads, or 0: its circles, each on its own
+    triangle = np.full((n_q, 3), -1, dtype=np.int64)  # the Delaunay triangle holding each place
+    linear = np.full((n_q, 3), np.nan)
     todo = np.arange(n_q)
     for round_ in range(_MAX_ROUNDS + 1):
         if round_ == _MAX_ROUNDS:
@@ -665,7 +783,7 @@ def natural_coordinates(
         gy = np.ascontiguousarray(points[ids, 1])
         vertex_of = np.full(points.shape[0] + 1, -1, dtype=np.int64)  # the last: no point
         vertex_of[ids] = np.arange(ids.size)
-        first, index, weight, status, reach_of, edge, rows = _coordinates_kernel(
+        first, index, weight, status, reach_of, edge, rows, tin_corners, tin_weights = _coordinates_kernel(
             gx, gy, ids, triangulation.triangles, triangulation.halfedges, np.ascontiguousarray(places[todo]),
             vertex_of[near[todo]], cap[todo])
         rows = np.column_stack([todo[rows[:, 0]], ids[rows[:, 1]], ids[rows[:, 2]]]) if rows.size else rows
@@ -685,6 +803,8 @@ def natural_coordinates(
         flat = np.empty(rows.shape[0], dtype=bool)
         _star_disks_kernel(places, points, rows, disks, flat)
         rounds.append((todo, first, index, weight, rows, disks))
+        triangle[todo] = np.where(status[:, None] == 0, tin_corners, -1)
+        linear[todo] = np.where(status[:, None] == 0, tin_weights, np.nan)
         if taken.all():
             break
         more = np.zeros(points.shape[0], dtype=bool)
@@ -721,7 +841,7 @@ def natural_coordinates(
     owner = np.concatenate([around] + owners)
     order = np.argsort(owner, kind="stable")
     disks = np.concatenate([np.column_stack([places[around], read[around]])] + circles)[order]
-    return NaturalCoordinates(first, index, weight, disks, owner[order])
+    return NaturalCoordinates(first, index, weight, disks, owner[order], triangle, linear)
 
 
 def _last_rows(n_q: int, rounds: list) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
@@ -769,7 +889,8 @@ def take_places(coordinates: NaturalCoordinates, places: NDArray[np.int64]) -> N
     kept = owner >= 0
     order = np.argsort(owner[kept], kind="stable")
     return NaturalCoordinates(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), coordinates.index[src],
-                              coordinates.weight[src], coordinates.disks[kept][order], owner[kept][order])
+                              coordinates.weight[src], coordinates.disks[kept][order], owner[kept][order],
+                              coordinates.triangle[places], coordinates.linear[places])
 
 
 def join_places(*parts: NaturalCoordinates) -> NaturalCoordinates:
@@ -784,7 +905,8 @@ def join_places(*parts: NaturalCoordinates) -> NaturalCoordinates:
         places += part.first.size - 1
     return NaturalCoordinates(np.concatenate(firsts), np.concatenate([p.index for p in parts]),
                               np.concatenate([p.weight for p in parts]), np.concatenate([p.disks for p in parts]),
-                              np.concatenate(owners))
+                              np.concatenate(owners), np.concatenate([p.triangle for p in parts]),
+                              np.concatenate([p.linear for p in parts]))
 
 
 @njit
@@ -797,6 +919,33 @@ def _values_kernel(first: np.ndarray, index: np.ndarray, weight: np.ndarray, z: 
         for k in range(first[q], first[q + 1]):
             s += weight[k] * z[index[k]]
         out[q] = s
+
+
+def tin_values(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The Delaunay triangulation's linear interpolant of ``z`` at the places with coordinates (NaN elsewhere)."""
+    found = coordinates.triangle >= 0
+    return np.where(found.all(axis=1), np.sum(coordinates.linear * np.asarray(z)[np.maximum(coordinates.triangle, 0)], axis=1),
+                    np.nan)
+
+
+@njit
+def _ranges_kernel(first: np.ndarray, index: np.ndarray, z: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
+    for q in range(first.shape[0] - 1):
+        lo = math.inf
+        hi = -math.inf
+        for k in range(first[q], first[q + 1]):
+            lo = smaller(lo, z[index[k]])
+            hi = larger(hi, z[index[k]])
+        low[q] = lo if first[q + 1] > first[q] else math.nan
+        high[q] = hi if first[q + 1] > first[q] else math.nan
+
+
+def natural_ranges(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The lowest and highest of ``z`` over each place's natural neighbours (NaN where none)."""
+    n = coordinates.first.shape[0] - 1
+    low, high = np.empty(n), np.empty(n)
+    _ranges_kernel(coordinates.first, coordinates.index, np.ascontiguousarray(z, dtype=np.float64), low, high)
+    return low, high
 
 
 def natural_values(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> NDArray[np.float64]:

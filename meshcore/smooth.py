@@ -68,14 +68,15 @@ from ._buckets import _bounds, _disks_holding, _nearest, _nearest_around
 from ._jit import LANES, empty, full, lanes_scale, lanes_subtract_products, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
-from .natural import NaturalCoordinates, join_places, natural_coordinates, natural_values, take_places
+from .natural import (NaturalCoordinates, join_places, natural_coordinates, natural_ranges, natural_values, take_places,
+                      tin_values)
 from .patches import NODES_PER_FACE
 from .refine import Refinement, _first_end, refine_long_faces
 
 __all__ = [
     "MODELS", "CELL_PER_SPACING", "Variogram", "Neighbourhoods", "AddedPoints", "SmoothPlan", "SmoothSurface", "fit_variogram",
     "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS", "VoidFill",
-    "VOID_NEAR", "VOID_NATURAL", "VOID_FAR", "VOID_NATURAL_SHARE", "VOID_REACH",
+    "VOID_NEAR", "VOID_FAR", "VOID_NATURAL_SHARE", "VOID_REACH",
 ]
 
 DEFAULT_NEIGHBOURS = 16
@@ -578,21 +579,23 @@ def _nodes_kriged_kernel(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
     positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, pattern_weights: np.ndarray,
     nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, gap: np.ndarray, fill: np.ndarray,
-    near: float, natural: float, far: float, out: np.ndarray,
+    near: float, far: float, out: np.ndarray,
 ) -> None:
     """Krig the nodes of every system (a cell), clamp them, and blend those in voids into the fill.
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
     ``first[s] .. first[s + 1] - 1``.  A node is clamped to the
-    range of its ``corners``' values widened to its neighbours' values: every
+    range of its neighbours' values widened to the linear surface's value
+    there (its ``corners``' values by the weights of its ``pattern``): every
     node when ``clamp_inside``, else only those of systems whose neighbours
-    lie to one side of the centre (:func:`_one_sided`); a
+    lie to one side of the centre (:func:`_one_sided`), and those in voids; a
     singular system, or one that meets an unknown z, gives its nodes the
     linear surface's value (the corners' weights, row ``pattern[n]`` of
     ``pattern_weights``).  A node farther than ``near`` from its nearest
-    neighbour (``gap[n]``) is blended into the void's fill (:func:`_void_blend`,
-    from ``near`` and ``natural`` to ``far``): the linear surface's value, and
-    ``fill[n]``, the natural-neighbour interpolant there (NaN: none).
+    neighbour (``gap[n]``) is clamped to the range of its natural neighbours
+    (``fill[n, 1:]``) and blended into the void's fill ``fill[n, 0]`` (NaN:
+    none, the linear surface's value then), which alone it is from ``far`` on
+    (:func:`_void_blend`).
     """
     k = neighbours.shape[1]
     room = _kriging_scratch(k)
@@ -628,21 +631,25 @@ def _nodes_kriged_kernel(
                     qy[t] = positions[first[s] + t, 1] - centres[s, 1]
                 _dual_values(room.xs[b], room.ys[b], count, room.coef[b], radius, scale, model, qx, qy, m, block, values)
             for n in range(first[s], first[s + 1]):
+                linear = _linear_value(z, corners, pattern_weights, pattern[n], n)
                 if kriged:
-                    low = lo
-                    high = hi
-                    for j in range(4):
-                        v = corners[n, j]
-                        if v >= 0 and math.isfinite(z[v]):
-                            low = smaller(low, z[v])
-                            high = larger(high, z[v])
+                    # the neighbours' range, and the linear surface's value (a linear
+                    # function lies there): not the far ends of a long edge
+                    low = smaller(lo, linear)
+                    high = larger(hi, linear)
                     value = values[n - first[s]]
-                    out[n] = smaller(larger(value, low), high) if clamp else value
+                    if gap[n] > near:
+                        # in a void always clamped (no crest is known there to keep), then to the
+                        # range of its natural neighbours, within which its fill lies
+                        out[n] = smaller(larger(value, low), high)
+                        if math.isfinite(fill[n, 1]):
+                            out[n] = smaller(larger(out[n], fill[n, 1]), fill[n, 2])
+                    else:
+                        out[n] = smaller(larger(value, low), high) if clamp else value
                 else:
-                    out[n] = _linear_value(z, corners, pattern_weights, pattern[n], n)
+                    out[n] = linear
                 if gap[n] > near:
-                    out[n] = _void_blend(out[n], _linear_value(z, corners, pattern_weights, pattern[n], n), fill[n],
-                                         gap[n], near, natural, far)
+                    out[n] = _void_blend(out[n], linear, fill[n, 0], gap[n], near, far)
         s0 += lanes
 
 
@@ -658,24 +665,18 @@ def _linear_value(z: np.ndarray, corners: np.ndarray, pattern_weights: np.ndarra
 
 
 @njit_helper
-def _void_blend(value: float, linear: float, natural: float, gap: float, near: float, start: float,
-                far: float) -> float:
+def _void_blend(value: float, linear: float, fill: float, gap: float, near: float, far: float) -> float:
     """A node's value ``gap`` from its nearest point: its kriged ``value`` up to ``near``,
-    the void's fill from ``far`` on, in between a blend linear in the distance.
-
-    The fill is the linear surface, blended from ``start`` to ``far`` into
-    :data:`VOID_NATURAL_SHARE` of the natural-neighbour interpolant
-    (``natural``; NaN where it has none) and the rest of the linear surface.
-    All three lie within the values of the points around the void, and
-    reproduce linear functions: so does the blend."""
-    fill = linear
-    if gap > start and math.isfinite(natural):
-        share = _NATURAL_SHARE * smaller((gap - start) / (far - start), 1.0)
-        fill = linear + share * (natural - linear)
+    the void's ``fill`` (:meth:`VoidFill.values`; NaN where a node has none: the
+    linear surface then) from ``far`` on, in between a blend linear in the
+    distance.  Kriging, the fill and the linear surface reproduce linear
+    functions, and the fill stays within the values of the points around the
+    void: so does the blend, and it goes from one to the other smoothly."""
+    base = fill if math.isfinite(fill) else linear
     if gap >= far:
-        return fill
+        return base
     w = (far - gap) / (far - near)
-    return fill + w * (value - fill)
+    return base + w * (value - base)
 
 
 class Neighbourhoods(NamedTuple):
@@ -700,7 +701,7 @@ class Neighbourhoods(NamedTuple):
     cell : float, the side of the cells
     gap : (n,) float64, the distance from each node to the nearest of its cell's neighbours
         (exact beyond :data:`VOID_NEAR` spacings; nearer, any distance up to it)
-    fill : VoidFill, the nodes in voids (``gap`` over :data:`VOID_NATURAL` spacings) and their natural neighbours
+    fill : VoidFill, the nodes in voids (``gap`` over :data:`VOID_NEAR` spacings) and their natural neighbours
     """
 
     centres: NDArray[np.float64]
@@ -741,17 +742,22 @@ class VoidFill(NamedTuple):
     coordinates: NaturalCoordinates
 
     def values(self, z: NDArray[np.float64], n: int) -> NDArray[np.float64]:
-        """``(n,)``: the natural-neighbour interpolant of the points' values ``z`` at
-        the nodes in voids, NaN at the others (and where a node has no coordinates)."""
-        out = np.full(n, np.nan)
-        out[self.rows] = natural_values(self.coordinates, z)
+        """``(n, 3)``: for each of ``n`` nodes the void's fill of the points' values ``z``
+        (:data:`VOID_NATURAL_SHARE` of the natural-neighbour interpolant, the rest the
+        Delaunay TIN's) and the lowest and highest value of its natural neighbours;
+        NaN at the nodes not in voids (and where a node has no natural neighbours)."""
+        out = np.full((n, 3), np.nan)
+        out[self.rows, 0] = (VOID_NATURAL_SHARE * natural_values(self.coordinates, z)
+                             + (1.0 - VOID_NATURAL_SHARE) * tin_values(self.coordinates, z))
+        out[self.rows, 1], out[self.rows, 2] = natural_ranges(self.coordinates, z)
         return out
 
 
 _NO_ENDS = np.zeros((0, 2), dtype=np.int64)
 
 _NO_FILL = VoidFill(np.zeros(0, dtype=np.int64), NaturalCoordinates(
-    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)), np.zeros(0, dtype=np.int64)))
+    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)), np.zeros(0, dtype=np.int64),
+    np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))))
 
 
 _THIRD = 1.0 / 3.0
@@ -1026,16 +1032,10 @@ per edge and face (five per point), within the noise of the test; at 2
 spacings they grow."""
 
 
-VOID_NEAR = 1.5
+VOID_NEAR = 2.0
 """A node (or added point) farther than this many point spacings from the nearest
 of its cell's points lies in a void: from here to :data:`VOID_FAR` its kriged
 value is blended into the void's fill (:func:`_void_blend`)."""
-
-VOID_NATURAL = 2.0
-"""The void's fill is the linear surface up to this many spacings; from here to
-:data:`VOID_FAR` the natural-neighbour interpolant joins it, to
-:data:`VOID_NATURAL_SHARE` of it (only nodes this far get natural neighbours:
-more of them cost more than they gave)."""
 
 VOID_FAR = 3.5
 """From this many spacings on a node is the void's fill alone.
@@ -1048,20 +1048,26 @@ Measured: blends from 1-3 to 2-4 spacings all kept the surface below the
 TIN's errors in voids of 5 to 40 units on every sample; the nearer ones
 keep less of kriging's gains on smooth, sparse ground (autzen_trim) and more
 on flat, dense, noisy ground (extra_byte_blocks, where kriging beside a void
-is worse than the TIN); the point-CV errors moved by 0.1 point at most."""
+is worse than the TIN); point-CV errors moved by 0.1 point at most.  From 2
+spacings, fewer nodes need natural neighbours (a third of ign_semis's against
+one in two from 1.5), and none blends into the linear surface of the faces cut
+across a void, whose small triangles showed as a waffle in a hillshade."""
 
 VOID_NATURAL_SHARE = 0.5
-"""The void's fill: this share of the natural-neighbour interpolant, the rest of the linear surface.
+"""The void's fill: this share of the natural-neighbour (Sibson) interpolant of the
+points around it, the rest of their Delaunay TIN (:meth:`VoidFill.values`).
 
 Measured as :data:`VOID_FAR`: the natural-neighbour interpolant alone was
 2-25% better than the TIN inside most voids, but worse in a void across
-startinpy_small's noisy ground (+2 to +4%); the linear surface of the combined
-mesh, a triangulation of the rim as arbitrary as the TIN's, was up to 17%
-worse in some (4_6_crop at 10 ft) and better in others.  Their errors differ
-enough that their mean was the steadiest: better than the TIN in every void
-tested, where either alone was not."""
-
-_NATURAL_SHARE = VOID_NATURAL_SHARE
+startinpy_small's noisy ground (+2 to +4%); a triangulation of the rim (the
+TIN's, the combined mesh's) is as arbitrary as another, and was up to 17%
+worse than the TIN in some voids (the combined mesh's, 4_6_crop at 10 ft).
+The mean of the natural-neighbour interpolant and a triangulation's was the
+steadiest: better than the TIN in every void tested, where either alone was
+not.  The TIN's, not the combined mesh's, as its value at a node needs no
+more than the natural neighbours do (the triangle holding the node is one of
+the cavity's), and the combined mesh's, on the faces cut across a void,
+showed their small triangles in a hillshade."""
 
 VOID_REACH = 3.0
 """A node's natural neighbours are read as one disk around it while their circles
@@ -1133,11 +1139,10 @@ def _gaps(vertices: NDArray[np.float64], neighbours: NDArray[np.int64], first: N
     return out
 
 
-def _void_distances(cell: float) -> tuple[float, float, float]:
-    """:data:`VOID_NEAR`, :data:`VOID_NATURAL` and :data:`VOID_FAR` for nodes in cells of
-    side ``cell`` (from the cell, which every plan of a survey shares bit for bit)."""
-    return (cell * (VOID_NEAR / CELL_PER_SPACING), cell * (VOID_NATURAL / CELL_PER_SPACING),
-            cell * (VOID_FAR / CELL_PER_SPACING))
+def _void_distances(cell: float) -> tuple[float, float]:
+    """:data:`VOID_NEAR` and :data:`VOID_FAR` for nodes in cells of side ``cell``
+    (from the cell, which every plan of a survey shares bit for bit)."""
+    return cell * (VOID_NEAR / CELL_PER_SPACING), cell * (VOID_FAR / CELL_PER_SPACING)
 
 
 @njit
@@ -1178,9 +1183,9 @@ def _void_fills(vertices: NDArray[np.float64], data: int, ends: NDArray[np.int64
     neighbours among the first ``data`` of ``vertices``, each read within
     :data:`VOID_REACH` times the distance to its farthest corner; one
     triangulation for all."""
-    _, natural, _ = _void_distances(cell)
+    near, _ = _void_distances(cell)
     if rows is None:
-        rows = [np.flatnonzero(gap > natural) for _, gap, *_ in groups]
+        rows = [np.flatnonzero(gap > near) for _, gap, *_ in groups]
     if not any(r.size for r in rows):
         return [VoidFill(r, _NO_FILL.coordinates._replace(first=np.zeros(r.size + 1, dtype=np.int64))) for r in rows]
     points = np.ascontiguousarray(vertices[:data])
@@ -1350,11 +1355,11 @@ def smooth_nodes(
                                 f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
     rows = hoods.pattern.astype(np.int32)  # as the added points give theirs: one kernel for both, compiled and loaded once
-    near, natural, far = _void_distances(hoods.cell)
+    near, far = _void_distances(hoods.cell)
     _nodes_kriged_kernel(
         vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
-        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size), near, natural, far, values,
+        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size), near, far, values,
     )
     _scatter_nodes(values, hoods.take, out)
     return out
@@ -1508,9 +1513,9 @@ def _with_fills(vertices: NDArray[np.float64], data: int, nodes: Neighbourhoods,
     if new is None:
         fills = _void_fills(vertices, data, ends, nodes.cell, *groups)
         return nodes._replace(fill=fills[0]), added._replace(fill=fills[1])
-    _, natural, _ = _void_distances(nodes.cell)
+    near, _ = _void_distances(nodes.cell)
     old = (nodes.fill, added.fill)
-    rows = [np.flatnonzero(gap > natural) for _, gap, *_ in groups]
+    rows = [np.flatnonzero(gap > near) for _, gap, *_ in groups]
     # each kept node's place among the old ones, and those whose disks hold a new point
     kept = [np.searchsorted(f.rows, r) for f, r in zip(old, rows)]
     again = []
@@ -1712,12 +1717,11 @@ def _krige_added(
     weights[:, 0] = 1.0 - t[order]
     weights[:, 1] = t[order]
     values = np.empty(n)
-    near, natural, far = _void_distances(cell)
+    near, far = _void_distances(cell)
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
         np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
-        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n), near, natural, far,
-        values,
+        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n), near, far, values,
     )
     out = np.empty(n)
     out[order] = values
