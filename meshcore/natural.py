@@ -7,18 +7,19 @@ Natural-neighbour interpolation reads the whole rim.  The natural neighbours
 of a place ``q`` are the points it would be joined to in the Delaunay
 triangulation, were it a point: the corners of the triangles whose
 circumcircles hold ``q`` (the *cavity*), in order around it (its *star*).
-Their Laplace coordinates (Belikov and Semenov's non-Sibsonian
-coordinates) weigh each neighbour ``x`` by the length of the Voronoi edge
-``q`` would share with it, over the distance ``|q - x|``:
-
-    lambda_x = |c_prev - c_next| / |q - x|,   then normalised to sum to 1,
-
-where ``c_prev`` and ``c_next`` are the circumcentres of the triangles of
-the star on either side of ``x``.  The weights are positive, so a value lies
-within the range of the neighbours' (no ring, no bowl), and they reproduce
-linear functions; the interpolant does not depend on how a triangulation
-cuts a void (Sibson's weights, by stolen areas, were as accurate here, at
-more cost).
+Their Sibson coordinates weigh each neighbour ``x`` by the area of the
+Voronoi cell ``q`` would take from ``x``'s, over the area of ``q``'s cell.
+That share is a polygon bounded by the Voronoi edge ``q`` would share with
+``x`` (from the circumcentre of the star's triangle before ``x`` to that of
+the one after it) and by ``x``'s old Voronoi edges inside ``q``'s cell
+(through the circumcentres of the cavity's triangles around ``x``).  The
+weights are positive, so a value lies within the range of the neighbours'
+(no ring, no bowl); they reproduce linear functions; and the interpolant
+is smooth away from the points and does not depend on how a triangulation
+cuts a void.  (Laplace's coordinates, by the lengths of the Voronoi edges
+alone, cost less, but their interpolant creases along the Delaunay circles:
+arcs across a void in a hillshade.)  :func:`natural_coordinates` also gives
+the Delaunay triangle that holds each place, one of the cavity's.
 
 Which points a place's coordinates read: the star's triangles, when their
 circles hold no point, are the place's triangles in the Delaunay
@@ -47,7 +48,7 @@ from numpy.typing import NDArray
 
 from ._buckets import _bucket_grid
 from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
-from .delaunay import _locate, delaunay
+from .delaunay import _locate, _walk, delaunay
 from .predicates import incircle_sos, lex_before, orient2d
 
 __all__ = ["NaturalCoordinates", "natural_coordinates", "natural_values", "natural_ranges", "tin_values", "take_places",
@@ -85,22 +86,11 @@ _ALL_POINTS = 0.3
 
 
 @njit_helper
-def _grown_ints(a: np.ndarray, need: int) -> np.ndarray:
-    """``a`` with room for at least ``need`` items, its items kept."""
+def _grown(a: np.ndarray, need: int) -> np.ndarray:
+    """``a`` (1-d) with room for at least ``need`` items, its items kept."""
     if a.shape[0] >= need:
         return a
-    out = empty(larger(2 * a.shape[0], need), dtype=np.int64)
-    for i in range(a.shape[0]):
-        out[i] = a[i]
-    return out
-
-
-@njit_helper
-def _grown_floats(a: np.ndarray, need: int) -> np.ndarray:
-    """``a`` with room for at least ``need`` items, its items kept."""
-    if a.shape[0] >= need:
-        return a
-    out = empty(larger(2 * a.shape[0], need))
+    out = empty(larger(2 * a.shape[0], need), dtype=a.dtype)
     for i in range(a.shape[0]):
         out[i] = a[i]
     return out
@@ -196,38 +186,6 @@ def _left_kernel(items: np.ndarray, start: np.ndarray, nbx: int, skip: np.ndarra
                 count += 1
         out[b] = count
         out_block[((b // nbx) // _BLOCK) * nbx_b + (b % nbx) // _BLOCK] += count
-
-
-@njit_helper
-def _walk(tri: np.ndarray, he: np.ndarray, x: np.ndarray, y: np.ndarray, px: float, py: float, start: int,
-          seed: int) -> tuple[int, int, int]:
-    """:func:`meshcore.delaunay._locate`'s visibility walk from triangle ``start``:
-    ``(triangle, seed, -1)`` with a triangle holding ``p``, or ``(-1, seed, e)``
-    with the hull's half-edge ``e`` that ``p`` lies beyond."""
-    t = start
-    state = seed
-    steps = 0
-    limit = 4 * (tri.shape[0] // 3) + 16
-    while steps < limit:
-        steps += 1
-        state = (state * 1103515245 + 12345) & 0x7FFFFFFF
-        r = state % 3
-        moved = False
-        for k in range(3):
-            e = 3 * t + (k + r) % 3
-            a = tri[e]
-            b = tri[3 * t + ((k + r) % 3 + 1) % 3]
-            if orient2d(x[a], y[a], x[b], y[b], px, py) < 0:
-                f = he[e]
-                if f == -1:
-                    return -1, state, e
-                t = f // 3
-                moved = True
-                break
-        if not moved:
-            return t, state, -1
-    t, state = _locate(tri, he, x, y, px, py, 0, state)  # a walk this long: a broken triangulation
-    return t, state, -1
 
 
 @njit_helper
@@ -332,19 +290,19 @@ def _linear_weights(gx: np.ndarray, gy: np.ndarray, a: int, b: int, c: int, px: 
 @njit
 def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np.ndarray, he: np.ndarray,
                         places: np.ndarray, near: np.ndarray, cap: np.ndarray):
-    """The Laplace coordinates of every place in the triangulation ``tri, he`` of the
+    """The Sibson coordinates of every place in the triangulation ``tri, he`` of the
     points ``(gx, gy)`` (``ids``: their numbers in the caller's points), each
     found from a triangle of its point ``near[i]`` (a vertex of the
     triangulation, or -1).
 
-    Returns ``first, index, weight, status, reach, edge, circles``: per place
-    its neighbours (``ids``) and weights, its status (0: done, 1: outside the
-    triangulation, 2: degenerate: on the line of a hull edge, to rounding), how
-    far the circles of the triangles it would make with its natural neighbours,
-    were it a point, reach from it, whether one of those triangles lies on an
-    edge of the triangulation's hull, and, for each place whose circles reach
-    farther than ``cap``, those triangles as rows ``(place, a, b)``
-    (counter-clockwise).
+    Returns ``first, index, weight, status, reach, circles, corners, linear``: per
+    place its neighbours (``ids``) and weights, its status (0: done, 1: outside
+    the triangulation, 2: degenerate: on the line of a hull edge, to rounding),
+    how far the circles of the triangles it would make with its natural
+    neighbours, were it a point, reach from it, and, for each place whose circles reach
+    farther than ``cap`` (or that lies beyond the hull), those triangles as rows
+    ``(place, a, b)`` (counter-clockwise), and the corners (``ids``) and linear
+    weights of the triangle holding each place (-1 and NaN where it has none).
     """
     n_q = places.shape[0]
     n_t = tri.shape[0] // 3
@@ -354,15 +312,13 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
     room = larger(n_t, 1)
     stack = empty(room, dtype=np.int64)
     cavity = empty(room, dtype=np.int64)
-    # the cavity's boundary edges: start, end, the triangle beyond (-1: none)
+    # the cavity's boundary edges: start, end, their half-edge
     b_start = empty(room, dtype=np.int64)
     b_end = empty(room, dtype=np.int64)
-    b_out = empty(room, dtype=np.int64)
     b_edge = empty(room, dtype=np.int64)
     edge_of = full(larger(n_v, 1), -1, dtype=np.int64)
     edge_stamp = full(larger(n_v, 1), -1, dtype=np.int64)
     ring = empty(room, dtype=np.int64)
-    ring_out = empty(room, dtype=np.int64)
     ring_edge = empty(room, dtype=np.int64)
     # the cavity's triangles' circumcentres, relative to the place
     tcx = empty(room)
@@ -377,7 +333,6 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
     weight = empty(larger(8 * n_q, 16))
     status = zeros(n_q, dtype=np.int8)
     reach = full(n_q, math.inf)
-    edge = zeros(n_q, dtype=np.bool_)
     corners = full((n_q, 3), -1, dtype=np.int64)
     linear = full((n_q, 3), math.nan)
     circles = empty((16, 3), dtype=np.int64)
@@ -399,6 +354,8 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
         if near[q] >= 0:
             start = corner_of[near[q]]
         t0, state, e = _walk(tri, he, gx, gy, px, py, start, state)
+        if t0 == -2:
+            t0, state = _locate(tri, he, gx, gy, px, py, start, state)
         if t0 < 0:
             # beyond the hull's edge ``e`` (a place on it, rounded out): read, as on it, beyond that edge
             status[q] = 1
@@ -429,7 +386,6 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
                     break
                 b_start[m] = a
                 b_end[m] = tri[3 * t + (k + 1) % 3]
-                b_out[m] = f // 3 if f >= 0 else -1
                 b_edge[m] = e
                 edge_stamp[a] = q
                 edge_of[a] = m
@@ -453,7 +409,6 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
                 closed = False
                 break
             ring[s] = b_start[i]
-            ring_out[s] = b_out[i]
             ring_edge[s] = b_edge[i]
             nxt = b_end[i]
             if edge_stamp[nxt] != q:
@@ -468,8 +423,6 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
         for s in range(m):
             ux[s] = gx[ring[s]] - px
             uy[s] = gy[ring[s]] - py
-            if ring_out[s] < 0:
-                edge[q] = True
         flat = False
         far = 0.0
         for s in range(m):
@@ -555,15 +508,16 @@ def _coordinates_kernel(gx: np.ndarray, gy: np.ndarray, ids: np.ndarray, tri: np
             continue
         for s in range(m):
             lam[s] = larger(lam[s], 0.0)
-        index = _grown_ints(index, n_out + m)
-        weight = _grown_floats(weight, n_out + m)
+        index = _grown(index, n_out + m)
+        weight = _grown(weight, n_out + m)
         for s in range(m):
             index[n_out + s] = ids[ring[s]]
             weight[n_out + s] = lam[s] / total
         n_out += m
     first[n_q] = n_out
-    return (first, index[:n_out].copy(), weight[:n_out].copy(), status, reach, edge, circles[:n_circles].copy(), corners,
-            linear)
+    index = index[:n_out].copy()
+    weight = weight[:n_out].copy()
+    return first, index, weight, status, reach, circles[:n_circles].copy(), corners, linear
 
 
 _FAR = 1e6
@@ -701,7 +655,8 @@ def natural_coordinates(
     points: NDArray[np.float64], places: NDArray[np.float64], reach: NDArray[np.float64], cap: NDArray[np.float64],
     near: NDArray[np.integer] | None = None,
 ) -> NaturalCoordinates:
-    """The Laplace coordinates of ``places`` among ``points`` (see the module docstring).
+    """The Sibson coordinates of ``places`` among ``points`` (see the module docstring), and
+    the Delaunay triangle that holds each (``.triangle``, ``.linear``).
 
     A place outside the points' hull, or on the line of one of its edges to
     rounding, gets no coordinates (nor does one where the points around are
@@ -783,7 +738,7 @@ def natural_coordinates(
         gy = np.ascontiguousarray(points[ids, 1])
         vertex_of = np.full(points.shape[0] + 1, -1, dtype=np.int64)  # the last: no point
         vertex_of[ids] = np.arange(ids.size)
-        first, index, weight, status, reach_of, edge, rows, tin_corners, tin_weights = _coordinates_kernel(
+        first, index, weight, status, reach_of, rows, tin_corners, tin_weights = _coordinates_kernel(
             gx, gy, ids, triangulation.triangles, triangulation.halfedges, np.ascontiguousarray(places[todo]),
             vertex_of[near[todo]], cap[todo])
         rows = np.column_stack([todo[rows[:, 0]], ids[rows[:, 1]], ids[rows[:, 2]]]) if rows.size else rows
@@ -923,9 +878,9 @@ def _values_kernel(first: np.ndarray, index: np.ndarray, weight: np.ndarray, z: 
 
 def tin_values(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> NDArray[np.float64]:
     """The Delaunay triangulation's linear interpolant of ``z`` at the places with coordinates (NaN elsewhere)."""
-    found = coordinates.triangle >= 0
-    return np.where(found.all(axis=1), np.sum(coordinates.linear * np.asarray(z)[np.maximum(coordinates.triangle, 0)], axis=1),
-                    np.nan)
+    found = (coordinates.triangle >= 0).all(axis=1)
+    corners = np.asarray(z)[np.maximum(coordinates.triangle, 0)]
+    return np.where(found, np.sum(coordinates.linear * corners, axis=1), np.nan)
 
 
 @njit
@@ -940,7 +895,8 @@ def _ranges_kernel(first: np.ndarray, index: np.ndarray, z: np.ndarray, low: np.
         high[q] = hi if first[q + 1] > first[q] else math.nan
 
 
-def natural_ranges(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def natural_ranges(coordinates: NaturalCoordinates,
+                   z: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The lowest and highest of ``z`` over each place's natural neighbours (NaN where none)."""
     n = coordinates.first.shape[0] - 1
     low, high = np.empty(n), np.empty(n)
@@ -951,5 +907,6 @@ def natural_ranges(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> t
 def natural_values(coordinates: NaturalCoordinates, z: NDArray[np.float64]) -> NDArray[np.float64]:
     """The natural-neighbour interpolant of the points' values ``z`` at the places (NaN where none)."""
     out = np.empty(coordinates.first.shape[0] - 1)
-    _values_kernel(coordinates.first, coordinates.index, coordinates.weight, np.ascontiguousarray(z, dtype=np.float64), out)
+    z = np.ascontiguousarray(z, dtype=np.float64)
+    _values_kernel(coordinates.first, coordinates.index, coordinates.weight, z, out)
     return out

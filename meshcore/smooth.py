@@ -756,8 +756,8 @@ class VoidFill(NamedTuple):
 _NO_ENDS = np.zeros((0, 2), dtype=np.int64)
 
 _NO_FILL = VoidFill(np.zeros(0, dtype=np.int64), NaturalCoordinates(
-    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)), np.zeros(0, dtype=np.int64),
-    np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))))
+    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)),
+    np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))))
 
 
 _THIRD = 1.0 / 3.0
@@ -1631,14 +1631,15 @@ def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float6
     else:
         refined = mesh
     index, radius = searched_again(nodes.centres, nodes.index, nodes.radius, lambda c: _nearest(vertices, c, k))
-    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners),
-                           gap=_gaps(vertices, index, nodes.first, nodes.positions, nodes.cell) if index is not nodes.index else nodes.gap)
+    gap = nodes.gap if index is nodes.index else _gaps(vertices, index, nodes.first, nodes.positions, nodes.cell)
+    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners), gap=gap)
     # as _added_points searches them
     index, radius = searched_again(added.centres, added.index, added.radius,
                                    lambda c: _nearest_around(vertices, c, k, 6.0 * nodes.cell))
     if index is not added.index:
         added_positions = np.ascontiguousarray(refined.vertices[n:][added.order])
-        added = added._replace(index=index, radius=radius, gap=_gaps(vertices, index, added.first, added_positions, nodes.cell))
+        gap = _gaps(vertices, index, added.first, added_positions, nodes.cell)
+        added = added._replace(index=index, radius=radius, gap=gap)
     # the voids' natural neighbours again, of the nodes whose disks hold a new vertex
     nodes, added = _with_fills(refined.vertices, n, nodes, added, refinement.ends, new)
     return SmoothPlan(refinement._replace(mesh=refined), nodes, added)

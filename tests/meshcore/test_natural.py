@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from meshcore.natural import join_places, natural_coordinates, natural_values, take_places
+
+from .mesh_checks import python_and_compiled
 
 OFFSET = np.array([6.0e5, 6.8e6])
 
@@ -148,11 +145,7 @@ def test_python_form_of_the_natural_kernels_agrees():
         "nat = natural_coordinates(xy, q, np.full(40, 3.0), np.full(40, 20.0))\n"
         "print(json.dumps([a.tolist() for a in nat]))\n"
     )
-    runs = []
-    for disable in ("1", "0"):
-        env = dict(os.environ, NUMBA_DISABLE_JIT=disable)
-        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
-        runs.append([np.array(a) for a in json.loads(result.stdout)])
+    runs = python_and_compiled(script)
     for a, b in zip(*runs):
         assert_array_equal(a, b)
     assert runs[1][0][-1] > 40

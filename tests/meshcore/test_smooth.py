@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -16,7 +11,7 @@ from meshcore.errors import InvalidInputError
 from meshcore.interpolate import _surface_at, gradient, interpolate
 from meshcore.mesh import Mesh
 
-from .mesh_checks import edge_faces, hand_mesh
+from .mesh_checks import edge_faces, hand_mesh, python_and_compiled
 from meshcore._buckets import _nearest
 from meshcore.smooth import (
     CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _loo_errors_kernel,
@@ -597,11 +592,7 @@ def test_python_form_of_the_smooth_kernels_agrees():
         "out = [nodes, val, gx, gy, [v.nugget, v.sill, v.range]]\n"
         "print(json.dumps([np.where(np.isnan(a), None, a).tolist() for a in map(np.asarray, out)]))\n"
     )
-    runs = []
-    for disable in ("1", "0"):
-        env = dict(os.environ, NUMBA_DISABLE_JIT=disable)
-        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
-        runs.append([np.array(a, dtype=np.float64) for a in json.loads(result.stdout)])
+    runs = python_and_compiled(script)
     for a, b in zip(*runs):
         assert_allclose(a, b, rtol=1e-9, atol=1e-9)
     assert np.isfinite(runs[1][1]).sum() > 200
