@@ -9,9 +9,9 @@ from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zer
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import _U, KnownRegion, WindowCertificate, initial_taint, open_hull_edges, safe_circle
-from .flip import _centroid_in, _meets_box, flip_edges
-from .merge import merge_candidates, merge_dependencies, merge_triangles
+from .certificate import KnownRegion, WindowCertificate, circle_in_input_frame, initial_taint, open_hull_edges
+from .flip import _centroid, _centroid_in, _meets_box, flip_edges
+from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import cross_rounded, lex_before
@@ -35,25 +35,6 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
             f"(first at index {bad})"
         )
     return arr
-
-
-@njit
-def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
-    """Centroid of three points, in the input frame (local + origin, which is
-    exact), summed in lexicographic point order.
-
-    The order of the sum is fixed by the points themselves, so every run that
-    holds the same three points computes the same floats, whatever its vertex
-    numbering or local origin: tiles decide ownership of a shared triangle
-    identically.
-    """
-    if lex_before(bx, by, ax, ay):
-        ax, ay, bx, by = bx, by, ax, ay
-    if lex_before(cx, cy, bx, by):
-        bx, by, cx, cy = cx, cy, bx, by
-        if lex_before(bx, by, ax, ay):
-            ax, ay, bx, by = bx, by, ax, ay
-    return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
 
 
 @njit
@@ -105,11 +86,7 @@ def _escaping_circles(x, y, tri, active, window, ox, oy, x_lo, y_lo, x_hi, y_hi)
             x[a], y[a], x[b], y[b], x[c], y[c], window[0] - ox, window[1] - oy, window[2] - ox, window[3] - oy, slack
         ):
             continue
-        ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
-        ux += x[a] + ox
-        uy += y[a] + oy
-        # the sums' rounding moves the centre by at most an ulp of each coordinate
-        r += _U * 4.0 * (abs(ux) + abs(uy))
+        ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         if n == out.shape[0]:
@@ -318,6 +295,7 @@ def _combined_mesh(
     nt = triangulation.triangles.shape[0] // 3
     escapes = None
     taint = None
+    source = None
     open_edges = None
     active = np.ones(nt, dtype=np.uint8)
     window = None if bounds is None else np.array(bounds, dtype=np.float64)
@@ -331,12 +309,13 @@ def _combined_mesh(
             triangulation.x, triangulation.y, triangulation.triangles, window_triangles, window, float(o[0]), float(o[1]),
             *region.box,
         )
-        taint = initial_taint(triangulation, region)
+        taint, circle_of = initial_taint(triangulation, region)
+        source = np.where(taint != 0, np.arange(nt), -1).astype(np.int64)
         open_edges = open_hull_edges(triangulation, region)
     flipped = None
     if tm is not TriangleMeasure.DELAUNAY:
         flipped = flip_edges(
-            triangulation, tm.value, active, taint=taint, open_edges=open_edges, assume_rounds=rounds,
+            triangulation, tm.value, active, taint=taint, source=source, open_edges=open_edges, assume_rounds=rounds,
             window=bounds,
         )
     if qm is None:
@@ -344,7 +323,9 @@ def _combined_mesh(
         candidates = None
     else:
         candidates = merge_candidates(triangulation, qm.value, active)
-        partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates)
+        order = None if mm is MergeMethod.OPTIMAL else greedy_order(triangulation, *candidates)
+        partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates, order=order)
+        candidates = (*candidates, order)
 
     certificate = None
     if bounds is None:
@@ -352,7 +333,8 @@ def _combined_mesh(
     else:
         owned = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles,
                              triangulation.halfedges, partner, window)
-        certificate = _certificate(triangulation, taint, owned, partner, candidates, flipped, mm, rounds)
+        certificate = _certificate(triangulation, taint, source, circle_of, owned, partner, candidates, flipped, mm,
+                                   rounds)
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     faces = _faces_kernel(
         triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, owned,
@@ -372,11 +354,10 @@ def _combined_mesh(
     )
 
 
-def _certificate(triangulation: Triangulation, taint, owned, partner, candidates, flipped, mm: MergeMethod,
-                 rounds: int) -> WindowCertificate:
+def _certificate(triangulation: Triangulation, taint, source, circle_of, owned, partner, candidates, flipped,
+                 mm: MergeMethod, rounds: int) -> WindowCertificate:
     """Whether a window piece's faces are the global mesh's, given that the
     global mesh makes no flip near the window after round ``rounds``."""
-    nt = triangulation.triangles.shape[0] // 3
     start = owned.copy()
     _mark_partners(partner, triangulation.halfedges, start)
     need = start.copy()
@@ -384,13 +365,17 @@ def _certificate(triangulation: Triangulation, taint, owned, partner, candidates
         # whether an edge of a face is a candidate at all reads the triangle beyond it
         _grow_ring(triangulation.halfedges, need)
         if mm is MergeMethod.GREEDY:
-            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start)
+            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start, order=candidates[2])
     if flipped is not None:
         need |= flipped.zone
-    clean = not bool(np.any(need & taint)) if nt else True
+    reached = np.flatnonzero(need & taint)
+    causes = np.unique(source[reached])
     last = 0 if flipped is None else flipped.last_window_round
-    return WindowCertificate(certified=clean, last_flip_round=last, assumed_rounds=int(rounds),
-                             rounds=0 if flipped is None else flipped.rounds)
+    return WindowCertificate(
+        certified=reached.size == 0, last_flip_round=last, assumed_rounds=int(rounds),
+        rounds=0 if flipped is None else flipped.rounds,
+        blocking=circle_of[causes[causes >= 0]], open_edges=bool(np.any(causes == -2)),
+    )
 
 
 @njit

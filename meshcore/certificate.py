@@ -23,7 +23,7 @@ from ._jit import empty, njit
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
-__all__ = ["KnownRegion", "WindowCertificate", "initial_taint", "open_hull_edges"]
+__all__ = ["KnownRegion", "WindowCertificate", "initial_taint", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
 
 _U = 2.0**-53
 """The unit roundoff of float64."""
@@ -57,13 +57,20 @@ class WindowCertificate:
     round ``assumed_rounds``; ``last_flip_round`` is the last round whose flips
     touched the window's triangles here (0: none), ``rounds`` the rounds the
     piece's point set flipped in.  A tiled run checks that no tile near this
-    one flipped after ``assumed_rounds``.
+    one flipped after ``assumed_rounds``.  When not certified, ``blocking``
+    and ``open_edges`` say what to hold more of.
     """
 
     certified: bool
     last_flip_round: int
     assumed_rounds: int
     rounds: int
+    blocking: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False)
+    """Where the doubt that reached the window came from: the circles ``(x, y, r)`` of
+    triangles whose points the tile may lack (their points, once held, may clear it)."""
+    open_edges: bool = False
+    """Whether doubt that reached the window came from a hull edge of the tile's points
+    that may not be the survey's (holding a wider box clears it)."""
 
 
 @njit
@@ -105,6 +112,18 @@ def safe_circle(ax, ay, bx, by, cx, cy) -> tuple[float, float, float]:
 
 
 @njit
+def circle_in_input_frame(x, y, a: int, b: int, c: int, ox: float, oy: float) -> tuple[float, float, float]:
+    """:func:`safe_circle` of the triangle ``a, b, c`` of local coordinates
+    ``x, y``, its centre in the input frame (plus ``ox, oy``)."""
+    ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
+    ux += x[a] + ox
+    uy += y[a] + oy
+    # the sums' rounding moves the centre by at most an ulp of each coordinate
+    r += _U * 4.0 * (abs(ux) + abs(uy))
+    return ux, uy, r
+
+
+@njit
 def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     """The triangles whose circumcircle (input frame) is not inside the box, and the circles."""
     nt = tri.shape[0] // 3
@@ -115,10 +134,7 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        ux, uy, r = safe_circle(x[a], y[a], x[b], y[b], x[c], y[c])
-        ux += x[a] + ox
-        uy += y[a] + oy
-        r += _U * 4.0 * (abs(ux) + abs(uy))
+        ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue
         rows[n] = t
@@ -129,19 +145,22 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     return rows[:n].copy(), out[:n].copy()
 
 
-def initial_taint(triangulation: Triangulation, known: KnownRegion) -> NDArray[np.uint8]:
+def initial_taint(triangulation: Triangulation, known: KnownRegion) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
     """1 for the Delaunay triangles that may not be the global set's: their
-    circumcircle leaves ``known.box`` and ``known`` does not vouch for it."""
+    circumcircle leaves ``known.box`` and ``known`` does not vouch for it; and
+    those circles ``(x, y, r)``, one row per triangle (NaN for the others)."""
     t = triangulation
     nt = t.triangles.shape[0] // 3
     taint = np.zeros(nt, dtype=np.uint8)
+    circle_of = np.full((nt, 3), np.nan)
     if known.box == _EVERYWHERE or nt == 0:
-        return taint
+        return taint, circle_of
     rows, circles = _circles_leaving(t.x, t.y, t.triangles, float(t.origin[0]), float(t.origin[1]), *known.box)
     if rows.size:
         vouched = np.asarray(known.covers(circles), dtype=bool)
         taint[rows[~vouched]] = 1
-    return taint
+        circle_of[rows[~vouched]] = circles[~vouched]
+    return taint, circle_of
 
 
 def open_hull_edges(triangulation: Triangulation, known: KnownRegion) -> NDArray[np.uint8]:

@@ -38,6 +38,10 @@ FLIP_TOLERANCE = 1e-9
 _S1 = 1
 _S3 = 3
 
+_NO_SOURCE = -1
+_OPEN_EDGE = -2
+"""A triangle's doubt came from a hull edge of the point set that may not be one of the global set's."""
+
 
 @njit_helper
 def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
@@ -158,23 +162,32 @@ def _known_beaten(x, y, tri, he, imp, taint, open_edge, e: int) -> bool:
     return False
 
 
-@njit_helper
-def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
-    """Whether the centroid of triangle ``t`` (input frame, summed in the
-    corners' coordinate order, so the same bits in every run) lies in the
-    half-open ``window``."""
-    a = tri[3 * t]
-    b = tri[3 * t + 1]
-    c = tri[3 * t + 2]
-    ax, ay, bx, by, cx, cy = x[a], y[a], x[b], y[b], x[c], y[c]
+@njit
+def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
+    """Centroid of three points, in the input frame (local + origin, which is
+    exact), summed in lexicographic point order.
+
+    The order of the sum is fixed by the points themselves, so every run that
+    holds the same three points computes the same floats, whatever its vertex
+    numbering or local origin: tiles decide ownership of a shared triangle
+    identically.
+    """
     if lex_before(bx, by, ax, ay):
         ax, ay, bx, by = bx, by, ax, ay
     if lex_before(cx, cy, bx, by):
         bx, by, cx, cy = cx, cy, bx, by
         if lex_before(bx, by, ax, ay):
             ax, ay, bx, by = bx, by, ax, ay
-    gx = ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0
-    gy = ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
+    return ((ax + ox) + (bx + ox) + (cx + ox)) / 3.0, ((ay + oy) + (by + oy) + (cy + oy)) / 3.0
+
+
+@njit_helper
+def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
+    """Whether the centroid of triangle ``t`` (see :func:`_centroid`) lies in the half-open ``window``."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    gx, gy = _centroid(x[a], y[a], x[b], y[b], x[c], y[c], ox, oy)
     return window[0] <= gx < window[2] and window[1] <= gy < window[3]
 
 
@@ -219,8 +232,8 @@ def _meets_window(x, y, tri, t: int, ox: float, oy: float, window, slack: float)
 
 
 @njit
-def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, taint, open_edge, assume: int,
-                        ox: float, oy: float, window):
+def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, taint, source, open_edge,
+                        assume: int, ox: float, oy: float, window):
     """The rounds; returns (flips, rounds with a flip, last round whose flips
     touch the window, per triangle slot: whether it ever held a triangle that
     meets the window).
@@ -231,7 +244,9 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
 
     With ``taint`` (one flag per triangle; empty: not tracked), the flags
     grow each round over the triangles whose state may differ from the global
-    mesh's, as explained in :func:`flip_edges`.
+    mesh's, as explained in :func:`flip_edges`; ``source`` says for each
+    flagged slot where its doubt came from: the slot of a triangle flagged at
+    the start, or :data:`_OPEN_EDGE`.
     """
     nt = tri.shape[0] // 3
     m = tri.shape[0]
@@ -294,6 +309,7 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         # first round: triangles on a hull edge that may be no hull edge of the global set
                         if (open_edge[3 * t] or open_edge[3 * t + 1] or open_edge[3 * t + 2]) and marked[t] != k:
                             marked[t] = k
+                            source[t] = _OPEN_EDGE
                             fresh[nn] = t
                             nn += 1
                         continue
@@ -301,6 +317,7 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         h = he[3 * t + j]
                         if h >= 0 and not taint[h // 3] and marked[h // 3] != k:
                             marked[h // 3] = k
+                            source[h // 3] = source[t]
                             fresh[nn] = h // 3
                             nn += 1
                 # one ring more across the candidates of those triangles whose decision a tainted edge may change
@@ -315,6 +332,7 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         if stamp[e] != -k and _known_beaten(x, y, tri, he, imp, taint, open_edge, e):
                             continue
                         marked[f // 3] = k
+                        source[f // 3] = source[t]
                         fresh[nn] = f // 3
                         nn += 1
             # a flip whose decision read a tainted triangle may differ from the global mesh's
@@ -323,13 +341,15 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                 f = np.int64(he[e])
                 t1 = e // 3
                 t2 = f // 3
-                unsure = taint[t1] != 0 or taint[t2] != 0
+                cause = source[t1] if taint[t1] else (source[t2] if taint[t2] else _NO_SOURCE)
                 for g in (_next(e), _prev(e), _next(f), _prev(f)):
-                    unsure = unsure or _unknown(he, taint, open_edge, g)
-                if unsure:
+                    if cause == _NO_SOURCE and _unknown(he, taint, open_edge, g):
+                        cause = _OPEN_EDGE if he[g] < 0 else source[he[g] // 3]
+                if cause != _NO_SOURCE:
                     for t in (t1, t2):
                         if not taint[t] and marked[t] != k:
                             marked[t] = k
+                            source[t] = cause
                             fresh[nn] = t
                             nn += 1
             for i in range(nn):
@@ -418,6 +438,7 @@ def flip_edges(
     tolerance: float = FLIP_TOLERANCE,
     *,
     taint: np.ndarray | None = None,
+    source: np.ndarray | None = None,
     open_edges: np.ndarray | None = None,
     assume_rounds: int = 0,
     window: tuple[float, float, float, float] | None = None,
@@ -440,12 +461,16 @@ def flip_edges(
     round it still flips near here).  Past ``assume_rounds``, only this set's
     own flips spread them: when the larger set makes no flip near here after
     that round, an untainted triangle is the larger set's final one.
+    ``source`` (per triangle, updated in place; by default each flagged
+    triangle's own slot) tells where each flag came from.
     """
     code = {"s1": _S1, "s3": _S3}[measure]
     nt = triangulation.triangles.shape[0] // 3
     if active is None:
         active = np.ones(nt, dtype=np.uint8)
     flags = np.zeros(0, dtype=np.uint8) if taint is None else taint
+    if source is None:
+        source = np.where(flags != 0, np.arange(flags.shape[0]), _NO_SOURCE).astype(np.int64)
     opened = np.zeros(triangulation.triangles.shape[0], dtype=np.uint8) if open_edges is None else open_edges
     o = triangulation.origin
     flips, rounds, last, zone = _flip_rounds_kernel(
@@ -457,6 +482,7 @@ def flip_edges(
         code,
         float(tolerance),
         flags,
+        source,
         opened,
         int(assume_rounds),
         float(o[0]),

@@ -23,11 +23,11 @@ from numpy.typing import NDArray
 
 from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _next, _prev
-from .flip import flippable, triangle_score, triangle_scores
+from .flip import edge_before, flippable, triangle_score, triangle_scores
 from .predicates import lex_before
 from .quality import s2_kernel, s4_cubed_kernel
 
-__all__ = ["merge_candidates", "merge_triangles", "merge_dependencies"]
+__all__ = ["merge_candidates", "merge_triangles", "merge_dependencies", "greedy_order"]
 
 _PAIRED_TRIANGLE_MEASURE = {"s2": 1, "s4": 3}
 _QUAD_CODE = {"s2": 2, "s4": 4}
@@ -114,17 +114,32 @@ def _greedy_kernel(he, edges, gains, order, nt: int) -> np.ndarray:
     return partner
 
 
-def _order_by_gain(triangulation: Triangulation, edges: np.ndarray, gains: np.ndarray) -> np.ndarray:
+def greedy_order(triangulation: Triangulation, edges: np.ndarray, gains: np.ndarray) -> np.ndarray:
     """Indices by decreasing gain; equal gains by the edges' endpoints (the one
     first by coordinates, then the other), so the order is the geometry's."""
-    tri = triangulation.triangles
-    a = tri[edges]
-    b = tri[np.where(edges % 3 == 2, edges - 2, edges + 1)]
-    x, y = triangulation.x, triangulation.y
-    swap = (x[b] < x[a]) | ((x[b] == x[a]) & (y[b] < y[a]))
-    lo = np.where(swap, b, a)
-    hi = np.where(swap, a, b)
-    return np.lexsort((y[hi], x[hi], y[lo], x[lo], -gains))
+    order = np.argsort(-gains, kind="stable")
+    _order_ties_by_endpoints(order, gains, edges, triangulation.triangles, triangulation.x, triangulation.y)
+    return order
+
+
+@njit
+def _order_ties_by_endpoints(order, gains, edges, tri, x, y) -> None:
+    """Sort each run of equal gains in ``order`` by its edges' endpoints, in place
+    (such runs are short: the gains of symmetric configurations)."""
+    n = order.shape[0]
+    start = 0
+    while start < n:
+        stop = start + 1
+        while stop < n and gains[order[stop]] == gains[order[start]]:
+            stop += 1
+        for i in range(start + 1, stop):  # insertion sort of the run
+            k = order[i]
+            j = i
+            while j > start and edge_before(x, y, tri, edges[k], edges[order[j - 1]]):
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = k
+        start = stop
 
 
 @njit
@@ -182,7 +197,8 @@ def _dependencies_kernel(he, edges, order, start, nt: int) -> np.ndarray:
 
 
 def merge_dependencies(
-    triangulation: Triangulation, edges: NDArray[np.int32], gains: NDArray[np.float64], start: NDArray[np.uint8]
+    triangulation: Triangulation, edges: NDArray[np.int32], gains: NDArray[np.float64], start: NDArray[np.uint8],
+    order: NDArray[np.int64] | None = None,
 ) -> NDArray[np.uint8]:
     """The triangles whose shapes decide the greedy choice for the triangles ``start`` flags.
 
@@ -193,7 +209,8 @@ def merge_dependencies(
     triangles around them (which say which edges are candidates at all).
     """
     nt = triangulation.triangles.shape[0] // 3
-    order = _order_by_gain(triangulation, edges, gains)
+    if order is None:
+        order = greedy_order(triangulation, edges, gains)
     return _dependencies_kernel(triangulation.halfedges, edges, order, np.ascontiguousarray(start, dtype=np.uint8), nt)
 
 
@@ -252,13 +269,16 @@ def merge_triangles(
     merge: str = "greedy",
     active: NDArray[np.uint8] | None = None,
     candidates: tuple[NDArray[np.int32], NDArray[np.float64]] | None = None,
+    order: NDArray[np.int64] | None = None,
 ) -> NDArray[np.int32]:
     """Choose the diagonals to delete; returns, per triangle, the half-edge of its
     deleted diagonal or -1 when it stays a triangle.  ``candidates``: what
-    :func:`merge_candidates` returned for these arguments, when known."""
+    :func:`merge_candidates` returned for these arguments, when known, and
+    ``order`` the greedy order of its edges (:func:`greedy_order`)."""
     nt = triangulation.triangles.shape[0] // 3
     edges, gains = merge_candidates(triangulation, quad_measure, active) if candidates is None else candidates
     if merge == "optimal":
         return _optimal_partner(triangulation.halfedges, edges, gains, nt)
-    order = _order_by_gain(triangulation, edges, gains)
+    if order is None:
+        order = greedy_order(triangulation, edges, gains)
     return _greedy_kernel(triangulation.halfedges, edges, gains, order, nt)

@@ -80,6 +80,13 @@ class RunReport:
     tiles: int = 0
     tiles_uncertified: int = 0
     tile_expansions: int = 0
+    flip_rounds: int = 0
+    """The last round in which any tile's flips touched its core (the survey's flips end there)."""
+    tiles_meshed_again: int = 0
+    """Tiles meshed again because a tile around them flipped later than their certificate assumed."""
+    certificate_reach: list[float] = field(default_factory=list)
+    """How far beyond its buffer each tile meshed in this run had to hold every point for its
+    flips' and eliminations' certificate: (median, largest), in CRS units."""
     files: list[dict[str, Any]] = field(default_factory=list)
     skipped_files: list[dict[str, Any]] = field(default_factory=list)
     """Inputs left out with ``skip_bad_files``: path, reason, points their header claims."""
@@ -545,15 +552,19 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         summaries[(job.row, job.col)] = summary
 
     map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
-    again = pending
     while True:
         # a tile's certificate assumed its neighbours make no flip after its assumed rounds: where one
         # did, mesh it again assuming as many (its faces change only if the assumption was wrong)
         again = _rounds_unchecked(grid, tile_jobs, summaries)
         if not again:
             break
-        pending = pending + [job for job in again if job not in pending]
+        done = {(job.row, job.col) for job in pending}
+        pending = pending + [job for job in again if (job.row, job.col) not in done]
         map_tasks(client, mesh_tile, again, Progress("mesh", len(again), show), lambda s: s.points_owned, meshed)
+        report.tiles_meshed_again += len(again)
+    reach = [summaries[(job.row, job.col)].grown for job in pending]
+    if reach:
+        report.certificate_reach = [float(np.median(reach)), float(max(reach))]
     _count_windows(report, results, plan.infos, routed.windows, summaries.values())
     report.files = [c.to_report() for c in results if c.skipped is None]
     for s in summaries.values():
@@ -562,6 +573,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         report.faces += s.faces
         report.quads += s.quads
         report.tile_expansions += s.expansions
+        report.flip_rounds = max(report.flip_rounds, s.last_flip_round)
         report.tiles_uncertified += 0 if s.certified else 1
     if report.faces == 0:
         paths = plan.paths

@@ -296,7 +296,7 @@ def test_flips_of_a_window_never_touch_a_triangle_outside_it_on_survey_scan_line
         window = (x0, y0, x0 + rng.uniform(3, 15), y0 + rng.uniform(3, 15))
         active = _window_mask(t.x, t.y, float(t.origin[0]), float(t.origin[1]), t.triangles, *window)
         before = t.triangles.reshape(-1, 3).copy()
-        assert flip_edges(t, "s3" if w % 2 else "s1", active) > 0
+        assert flip_edges(t, "s3" if w % 2 else "s1", active).flips > 0
         outside = active == 0
         assert (t.triangles.reshape(-1, 3)[outside] == before[outside]).all(), window
 
@@ -458,7 +458,7 @@ def test_a_sliver_circle_is_bounded_to_ulps_of_its_radius(offset, bulge):
     tile's certificate reads a thin lens along the edge, not the survey."""
     from fractions import Fraction
 
-    from meshcore.build import _safe_circle
+    from meshcore.certificate import safe_circle as _safe_circle
 
     ox, oy = offset
     # cm lattice points along a slanted edge 300 m long; the middle one off the line by 'bulge' cm

@@ -88,7 +88,7 @@ def _assert_tiles_krig_from_the_whole_surveys_nearest_points(monkeypatch, run_it
 
     monkeypatch.setattr(meshcore, "smooth_surface", spy)
     report = run_it()
-    assert len(plans) == report.tiles > 4
+    assert len(plans) == report.tiles + report.tiles_meshed_again and report.tiles > 4  # a tile may mesh twice
     assert report.tile_expansions > 0  # tiles loaded points beyond their buffers
     # the survey as the tiles read it: every point is some tile's own
     pieces = [p.refinement.mesh.vertices[: p.refinement.mesh.vertices.shape[0] - p.refinement.t.shape[0]] for p in plans]

@@ -1,0 +1,80 @@
+"""Flips in rounds and the greedy elimination are rules of the geometry: a
+window's piece is the whole mesh's, and its certificate says when a point set
+holding only part of the survey is enough."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import meshcore
+
+EVERYWHERE = (-math.inf, -math.inf, math.inf, math.inf)
+
+
+def _faces(mesh: meshcore.Mesh) -> set:
+    v = mesh.vertices
+    return {tuple(sorted(tuple(v[i]) for i in row if i >= 0)) for row in mesh.faces.tolist()}
+
+
+def _survey(rng, n: int = 3000) -> np.ndarray:
+    """Scan lines (dense along, sparse across, slanted) with a void, rounded to the
+    centimetre at survey offsets: slivers, ties and long faces."""
+    line = rng.integers(0, 40, n)
+    x = rng.random(n) * 120.0
+    y = line * 2.0 + 0.03 * x + rng.normal(0.0, 0.05, n)
+    keep = np.hypot(x - 60.0, y - 40.0) > 15.0
+    return np.unique(np.round(np.c_[x[keep], y[keep]] + [651_000.0, 6_861_000.0], 2), axis=0)
+
+
+@pytest.mark.parametrize("measures", [("s3", "s4"), ("s1", "s2"), ("s3", None), ("delaunay", "s4")])
+def test_the_mesh_does_not_depend_on_the_order_of_the_points(rng, measures):
+    xy = _survey(rng)
+    one = meshcore.build_mesh(xy, *measures)
+    other = meshcore.build_mesh(xy[rng.permutation(len(xy))], *measures)
+    assert _faces(one) == _faces(other)
+
+
+@pytest.mark.parametrize("measures", [("s3", "s4"), ("s1", "s2")])
+def test_window_pieces_of_the_whole_point_set_partition_the_whole_mesh(rng, measures):
+    xy = _survey(rng)
+    whole = _faces(meshcore.build_mesh(xy, *measures))
+    lo, hi = xy.min(axis=0), xy.max(axis=0) + 1e-6
+    xs, ys = np.linspace(lo[0], hi[0], 4), np.linspace(lo[1], hi[1], 3)
+    union: set = set()
+    for i in range(3):
+        for j in range(2):
+            piece = meshcore.build_mesh(xy, *measures, window=(xs[i], ys[j], xs[i + 1], ys[j + 1]), known=EVERYWHERE)
+            faces = _faces(piece)
+            assert not faces & union  # no face owned twice
+            union |= faces
+            assert piece.certificate.certified
+    assert union == whole
+
+
+@pytest.mark.parametrize("measures", [("s3", "s4"), ("s1", "s2"), ("s3", None)])
+def test_a_certified_piece_of_part_of_the_points_is_the_whole_meshs(rng, measures):
+    xy = _survey(rng)
+    whole = meshcore.build_mesh(xy, *measures)
+    faces_whole = _faces(whole)
+    # the survey's last flip round near any window: the most any piece of the whole set saw
+    window = (651_030.0, 6_861_020.0, 651_070.0, 6_861_060.0)
+    whole_rounds = meshcore.build_mesh(xy, *measures, window=window, known=EVERYWHERE).certificate.last_flip_round
+    certified = 0
+    for buffer in (2.0, 5.0, 10.0, 20.0, 40.0):
+        box = (window[0] - buffer, window[1] - buffer, window[2] + buffer, window[3] + buffer)
+        inside = (xy[:, 0] >= box[0]) & (xy[:, 0] <= box[2]) & (xy[:, 1] >= box[1]) & (xy[:, 1] <= box[3])
+        for rounds in range(whole_rounds, whole_rounds + 3):
+            piece = meshcore.build_mesh(xy[inside], *measures, window=window, known=box, assume_rounds=rounds)
+            if piece.certificate.certified:
+                certified += 1
+                assert _faces(piece) <= faces_whole
+            else:  # what to hold more of
+                assert piece.certificate.blocking.shape[0] > 0 or piece.certificate.open_edges
+    assert certified > 0  # a wide enough buffer proves the piece
+    strip = (xy[:, 0] >= 651_029.0) & (xy[:, 0] <= 651_071.0)
+    tight = meshcore.build_mesh(xy[strip], *measures, window=window,
+                                known=(651_029.0, -math.inf, 651_071.0, math.inf), assume_rounds=whole_rounds)
+    assert tight.certificate.certified is False or _faces(tight) <= faces_whole
