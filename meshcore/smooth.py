@@ -585,10 +585,11 @@ def _nodes_kriged_kernel(
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
     ``first[s] .. first[s + 1] - 1``.  A node is clamped to the
-    range of its neighbours' values widened to the linear surface's value
-    there (its ``corners``' values by the weights of its ``pattern``): every
-    node when ``clamp_inside``, else only those of systems whose neighbours
-    lie to one side of the centre (:func:`_one_sided`), and those in voids; a
+    range of its neighbours' values widened to its ``corners``' values (in a
+    void: to the linear surface's value there, its corners' values by the
+    weights of its ``pattern``): every node when ``clamp_inside``, else only
+    those of systems whose neighbours lie to one side of the centre
+    (:func:`_one_sided`), and those in voids; a
     singular system, or one that meets an unknown z, gives its nodes the
     linear surface's value (the corners' weights, row ``pattern[n]`` of
     ``pattern_weights``).  A node farther than ``near`` from its nearest
@@ -633,18 +634,27 @@ def _nodes_kriged_kernel(
             for n in range(first[s], first[s + 1]):
                 linear = _linear_value(z, corners, pattern_weights, pattern[n], n)
                 if kriged:
-                    # the neighbours' range, and the linear surface's value (a linear
-                    # function lies there): not the far ends of a long edge
-                    low = smaller(lo, linear)
-                    high = larger(hi, linear)
                     value = values[n - first[s]]
                     if gap[n] > near:
-                        # in a void always clamped (no crest is known there to keep), then to the
-                        # range of its natural neighbours, within which its fill lies
+                        # in a void always clamped (no crest is known there to keep): to the
+                        # neighbours' range and the linear surface's value (a linear function
+                        # lies there), not to the far ends of a long edge across the void, then
+                        # to the range of its natural neighbours, within which its fill lies
+                        low = smaller(lo, linear)
+                        high = larger(hi, linear)
                         out[n] = smaller(larger(value, low), high)
                         if math.isfinite(fill[n, 1]):
                             out[n] = smaller(larger(out[n], fill[n, 1]), fill[n, 2])
                     else:
+                        # beside its points: the neighbours' range widened to its edge's (face's)
+                        # corners, which a crest between them may rise to
+                        low = lo
+                        high = hi
+                        for j in range(4):
+                            v = corners[n, j]
+                            if v >= 0 and math.isfinite(z[v]):
+                                low = smaller(low, z[v])
+                                high = larger(high, z[v])
                         out[n] = smaller(larger(value, low), high) if clamp else value
                 else:
                     out[n] = linear
