@@ -17,11 +17,16 @@ merged, the lowest z kept), ``--repeats`` draws each:
   ``numpy.random.default_rng(100 + d)``); a radius no disk of which fits in
   the box is not tested (n/a).
 
-Every method is fitted on the rest and scored by the root mean square error at
-the withheld points inside the fitted points' convex hull (the same points for
+Every method is fitted on the rest, in local coordinates (the fitted points'
+lowest x and y subtracted), and scored by the root mean square error at the
+withheld points inside the fitted points' convex hull (the same points for
 every method).  The table gives the TIN's RMSE (the median of the draws) and
 each method's change against it (the median of the draws' changes), and for
-block rows the largest error of the smooth surface and of the TIN.
+block rows the largest error of the smooth surface and of the TIN, and its
+ripples: the share of the cells inside the disks (a grid of a point spacing,
+at least r / 40) where the smooth S3/S4 surface lies outside the range of the
+void's rim, the corners of the Delaunay triangles that hold those cells (a
+TIN's share is zero by construction; the largest share of the draws).
 
 Methods:
 
@@ -38,19 +43,22 @@ Methods:
 The lidR test re-enacted (``tests/testthat/test-rasterize_terrain.R``): 5,000
 uniform points on 100 x 100 m of ``0.1 x + 0.1 y + sin(0.01 x) - sin(0.1 y)
 + sin(0.003 x y)``, z rounded to the mm, one set per seed, point
-cross-validation (one draw per set, the median over the sets).
+cross-validation (one draw per set; the change of each method's median RMSE
+over the sets against the TIN's).
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 from pathlib import Path
 
 import numpy as np
 
-import meshcore
-from bench_mesh import table  # the sibling script (bench/ is on sys.path when run as a script)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's meshcore, not an installed one
+import meshcore  # noqa: E402
+from bench_mesh import table  # noqa: E402  (the sibling script: bench/ is on sys.path when run as a script)
 
 SAMPLES = ("ign_semis_lambert93.laz", "extra_byte_blocks_lambert93.laz", "autzen_trim.las",
            "startinpy_small_extrabytes.laz", "4_6_crop_us_feet.las", "warsaw_small_broken_crs.las", "no_crs_color.las")
@@ -142,10 +150,55 @@ def nni(fit: np.ndarray, query: np.ndarray) -> np.ndarray | None:
     return np.asarray(dt.interpolate({"method": "NNI"}, query[:, :2] - origin, strict=False), dtype=float)
 
 
-def one_split(fit: np.ndarray, test: np.ndarray) -> tuple[dict[str, float], dict[str, float], meshcore.Variogram]:
-    """RMSE and largest error of every method on one split, and the variogram."""
+def void_cells(fit: np.ndarray, centres: np.ndarray, radius: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The centres of a grid's cells inside the disks (side: a point spacing, at least
+    ``radius / 40``) and inside the hull, and per cell the range ``(low, high)`` of
+    its void's rim: the corners of the Delaunay triangles that hold the void's cells."""
+    from scipy.spatial import Delaunay
+
+    side = max(spacing, radius / 40.0)
+    steps = np.arange(-radius + side / 2, radius, side)
+    gx, gy = np.meshgrid(steps, steps)
+    offsets = np.column_stack([gx.ravel(), gy.ravel()])
+    offsets = offsets[np.hypot(offsets[:, 0], offsets[:, 1]) < radius]
+    dt = Delaunay(fit[:, :2])
+    cells, ranges = [], []
+    for c in centres:
+        q = c + offsets
+        t = dt.find_simplex(q)
+        q, t = q[t >= 0], t[t >= 0]
+        if not q.size:
+            continue
+        rim = fit[np.unique(dt.simplices[t]), 2]
+        cells.append(q)
+        ranges.append(np.repeat([[rim.min(), rim.max()]], q.shape[0], axis=0))
+    if not cells:
+        return np.empty((0, 2)), np.empty((0, 2))
+    return np.concatenate(cells), np.concatenate(ranges)
+
+
+def outside_rim(values: np.ndarray, ranges: np.ndarray) -> float:
+    """The share of cells whose value lies outside their rim's range (beyond rounding)."""
+    if not values.size:
+        return float("nan")
+    slack = 1e-9 * np.maximum(1.0, np.abs(ranges).max(axis=1))
+    return float(np.mean((values < ranges[:, 0] - slack) | (values > ranges[:, 1] + slack)))
+
+
+def one_split(fit: np.ndarray, test: np.ndarray, voids: tuple[np.ndarray, float] | None = None,
+              ) -> tuple[dict[str, float], dict[str, float], meshcore.Variogram]:
+    """RMSE and largest error of every method on one split, and the variogram; with
+    ``voids`` (the disks' centres and radius), the share of void cells outside the
+    rim's range too (``worst["ripples smooth"]``, ``worst["ripples TIN"]``)."""
+    origin = fit[:, :2].min(axis=0)
+    fit = np.column_stack([fit[:, :2] - origin, fit[:, 2]])
+    test = np.column_stack([test[:, :2] - origin, test[:, 2]])
     variogram = meshcore.fit_variogram(fit[:, :2], fit[:, 2])
+    cells = ranges = None
+    if voids is not None:
+        cells, ranges = void_cells(fit, voids[0] - origin, voids[1], float(variogram.spacing))
     predictions: dict[str, np.ndarray] = {}
+    ripples: dict[str, float] = {}
     for name, (tm, qm) in MESHES.items():
         mesh = meshcore.build_mesh(fit[:, :2], tm, qm)
         z = np.full(mesh.vertices.shape[0], np.nan)
@@ -153,6 +206,12 @@ def one_split(fit: np.ndarray, test: np.ndarray) -> tuple[dict[str, float], dict
         predictions["TIN" if name == "TIN" else f"linear {name}"] = meshcore.interpolate(mesh, z, test[:, 0], test[:, 1])
         surface = meshcore.smooth_surface(mesh, z, variogram)
         predictions[f"smooth {name}"] = meshcore.interpolate(mesh, z, test[:, 0], test[:, 1], surface=surface)
+        if cells is not None:
+            if name == "TIN":
+                ripples["ripples TIN"] = outside_rim(meshcore.interpolate(mesh, z, cells[:, 0], cells[:, 1]), ranges)
+            else:
+                ripples["ripples smooth"] = outside_rim(
+                    meshcore.interpolate(mesh, z, cells[:, 0], cells[:, 1], surface=surface), ranges)
     nn = nni(fit, test)
     if nn is not None:
         predictions["NNI"] = nn
@@ -165,6 +224,7 @@ def one_split(fit: np.ndarray, test: np.ndarray) -> tuple[dict[str, float], dict
         ok = np.isfinite(err)
         rmse[name] = float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any() else float("nan")
         worst[name] = float(np.max(np.abs(err[ok]))) if ok.any() else float("nan")
+    worst.update(ripples)
     return rmse, worst, variogram
 
 
@@ -198,7 +258,7 @@ def block_splits(points: np.ndarray, radius: float, repeats: int):
         if centres is None:
             return
         out = cKDTree(centres).query(points[:, :2])[0] <= radius
-        yield points[~out], points[out]
+        yield points[~out], points[out], centres
 
 
 def scores(runs: list) -> tuple[dict[str, float], dict[str, float], dict[str, float], meshcore.Variogram]:
@@ -207,7 +267,7 @@ def scores(runs: list) -> tuple[dict[str, float], dict[str, float], dict[str, fl
     methods = runs[0][0]
     tin = statistics.median(r[0]["TIN"] for r in runs)
     change = {m: statistics.median(r[0][m] / r[0]["TIN"] - 1.0 for r in runs) for m in methods if m != "TIN"}
-    worst = {m: max(r[1][m] for r in runs) for m in methods}
+    worst = {m: max(r[1][m] for r in runs) for m in runs[0][1]}
     return {"TIN": tin}, change, worst, runs[0][2]
 
 
@@ -233,8 +293,11 @@ def main(argv: list[str] | None = None) -> None:
             continue
         pts = ground_points(path)
         for test in tests:
-            draws = point_splits(pts, args.repeats) if test == "point" else block_splits(pts, float(test), args.repeats)
-            runs = [one_split(fit, withheld) for fit, withheld in draws]
+            if test == "point":
+                runs = [one_split(fit, withheld) for fit, withheld in point_splits(pts, args.repeats)]
+            else:
+                runs = [one_split(fit, withheld, (centres, float(test)))
+                        for fit, withheld, centres in block_splits(pts, float(test), args.repeats)]
             rows.append((label, f"{pts.shape[0]:,}", "point" if test == "point" else f"r={float(test):g}",
                          scores(runs) if runs else None))
     lidr = []
@@ -246,21 +309,26 @@ def main(argv: list[str] | None = None) -> None:
             exact.append(exact_nodes_error(fit, withheld) / lidr[-1][0]["TIN"] - 1.0)
     if lidr:
         methods = lidr[0][0]
+        # the change of the median RMSE over the sets (a set's own ratio swings with its hull's slivers)
         tin = {"TIN": statistics.median(r[0]["TIN"] for r in lidr)}
-        change = {m: statistics.median(r[0][m] / r[0]["TIN"] - 1.0 for r in lidr) for m in methods if m != "TIN"}
+        change = {m: statistics.median(r[0][m] for r in lidr) / tin["TIN"] - 1.0 for m in methods if m != "TIN"}
         rows.append((f"lidR test ({len(lidr)} sets, median)", "5,000", "point", (tin, change, None, lidr[0][2])))
 
-    header = ["survey", "ground pts", "test", "TIN RMSE", *METHODS, "max error smooth/TIN", "model"]
+    header = ["survey", "ground pts", "test", "TIN RMSE", *METHODS, "max error smooth/TIN", "ripples smooth/TIN",
+              "model"]
     out = []
     for label, n, test, found in rows:
         if found is None:
-            out.append([label, n, test, "n/a", *([""] * len(METHODS)), "", ""])
+            out.append([label, n, test, "n/a", *([""] * len(METHODS)), "", "", ""])
             continue
         tin, change, worst, variogram = found
         cells = [f"{100.0 * change[m]:+.1f}%" if m in change else "" for m in METHODS]
-        extreme = "" if worst is None or test == "point" else f"{worst['smooth S3/S4']:.2f}/{worst['TIN']:.2f}"
+        extreme = ripples = ""
+        if worst is not None and test != "point":
+            extreme = f"{worst['smooth S3/S4']:.2f}/{worst['TIN']:.2f}"
+            ripples = f"{100.0 * worst['ripples smooth']:.2f}%/{100.0 * worst['ripples TIN']:.2f}%"
         model = variogram.model if test == "point" else ""
-        out.append([label, n, test, f"{tin['TIN']:.4f}", *cells, extreme, model])
+        out.append([label, n, test, f"{tin['TIN']:.4f}", *cells, extreme, ripples, model])
     table("Predicting withheld ground points, one at a time (point) and in voids of radius r (CRS units): "
           "the TIN's RMSE and every method's change against it (medians of the draws)", header, out)
     if exact:
