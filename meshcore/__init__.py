@@ -21,6 +21,7 @@ from .certificate import KnownRegion, WindowCertificate
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .interpolate import gradient, interpolate
 from .mesh import Mesh, with_vertices
+from .natural import NaturalCoordinates, natural_coordinates, natural_values
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .predicates import incircle, orient2d
@@ -35,6 +36,7 @@ from .smooth import (
     SmoothPlan,
     SmoothSurface,
     Variogram,
+    VoidFill,
     fit_variogram,
     smooth_neighbourhoods,
     smooth_nodes,
@@ -90,6 +92,10 @@ __all__ = [
     "fit_variogram",
     "smooth_neighbourhoods",
     "Neighbourhoods",
+    "VoidFill",
+    "NaturalCoordinates",
+    "natural_coordinates",
+    "natural_values",
     "Variogram",
     "Surface",
     "NODES_PER_FACE",

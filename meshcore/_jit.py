@@ -263,7 +263,7 @@ class _Dispatcher(CPUDispatcher):
 _WIDE_VECTORS = '"prefer-vector-width"="512"'
 """LLVM's function attribute that lets its vectoriser use 512-bit vectors."""
 
-_WIDE_VECTOR_MODULES = frozenset({"meshcore.smooth"})
+_WIDE_VECTOR_MODULES = frozenset({"meshcore.smooth", "meshcore._buckets"})
 """The modules whose kernels prefer the widest vectors (:class:`_KernelLibrary`)."""
 
 

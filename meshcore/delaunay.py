@@ -326,8 +326,11 @@ def _legalize_around(tri, he, x, y, stack, n) -> np.ndarray:
 
 
 @njit
-def _locate(tri, he, x, y, px, py, start, seed) -> tuple[int, int]:
-    """Visibility walk to a triangle containing (px, py) (closed); -1 when outside."""
+def _walk(tri, he, x, y, px, py, start, seed) -> tuple[int, int, int]:
+    """Visibility walk from triangle ``start`` to (px, py): ``(t, seed, -1)`` with a
+    triangle ``t`` containing it (closed); ``(-1, seed, e)`` when it lies outside,
+    beyond the hull's half-edge ``e``; ``(-2, seed, -1)`` after a walk too long (a
+    broken triangulation)."""
     t = start
     state = seed
     steps = 0
@@ -344,12 +347,21 @@ def _locate(tri, he, x, y, px, py, start, seed) -> tuple[int, int]:
             if orient2d(x[a], y[a], x[b], y[b], px, py) < 0:
                 f = he[e]
                 if f == -1:
-                    return -1, state
+                    return -1, state, e
                 t = f // 3
                 moved = True
                 break
         if not moved:
-            return t, state
+            return t, state, -1
+    return -2, state, -1
+
+
+@njit
+def _locate(tri, he, x, y, px, py, start, seed) -> tuple[int, int]:
+    """Visibility walk to a triangle containing (px, py) (closed); -1 when outside."""
+    t, state, _ = _walk(tri, he, x, y, px, py, start, seed)
+    if t >= -1:
+        return t, state
     # a walk this long means a broken triangulation; fall back to a scan
     nt = tri.shape[0] // 3
     for t in range(nt):

@@ -31,6 +31,17 @@ kriging with a linear drift:
   crest may rise above the points beside it (:func:`_clamps_inside`);
 - a system whose neighbours are collinear (no plane fits) gives its nodes
   the linear surface's values;
+- a node in a void (farther than :data:`VOID_NEAR` spacings from its
+  cell's points) is blended, by its distance from them, into the void's
+  fill: the linear surface, then half of it and half the natural-neighbour
+  interpolant of the points around the void (:mod:`meshcore.natural`).
+  There the cell's points lie on one side of the rim, and kriging carries
+  that side's tilt and noise across the void: beyond a few spacings it was
+  worse than the TIN; the fill reads the whole rim, stays within its values
+  and reproduces linear functions.  The blend depends on the node's
+  position and its cell's points alone, so edges stay C0 and tiles seamless;
+  a node's natural neighbours are read from disks that :attr:`Neighbourhoods.disks`
+  reports with the cells' (:func:`_void_blend`);
 - first, faces with an edge longer than a few spacings are cut
   (:func:`smooth_plan`, :mod:`meshcore.refine`): the edge is split into
   equal pieces by its length alone, the new points are kriged from their
@@ -53,15 +64,19 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._buckets import _bounds, _disks_holding, _nearest, _nearest_around
 from ._jit import LANES, empty, full, lanes_scale, lanes_subtract_products, larger, njit, njit_helper, smaller, zeros
 from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
+from .natural import (NaturalCoordinates, join_places, natural_coordinates, natural_ranges, natural_values, take_places,
+                      tin_values)
 from .patches import NODES_PER_FACE
 from .refine import Refinement, _first_end, refine_long_faces
 
 __all__ = [
     "MODELS", "CELL_PER_SPACING", "Variogram", "Neighbourhoods", "AddedPoints", "SmoothPlan", "SmoothSurface", "fit_variogram",
-    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS",
+    "smooth_nodes", "smooth_neighbourhoods", "smooth_plan", "smooth_surface", "DEFAULT_NEIGHBOURS", "VoidFill",
+    "VOID_NEAR", "VOID_FAR", "VOID_NATURAL_SHARE", "VOID_REACH",
 ]
 
 DEFAULT_NEIGHBOURS = 16
@@ -159,283 +174,6 @@ def _correlation(h: NDArray[np.float64], range_: float, model: int) -> NDArray[n
     out = np.empty_like(flat)
     _correlation_kernel(flat, 1.0 / range_, model, out)
     return out.reshape(np.shape(h))
-
-
-# --------------------------------------------------------------------------
-# Nearest neighbours: a bucket grid, rings searched outwards
-# --------------------------------------------------------------------------
-
-
-@njit_helper
-def _before(d2a: float, xa: float, ya: float, d2b: float, xb: float, yb: float) -> bool:
-    """The order of neighbours: by squared distance, then x, then y."""
-    if d2a != d2b:
-        return d2a < d2b
-    if xa != xb:
-        return xa < xb
-    return ya < yb
-
-
-@njit_helper
-def _scan_run(sxy: np.ndarray, lo: int, hi: int, qx: float, qy: float, k: int, count: int, best: np.ndarray,
-              best_d2: np.ndarray) -> int:
-    """Offer the points ``sxy[lo:hi]`` to the best ``count`` so far (``best``: their rows of
-    ``sxy``, kept in :func:`_before` order); returns the new count.  A point's
-    coordinates are read again only to break a tie of distances."""
-    for s in range(lo, hi):
-        px = sxy[s, 0]
-        py = sxy[s, 1]
-        d2 = (px - qx) * (px - qx) + (py - qy) * (py - qy)
-        if count == k:
-            worst = best_d2[k - 1]
-            if not (d2 < worst or (d2 == worst and _before(d2, px, py, worst, sxy[best[k - 1], 0], sxy[best[k - 1], 1]))):
-                continue
-            pos = k - 1
-        else:
-            pos = count
-            count += 1
-        while pos > 0:
-            ahead = best_d2[pos - 1]
-            if not (d2 < ahead or (d2 == ahead and _before(d2, px, py, ahead, sxy[best[pos - 1], 0], sxy[best[pos - 1], 1]))):
-                break
-            best[pos] = best[pos - 1]
-            best_d2[pos] = ahead
-            pos -= 1
-        best[pos] = s
-        best_d2[pos] = d2
-    return count
-
-
-@njit_helper
-def _bucket_near(i: int, j: int, x0: float, y0: float, cell: float, qx: float, qy: float, d2: float) -> bool:
-    """Whether bucket ``(i, j)`` may hold a point within squared distance ``d2``
-    of ``q``: its box, grown against rounding (a point's bucket is found by a
-    division, the box's sides by a sum at the coordinates' scale) by a
-    millionth of a bucket and a millionth of a millionth of the coordinates,
-    reaches that near."""
-    margin = 1e-6 * cell + 1e-12 * (abs(qx) + abs(qy))
-    dx = larger(larger((x0 + i * cell - margin) - qx, qx - (x0 + (i + 1) * cell + margin)), 0.0)
-    dy = larger(larger((y0 + j * cell - margin) - qy, qy - (y0 + (j + 1) * cell + margin)), 0.0)
-    return dx * dx + dy * dy <= d2
-
-
-@njit
-def _knn_kernel(
-    sxy: np.ndarray, items: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int,
-    start: np.ndarray, queries: np.ndarray, k: int, out_index: np.ndarray, out_d2: np.ndarray,
-) -> None:
-    """The ``k`` nearest points of every query, in :func:`_before` order (``-1`` pads).
-
-    ``sxy`` are the points bucket by bucket, the buckets in rows (``items``:
-    the points' indices), so a bucket's points are read in one run, and so
-    are a row of buckets'.  The 3 x 3 buckets around the query are read
-    first, row by row, then rings of buckets farther out until none can hold
-    a point nearer than the ``k``-th found.
-    """
-    best_d2 = empty(k)
-    best = empty(k, dtype=np.int64)
-    for q in range(queries.shape[0]):
-        qx = queries[q, 0]
-        qy = queries[q, 1]
-        count = 0
-        for s in range(k):
-            best[s] = -1
-            best_d2[s] = math.inf
-        ci = smaller(larger(np.int64((qx - x0) / cell), 0), nbx - 1)
-        cj = smaller(larger(np.int64((qy - y0) / cell), 0), nby - 1)
-        i_lo = larger(ci - 1, 0)
-        i_hi = smaller(ci + 1, nbx - 1)
-        for j in range(larger(cj - 1, 0), smaller(cj + 1, nby - 1) + 1):
-            count = _scan_run(sxy, start[j * nbx + i_lo], start[j * nbx + i_hi + 1], qx, qy, k, count, best, best_d2)
-        ring = 1
-        while True:
-            covers = ci - ring <= 0 and cj - ring <= 0 and ci + ring >= nbx - 1 and cj + ring >= nby - 1
-            if covers:
-                break
-            if count == k:
-                # every point not yet seen is at least this far away
-                gap = smaller(
-                    smaller(qx - (x0 + (ci - ring) * cell), (x0 + (ci + ring + 1) * cell) - qx),
-                    smaller(qy - (y0 + (cj - ring) * cell), (y0 + (cj + ring + 1) * cell) - qy),
-                )
-                gap *= 1.0 - 1e-12
-                if gap > 0.0 and gap * gap > best_d2[k - 1]:
-                    break
-            ring += 1
-            # the ring's buckets inside the grid, in rows (an outlier far from a
-            # narrow grid crosses thousands of rings: each costs its buckets only)
-            i_lo = larger(ci - ring, 0)
-            i_hi = smaller(ci + ring, nbx - 1)
-            sides = ci - ring >= 0 or ci + ring < nbx
-            # with no side column in the grid, only the two edge rows (a ring of a thin grid)
-            j_lo = larger(cj - ring, 0) if sides else cj - ring
-            j_hi = smaller(cj + ring, nby - 1) if sides else cj + ring
-            j = j_lo
-            while j <= j_hi:
-                if j >= 0 and j < nby:
-                    if j == cj - ring or j == cj + ring:
-                        if count < k:  # the whole row in one run
-                            count = _scan_run(sxy, start[j * nbx + i_lo], start[j * nbx + i_hi + 1], qx, qy, k, count,
-                                              best, best_d2)
-                        else:
-                            for i in range(i_lo, i_hi + 1):
-                                if _bucket_near(i, j, x0, y0, cell, qx, qy, best_d2[k - 1]):
-                                    b = j * nbx + i
-                                    count = _scan_run(sxy, start[b], start[b + 1], qx, qy, k, count, best, best_d2)
-                    else:
-                        for i in (ci - ring, ci + ring):
-                            if i >= 0 and i < nbx and (count < k or _bucket_near(i, j, x0, y0, cell, qx, qy, best_d2[k - 1])):
-                                b = j * nbx + i
-                                count = _scan_run(sxy, start[b], start[b + 1], qx, qy, k, count, best, best_d2)
-                j += 1 if sides else larger(2 * ring, 1)
-        for s in range(k):
-            out_index[q, s] = items[best[s]] if best[s] >= 0 else -1
-            out_d2[q, s] = best_d2[s]
-
-
-@njit
-def _bucket_items(key: np.ndarray, start: np.ndarray, xy: np.ndarray, sxy: np.ndarray) -> np.ndarray:
-    """The points bucket by bucket, in input order within each (a stable counting
-    sort); their coordinates copied to ``sxy`` in that order."""
-    fill = start[:-1].copy()
-    items = empty(key.shape[0], dtype=np.int64)
-    for p in range(key.shape[0]):
-        t = fill[key[p]]
-        items[t] = p
-        sxy[t, 0] = xy[p, 0]
-        sxy[t, 1] = xy[p, 1]
-        fill[key[p]] += 1
-    return items
-
-
-@njit
-def _bounds_kernel(xy: np.ndarray, out: np.ndarray) -> None:
-    nan_x = nan_y = False
-    x0 = x1 = xy[0, 0]
-    y0 = y1 = xy[0, 1]
-    for i in range(xy.shape[0]):
-        x = xy[i, 0]
-        y = xy[i, 1]
-        nan_x |= x != x
-        nan_y |= y != y
-        x0 = smaller(x0, x)
-        x1 = larger(x1, x)
-        y0 = smaller(y0, y)
-        y1 = larger(y1, y)
-    out[0] = math.nan if nan_x else x0
-    out[1] = math.nan if nan_y else y0
-    out[2] = math.nan if nan_x else x1
-    out[3] = math.nan if nan_y else y1
-
-
-def _bounds(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The lowest and the highest ``(x, y)`` of ``(n >= 1, 2)`` points (a coordinate NaN where
-    any point's is, as numpy's ``min`` and ``max``), in one pass (four of numpy's reductions over the columns took 9 ms of 1M points)."""
-    out = np.empty(4)
-    _bounds_kernel(np.ascontiguousarray(xy, dtype=np.float64), out)
-    return out[:2], out[2:]
-
-
-_BUCKET_POINTS = 3.0
-"""Points per bucket of :func:`_nearest`'s grid, on average (measured: 2 or 5 were 10-20% slower)."""
-
-
-def _nearest(
-    xy: NDArray[np.float64], queries: NDArray[np.float64], k: int
-) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Indices ``(m, k)`` and squared distances of the ``k`` nearest points of each query."""
-    n = xy.shape[0]
-    k = min(k, n)
-    if n == 0 or queries.shape[0] == 0 or k == 0:
-        return np.full((queries.shape[0], k), -1, dtype=np.int64), np.full((queries.shape[0], k), np.inf)
-    out_index = np.empty((queries.shape[0], k), dtype=np.int64)  # every row written, -1 and inf past the points found
-    out_d2 = np.empty((queries.shape[0], k))
-    grid = _bucket_grid(xy)
-    q = np.ascontiguousarray(queries, dtype=np.float64)
-    _knn_kernel(grid.sxy, grid.items, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start, q, k, out_index, out_d2)
-    return out_index, out_d2
-
-
-class _BucketGrid(NamedTuple):
-    """Points in the buckets of a grid (:func:`_bucket_grid`)."""
-
-    sxy: np.ndarray  # (n, 2) the points bucket by bucket, the buckets in rows
-    items: np.ndarray  # (n,) their indices
-    x0: float  # the grid's lower left corner
-    y0: float
-    cell: float  # the buckets' side
-    nbx: int  # buckets along x and y
-    nby: int
-    start: np.ndarray  # (nbx * nby + 1,) bucket b holds sxy[start[b]:start[b + 1]]
-
-
-def _bucket_grid(xy: NDArray[np.float64]) -> _BucketGrid:
-    """``(n >= 1, 2)`` points in a grid of :data:`_BUCKET_POINTS` points a bucket on average over their box."""
-    n = xy.shape[0]
-    lo, hi = _bounds(xy)
-    span = float(max(hi[0] - lo[0], hi[1] - lo[1]))
-    area = float(max(hi[0] - lo[0], span * 1e-9) * max(hi[1] - lo[1], span * 1e-9))
-    # three points a bucket: the 3 x 3 around a query hold about 27, more than the 16 sought
-    cell = math.sqrt(_BUCKET_POINTS * area / n) if span > 0.0 else 1.0
-    cell = max(cell, span * 1e-6, 1e-300)
-    nbx = max(int((hi[0] - lo[0]) / cell) + 1, 1)
-    nby = max(int((hi[1] - lo[1]) / cell) + 1, 1)
-    ci = np.minimum(((xy[:, 0] - lo[0]) / cell).astype(np.int64), nbx - 1)
-    cj = np.minimum(((xy[:, 1] - lo[1]) / cell).astype(np.int64), nby - 1)
-    key = cj * nbx + ci
-    start = np.zeros(nbx * nby + 1, dtype=np.int64)
-    np.cumsum(np.bincount(key, minlength=nbx * nby), out=start[1:])
-    sxy = np.empty((n, 2))
-    items = _bucket_items(key, start, xy, sxy)
-    return _BucketGrid(sxy, items, float(lo[0]), float(lo[1]), cell, nbx, nby, start)
-
-
-@njit
-def _disks_holding_kernel(
-    sxy: np.ndarray, x0: float, y0: float, cell: float, nbx: int, nby: int, start: np.ndarray,
-    centres: np.ndarray, radius: np.ndarray, out: np.ndarray,
-) -> None:
-    """Whether each closed disk ``(centres[s], radius[s])``, its radius grown by a
-    billionth, holds one of the grid's points (a radius not finite: always).
-    The buckets its box meets are read, one more on every side (a point's
-    bucket is found by a division that may round it into its neighbour)."""
-    for s in range(centres.shape[0]):
-        r = radius[s]
-        if not (r < math.inf):
-            out[s] = True
-            continue
-        r = r * (1.0 + 1e-9)
-        r2 = r * r
-        cx = centres[s, 0]
-        cy = centres[s, 1]
-        out[s] = False
-        if cx + r < x0 - cell or cy + r < y0 - cell or cx - r > x0 + (nbx + 1) * cell or cy - r > y0 + (nby + 1) * cell:
-            continue
-        i_lo = larger(np.int64(math.floor((cx - r - x0) / cell)) - 1, 0)
-        i_hi = smaller(np.int64(math.floor((cx + r - x0) / cell)) + 1, nbx - 1)
-        j_lo = larger(np.int64(math.floor((cy - r - y0) / cell)) - 1, 0)
-        j_hi = smaller(np.int64(math.floor((cy + r - y0) / cell)) + 1, nby - 1)
-        for j in range(j_lo, j_hi + 1):
-            for t in range(start[j * nbx + i_lo], start[j * nbx + i_hi + 1]):
-                dx = sxy[t, 0] - cx
-                dy = sxy[t, 1] - cy
-                if dx * dx + dy * dy <= r2:
-                    out[s] = True
-                    break
-            if out[s]:
-                break
-
-
-def _disks_holding(centres: NDArray[np.float64], radius: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """Which of the closed disks ``(centres, radius)`` may hold one of ``points``:
-    every disk that does, and a few that only come within a billionth of their radius."""
-    out = np.zeros(centres.shape[0], dtype=bool)
-    if points.shape[0] == 0 or centres.shape[0] == 0:
-        return out
-    grid = _bucket_grid(np.ascontiguousarray(points, dtype=np.float64))
-    _disks_holding_kernel(grid.sxy, grid.x0, grid.y0, grid.cell, grid.nbx, grid.nby, grid.start,
-                          np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(radius, dtype=np.float64), out)
-    return out
 
 
 # --------------------------------------------------------------------------
@@ -840,18 +578,25 @@ def _solve_systems(
 def _nodes_kriged_kernel(
     xy: np.ndarray, z: np.ndarray, centres: np.ndarray, neighbours: np.ndarray, first: np.ndarray,
     positions: np.ndarray, corners: np.ndarray, pattern: np.ndarray, pattern_weights: np.ndarray,
-    nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, out: np.ndarray,
+    nugget_ratio: float, inv_range: float, model: int, clamp_inside: bool, gap: np.ndarray, fill: np.ndarray,
+    near: float, far: float, out: np.ndarray,
 ) -> None:
-    """Krig the nodes of every system (a cell) and clamp them.
+    """Krig the nodes of every system (a cell), clamp them, and blend those in voids into the fill.
 
     System ``s`` (centre ``centres[s]``, its neighbours) gives the nodes
     ``first[s] .. first[s + 1] - 1``.  A node is clamped to the
-    range of its ``corners``' values widened to its neighbours' values: every
-    node when ``clamp_inside``, else only those of systems whose neighbours
-    lie to one side of the centre (:func:`_one_sided`); a
+    range of its neighbours' values widened to its ``corners``' values (in a
+    void: to the linear surface's value there, its corners' values by the
+    weights of its ``pattern``): every node when ``clamp_inside``, else only
+    those of systems whose neighbours lie to one side of the centre
+    (:func:`_one_sided`), and those in voids; a
     singular system, or one that meets an unknown z, gives its nodes the
     linear surface's value (the corners' weights, row ``pattern[n]`` of
-    ``pattern_weights``).
+    ``pattern_weights``).  A node farther than ``near`` from its nearest
+    neighbour (``gap[n]``) is clamped to the range of its natural neighbours
+    (``fill[n, 1:]``) and blended into the void's fill ``fill[n, 0]`` (NaN:
+    none, the linear surface's value then), which alone it is from ``far`` on
+    (:func:`_void_blend`).
     """
     k = neighbours.shape[1]
     room = _kriging_scratch(k)
@@ -887,24 +632,61 @@ def _nodes_kriged_kernel(
                     qy[t] = positions[first[s] + t, 1] - centres[s, 1]
                 _dual_values(room.xs[b], room.ys[b], count, room.coef[b], radius, scale, model, qx, qy, m, block, values)
             for n in range(first[s], first[s + 1]):
+                linear = _linear_value(z, corners, pattern_weights, pattern[n], n)
                 if kriged:
-                    low = lo
-                    high = hi
-                    for j in range(4):
-                        v = corners[n, j]
-                        if v >= 0 and math.isfinite(z[v]):
-                            low = smaller(low, z[v])
-                            high = larger(high, z[v])
                     value = values[n - first[s]]
-                    out[n] = smaller(larger(value, low), high) if clamp else value
+                    if gap[n] > near:
+                        # in a void always clamped (no crest is known there to keep): to the
+                        # neighbours' range and the linear surface's value (a linear function
+                        # lies there), not to the far ends of a long edge across the void, then
+                        # to the range of its natural neighbours, within which its fill lies
+                        low = smaller(lo, linear)
+                        high = larger(hi, linear)
+                        out[n] = smaller(larger(value, low), high)
+                        if math.isfinite(fill[n, 1]):
+                            out[n] = smaller(larger(out[n], fill[n, 1]), fill[n, 2])
+                    else:
+                        # beside its points: the neighbours' range widened to its edge's (face's)
+                        # corners, which a crest between them may rise to
+                        low = lo
+                        high = hi
+                        for j in range(4):
+                            v = corners[n, j]
+                            if v >= 0 and math.isfinite(z[v]):
+                                low = smaller(low, z[v])
+                                high = larger(high, z[v])
+                        out[n] = smaller(larger(value, low), high) if clamp else value
                 else:
-                    linear = 0.0
-                    for j in range(4):
-                        v = corners[n, j]
-                        if v >= 0 and math.isfinite(z[v]):
-                            linear += pattern_weights[pattern[n], j] * z[v]
                     out[n] = linear
+                if gap[n] > near:
+                    out[n] = _void_blend(out[n], linear, fill[n, 0], gap[n], near, far)
         s0 += lanes
+
+
+@njit_helper
+def _linear_value(z: np.ndarray, corners: np.ndarray, pattern_weights: np.ndarray, row: int, n: int) -> float:
+    """The linear surface at node ``n``: its corners' values by the weights of ``pattern_weights[row]``."""
+    linear = 0.0
+    for j in range(4):
+        v = corners[n, j]
+        if v >= 0 and math.isfinite(z[v]):
+            linear += pattern_weights[row, j] * z[v]
+    return linear
+
+
+@njit_helper
+def _void_blend(value: float, linear: float, fill: float, gap: float, near: float, far: float) -> float:
+    """A node's value ``gap`` from its nearest point: its kriged ``value`` up to ``near``,
+    the void's ``fill`` (:meth:`VoidFill.values`; NaN where a node has none: the
+    linear surface then) from ``far`` on, in between a blend linear in the
+    distance.  Kriging, the fill and the linear surface reproduce linear
+    functions, and the fill stays within the values of the points around the
+    void: so does the blend, and it goes from one to the other smoothly."""
+    base = fill if math.isfinite(fill) else linear
+    if gap >= far:
+        return base
+    w = (far - gap) / (far - near)
+    return base + w * (value - base)
 
 
 class Neighbourhoods(NamedTuple):
@@ -927,6 +709,9 @@ class Neighbourhoods(NamedTuple):
     pattern : (n,) uint8, where the node lies in its face: the row of
         :data:`_PATTERN_WEIGHTS` that gives the linear surface's weights of its corners
     cell : float, the side of the cells
+    gap : (n,) float64, the distance from each node to the nearest of its cell's neighbours
+        (exact beyond :data:`VOID_NEAR` spacings; nearer, any distance up to it)
+    fill : VoidFill, the nodes in voids (``gap`` over :data:`VOID_NEAR` spacings) and their natural neighbours
     """
 
     centres: NDArray[np.float64]
@@ -938,6 +723,8 @@ class Neighbourhoods(NamedTuple):
     corners: NDArray[np.int32]
     pattern: NDArray[np.uint8]
     cell: float
+    gap: NDArray[np.float64]
+    fill: "VoidFill"
 
     @property
     def weights(self) -> NDArray[np.float64]:
@@ -946,8 +733,41 @@ class Neighbourhoods(NamedTuple):
 
     @property
     def disks(self) -> NDArray[np.float64]:
-        """``(m, 3)`` rows ``(x, y, r)``: the closed disks the node values read points from."""
-        return np.column_stack([self.centres, self.radius])
+        """``(m, 3)`` rows ``(x, y, r)``: the closed disks the node values read points from
+        (the cells' neighbourhoods, then the circles of the voids' natural neighbours)."""
+        return np.concatenate([np.column_stack([self.centres, self.radius]), self.fill.coordinates.disks])
+
+
+class VoidFill(NamedTuple):
+    """The nodes (or added points) of a smooth surface in voids, and their
+    natural-neighbour coordinates (:func:`meshcore.natural.natural_coordinates`).
+
+    Attributes
+    ----------
+    rows : (q,) int64, the nodes, ascending
+    coordinates : NaturalCoordinates, one row for each
+    """
+
+    rows: NDArray[np.int64]
+    coordinates: NaturalCoordinates
+
+    def values(self, z: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+        """``(n, 3)``: for each of ``n`` nodes the void's fill of the points' values ``z``
+        (:data:`VOID_NATURAL_SHARE` of the natural-neighbour interpolant, the rest the
+        Delaunay TIN's) and the lowest and highest value of its natural neighbours;
+        NaN at the nodes not in voids (and where a node has no natural neighbours)."""
+        out = np.full((n, 3), np.nan)
+        out[self.rows, 0] = (VOID_NATURAL_SHARE * natural_values(self.coordinates, z)
+                             + (1.0 - VOID_NATURAL_SHARE) * tin_values(self.coordinates, z))
+        out[self.rows, 1], out[self.rows, 2] = natural_ranges(self.coordinates, z)
+        return out
+
+
+_NO_ENDS = np.zeros((0, 2), dtype=np.int64)
+
+_NO_FILL = VoidFill(np.zeros(0, dtype=np.int64), NaturalCoordinates(
+    np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.empty((0, 3)),
+    np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3))))
 
 
 _THIRD = 1.0 / 3.0
@@ -1222,6 +1042,179 @@ per edge and face (five per point), within the noise of the test; at 2
 spacings they grow."""
 
 
+VOID_NEAR = 2.0
+"""A node (or added point) farther than this many point spacings from the nearest
+of its cell's points lies in a void: from here to :data:`VOID_FAR` its kriged
+value is blended into the void's fill (:func:`_void_blend`)."""
+
+VOID_FAR = 3.5
+"""From this many spacings on a node is the void's fill alone.
+
+Why (``bench/bench_accuracy.py``, block cross-validation): in a void every
+cell's 16 nearest points lie on one side of the rim, and the kriged value
+carries that side's tilt (its linear drift) and noise across; up to 1-2
+spacings from the rim it still beats the TIN, farther it loses to it.
+Measured: blends from 1-3 to 2-4 spacings all kept the surface below the
+TIN's errors in voids of 5 to 40 units on every sample; the nearer ones
+keep less of kriging's gains on smooth, sparse ground (autzen_trim) and more
+on flat, dense, noisy ground (extra_byte_blocks, where kriging beside a void
+is worse than the TIN); point-CV errors moved by 0.1 point at most.  From 2
+spacings, fewer nodes need natural neighbours (a third of ign_semis's against
+one in two from 1.5), and none blends into the linear surface of the faces cut
+across a void, whose small triangles showed as a waffle in a hillshade."""
+
+VOID_NATURAL_SHARE = 0.5
+"""The void's fill: this share of the natural-neighbour (Sibson) interpolant of the
+points around it, the rest of their Delaunay TIN (:meth:`VoidFill.values`).
+
+Measured as :data:`VOID_FAR`: the natural-neighbour interpolant alone was
+2-25% better than the TIN inside most voids, but worse in a void across
+startinpy_small's noisy ground (+2 to +4%); a triangulation of the rim (the
+TIN's, the combined mesh's) is as arbitrary as another, and was up to 17%
+worse than the TIN in some voids (the combined mesh's, 4_6_crop at 10 ft).
+The mean of the natural-neighbour interpolant and a triangulation's was the
+steadiest: better than the TIN in every void tested, where either alone was
+not.  The TIN's, not the combined mesh's, as its value at a node needs no
+more than the natural neighbours do (the triangle holding the node is one of
+the cavity's), and the combined mesh's, on the faces cut across a void,
+showed their small triangles in a hillshade."""
+
+VOID_REACH = 3.0
+"""A node's natural neighbours are read as one disk around it while their circles
+reach no farther than this many times the distance to its edge's (its face's,
+its cut face's parent's) farthest corner; beyond (beside the hull, where the
+circles run far out of it) circle by circle, which a piece of a survey holds
+where they meet the hull.  It changes no value, only how the disks are told."""
+
+
+@njit
+def _nearest_points_kernel(vertices: np.ndarray, neighbours: np.ndarray, owner: np.ndarray, positions: np.ndarray,
+                           rows: np.ndarray, out: np.ndarray) -> None:
+    for t in range(rows.shape[0]):
+        n = rows[t]
+        s = owner[n]
+        best = math.inf
+        out[t] = -1
+        for i in range(neighbours.shape[1]):
+            v = neighbours[s, i]
+            if v < 0:
+                break
+            dx = vertices[v, 0] - positions[n, 0]
+            dy = vertices[v, 1] - positions[n, 1]
+            if dx * dx + dy * dy < best:
+                best = dx * dx + dy * dy
+                out[t] = v
+
+
+def _nearest_points(vertices: NDArray[np.float64], positions: NDArray[np.float64], neighbours: NDArray[np.int64],
+                    first: NDArray[np.int64], rows: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The nearest of its system's neighbours of each node ``rows`` (-1: none)."""
+    owner = np.full(positions.shape[0], -1, dtype=np.int64)
+    owner[rows] = np.searchsorted(first, rows, side="right") - 1
+    out = np.empty(rows.size, dtype=np.int64)
+    _nearest_points_kernel(vertices, neighbours, owner, np.ascontiguousarray(positions), rows, out)
+    return out
+
+
+@njit
+def _gaps_kernel(vertices: np.ndarray, neighbours: np.ndarray, first: np.ndarray, positions: np.ndarray, near: float,
+                 out: np.ndarray) -> None:
+    """``out[n]``: the distance from node ``n`` to the nearest of its system's neighbours
+    (system ``s`` holds the nodes ``first[s] .. first[s + 1] - 1``; infinite without
+    one), or, once one is found within ``near``, that one's."""
+    near2 = near * near
+    for s in range(neighbours.shape[0]):
+        for n in range(first[s], first[s + 1]):
+            px = positions[n, 0]
+            py = positions[n, 1]
+            best = math.inf
+            for i in range(neighbours.shape[1]):
+                v = neighbours[s, i]
+                if v < 0:
+                    break
+                dx = vertices[v, 0] - px
+                dy = vertices[v, 1] - py
+                best = smaller(best, dx * dx + dy * dy)
+                if best <= near2:
+                    break
+            out[n] = math.sqrt(best)
+
+
+def _gaps(vertices: NDArray[np.float64], neighbours: NDArray[np.int64], first: NDArray[np.int64],
+          positions: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
+    """How far each node lies from its system's points: :func:`_gaps_kernel` (the nodes in system
+    order), exact beyond :data:`VOID_NEAR` (for cells of side ``cell``)."""
+    out = np.empty(positions.shape[0])
+    _gaps_kernel(vertices, neighbours, first, positions, _void_distances(cell)[0], out)
+    return out
+
+
+def _void_distances(cell: float) -> tuple[float, float]:
+    """:data:`VOID_NEAR` and :data:`VOID_FAR` for nodes in cells of side ``cell``
+    (from the cell, which every plan of a survey shares bit for bit)."""
+    return cell * (VOID_NEAR / CELL_PER_SPACING), cell * (VOID_FAR / CELL_PER_SPACING)
+
+
+@njit
+def _spans_kernel(positions: np.ndarray, vertices: np.ndarray, corners: np.ndarray, data: int, ends: np.ndarray,
+                  out: np.ndarray) -> None:
+    for n in range(positions.shape[0]):
+        best = 0.0
+        for j in range(corners.shape[1]):
+            c = corners[n, j]
+            if c < 0:
+                continue
+            for e in range(2):
+                v = c if c < data else ends[c - data, e]
+                dx = vertices[v, 0] - positions[n, 0]
+                dy = vertices[v, 1] - positions[n, 1]
+                best = larger(best, dx * dx + dy * dy)
+        out[n] = math.sqrt(best)
+
+
+def _spans(positions: NDArray[np.float64], vertices: NDArray[np.float64], corners: NDArray[np.integer], data: int,
+           ends: NDArray[np.int64]) -> NDArray[np.float64]:
+    """The distance from each node to the farthest point of its ``corners`` (``-1``
+    pads): a corner among the first ``data`` vertices, or else both ends of the
+    edge it was added on (``ends[corner - data]``), so that a node of a face cut
+    reaches as far as the face's own corners."""
+    out = np.empty(positions.shape[0])
+    _spans_kernel(np.ascontiguousarray(positions), vertices, np.ascontiguousarray(corners, dtype=np.int64), data,
+                  np.ascontiguousarray(ends, dtype=np.int64), out)
+    return out
+
+
+def _void_fills(vertices: NDArray[np.float64], data: int, ends: NDArray[np.int64], cell: float,
+                *groups: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.int64],
+                               NDArray[np.integer]], rows: list[NDArray[np.int64]] | None = None) -> list[VoidFill]:
+    """For each group ``(positions, gap, index, first, corners)`` of nodes (``index``
+    and ``first``: their systems; ``corners``: their edges' or faces' corners, as
+    :func:`_spans` takes them): those in voids (or ``rows``) and their natural
+    neighbours among the first ``data`` of ``vertices``, each read within
+    :data:`VOID_REACH` times the distance to its farthest corner; one
+    triangulation for all."""
+    near, _ = _void_distances(cell)
+    if rows is None:
+        rows = [np.flatnonzero(gap > near) for _, gap, *_ in groups]
+    if not any(r.size for r in rows):
+        return [VoidFill(r, _NO_FILL.coordinates._replace(first=np.zeros(r.size + 1, dtype=np.int64))) for r in rows]
+    points = np.ascontiguousarray(vertices[:data])
+    places = np.concatenate([positions[r] for (positions, *_), r in zip(groups, rows)])
+    reach = np.concatenate([4.0 * gap[r] for (_, gap, *_), r in zip(groups, rows)])
+    cap = np.concatenate([VOID_REACH * _spans(positions[r], vertices, corners[r], data, ends)
+                          for (positions, _, _, _, corners), r in zip(groups, rows)])
+    # each from its nearest point, where the search for its natural neighbours starts
+    start = np.concatenate([_nearest_points(points, positions, index, first, r)
+                            for (positions, _, index, first, _), r in zip(groups, rows)])
+    found = natural_coordinates(points, places, reach, cap, start)
+    out = []
+    lo = 0
+    for r in rows:
+        out.append(VoidFill(r, take_places(found, np.arange(lo, lo + r.size))))
+        lo += r.size
+    return out
+
+
 def _face_mask(faces: ArrayLike, n_f: int) -> NDArray[np.bool_]:
     mask = np.asarray(faces)
     if mask.dtype != np.bool_ or mask.shape != (n_f,):
@@ -1262,7 +1255,9 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     ``data_vertices``: only the first this many vertices are kriged from (the
     others are points a refined mesh added, :mod:`meshcore.refine`).
     ``faces``: a mask of the faces that get nodes (default: all); the others'
-    rows of ``take`` are -1, and no system serves them alone.
+    rows of ``take`` are -1, and no system serves them alone.  The nodes in
+    voids get their natural neighbours too (``.fill``), whose circles are
+    among the disks.
 
     Examples
     --------
@@ -1272,6 +1267,12 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     >>> bool(np.all(hoods.disks[:, 2] > 0)), hoods.cell == 0.15 * CELL_PER_SPACING
     (True, True)
     """
+    return _neighbourhoods(mesh, neighbours, spacing, data_vertices, faces, True)
+
+
+def _neighbourhoods(mesh: Mesh, neighbours: int, spacing: float | None, data_vertices: int | None,
+                    faces: ArrayLike | None, fills: bool) -> Neighbourhoods:
+    """:func:`smooth_neighbourhoods`, the voids' natural neighbours left out unless ``fills``."""
     k = _check_neighbours(neighbours)
     vertices, mesh_faces = mesh_arrays(mesh)
     if spacing is None:
@@ -1291,7 +1292,13 @@ def smooth_neighbourhoods(mesh: Mesh, neighbours: int = DEFAULT_NEIGHBOURS, spac
     positions, corners, pattern = _gather_nodes(order, positions, corners, pattern, take)
     data = vertices if data_vertices is None else np.ascontiguousarray(vertices[:data_vertices])
     index, d2 = _nearest(data, centres, k)
-    return Neighbourhoods(np.ascontiguousarray(centres), index, _radii(d2), first, positions, take, corners, pattern, cell)
+    gap = _gaps(data, index, first, positions, cell)
+    if fills:
+        (fill,) = _void_fills(vertices, data.shape[0], _NO_ENDS, cell, (positions, gap, index, first, corners))
+    else:
+        fill = _NO_FILL
+    return Neighbourhoods(np.ascontiguousarray(centres), index, _radii(d2), first, positions, take, corners, pattern, cell,
+                          gap, fill)
 
 
 def smooth_nodes(
@@ -1358,70 +1365,14 @@ def smooth_nodes(
                                 f"{variogram.spacing * CELL_PER_SPACING!r}")
     values = np.empty(hoods.positions.shape[0])
     rows = hoods.pattern.astype(np.int32)  # as the added points give theirs: one kernel for both, compiled and loaded once
+    near, far = _void_distances(hoods.cell)
     _nodes_kriged_kernel(
         vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
-        _clamps_inside(variogram), values,
+        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size), near, far, values,
     )
     _scatter_nodes(values, hoods.take, out)
     return out
-
-
-@njit
-def _near_cells_kernel(vertices: np.ndarray, centres: np.ndarray, side: float) -> np.ndarray:
-    """The vertices in the 3 x 3 blocks of cells of ``side`` around the centres."""
-    size = 1
-    while size < 36 * centres.shape[0]:
-        size *= 2
-    key_i = empty(size, dtype=np.int64)
-    key_j = empty(size, dtype=np.int64)
-    occupied = zeros(size, dtype=np.bool_)
-    for c in range(centres.shape[0]):
-        ci = np.int64(math.floor(centres[c, 0] / side))
-        cj = np.int64(math.floor(centres[c, 1] / side))
-        for di in range(-1, 2):
-            for dj in range(-1, 2):
-                i = ci + di
-                j = cj + dj
-                h = ((i * 73856093) ^ (j * 19349663)) & (size - 1)
-                while occupied[h] and not (key_i[h] == i and key_j[h] == j):
-                    h = (h + 1) & (size - 1)
-                occupied[h] = True
-                key_i[h] = i
-                key_j[h] = j
-    take = empty(vertices.shape[0], dtype=np.int64)
-    m = 0
-    for v in range(vertices.shape[0]):
-        i = np.int64(math.floor(vertices[v, 0] / side))
-        j = np.int64(math.floor(vertices[v, 1] / side))
-        h = ((i * 73856093) ^ (j * 19349663)) & (size - 1)
-        while occupied[h]:
-            if key_i[h] == i and key_j[h] == j:
-                take[m] = v
-                m += 1
-                break
-            h = (h + 1) & (size - 1)
-    return take[:m]
-
-
-def _nearest_around(vertices: NDArray[np.float64], centres: NDArray[np.float64], k: int, side: float):
-    """:func:`_nearest` for a few centres among many points, exactly: searched among the
-    points of the cells of ``side`` around each centre, again among all where the
-    ``k``-th nearest is not nearer than that block's edge."""
-    near = _near_cells_kernel(vertices, centres, side)
-    if near.size < min(k, vertices.shape[0]):  # too few around to give ``k`` each: searched among all
-        return _nearest(vertices, centres, k)
-    index, d2 = _nearest(np.ascontiguousarray(vertices[near]), centres, k)
-    index = np.where(index >= 0, near[np.maximum(index, 0)], -1)
-    # every point left out is at least `side` from its centre (the centre's own cell is the middle one)
-    gap = np.minimum.reduce([centres[:, 0] - (np.floor(centres[:, 0] / side) - 1.0) * side,
-                             (np.floor(centres[:, 0] / side) + 2.0) * side - centres[:, 0],
-                             centres[:, 1] - (np.floor(centres[:, 1] / side) - 1.0) * side,
-                             (np.floor(centres[:, 1] / side) + 2.0) * side - centres[:, 1]]) * (1.0 - 1e-9)
-    bad = ~(d2[:, -1] < gap * gap) if d2.shape[1] else np.ones(centres.shape[0], dtype=bool)
-    if bad.any():
-        index[bad], d2[bad] = _nearest(vertices, np.ascontiguousarray(centres[bad]), k)
-    return index, d2
 
 
 LONG_EDGE = 12.0
@@ -1470,6 +1421,9 @@ class AddedPoints(NamedTuple):
     centres : (c, 2) the cells' centres
     index : (c, k) their nearest input vertices, nearest first (``-1`` pads)
     radius : (c,) the distance from each centre to its last neighbour
+    gap : (m,) the distance from each point (in the order of ``order``) to the nearest of its
+        cell's neighbours, as :attr:`Neighbourhoods.gap`
+    fill : VoidFill, the points in voids (rows in the order of ``order``) and their natural neighbours
     """
 
     order: NDArray[np.int64]
@@ -1477,11 +1431,14 @@ class AddedPoints(NamedTuple):
     centres: NDArray[np.float64]
     index: NDArray[np.int64]
     radius: NDArray[np.float64]
+    gap: NDArray[np.float64]
+    fill: VoidFill
 
     @property
     def disks(self) -> NDArray[np.float64]:
-        """``(c, 3)`` rows ``(x, y, r)``: the closed disks the added points' values read points from."""
-        return np.column_stack([self.centres, self.radius])
+        """``(c, 3)`` rows ``(x, y, r)``: the closed disks the added points' values read points from
+        (the cells' neighbourhoods, then the circles of the voids' natural neighbours)."""
+        return np.concatenate([np.column_stack([self.centres, self.radius]), self.fill.coordinates.disks])
 
 
 class SmoothPlan(NamedTuple):
@@ -1541,12 +1498,52 @@ def _radii(d2: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _added_points(data: NDArray[np.float64], positions: NDArray[np.float64], cell: float, k: int) -> AddedPoints:
+    """The systems of the points added at ``positions`` (their fill left to :func:`_void_fills`)."""
     order, first, centres = _cells(positions, cell)
     if centres.shape[0] == 0:
-        return AddedPoints(order, first, centres, np.empty((0, k), dtype=np.int64), np.empty(0))
+        return AddedPoints(order, first, centres, np.empty((0, k), dtype=np.int64), np.empty(0), np.empty(0), _NO_FILL)
     # the cells of the added points are few and scattered: searched around each, not over a grid of every vertex
     index, d2 = _nearest_around(data, centres, k, 6.0 * cell)
-    return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2))
+    gap = _gaps(data, index, first, np.ascontiguousarray(positions[order]), cell)
+    return AddedPoints(order, first, np.ascontiguousarray(centres), index, _radii(d2), gap, _NO_FILL)
+
+
+def _with_fills(vertices: NDArray[np.float64], data: int, nodes: Neighbourhoods, added: AddedPoints,
+                ends: NDArray[np.int64], new: NDArray[np.float64] | None = None) -> tuple[Neighbourhoods, AddedPoints]:
+    """``nodes`` and ``added`` with the natural neighbours of those in voids, found together
+    (``vertices``: the refined mesh's, its first ``data`` the points; ``ends``: the added points' edges).
+
+    With ``new`` (points added to the vertices since ``nodes.fill`` and
+    ``added.fill`` were found), only the nodes in voids whose disks hold one
+    of them are found again (no node joins the voids: a gap only shrinks as
+    points are added)."""
+    where = np.ascontiguousarray(vertices[data:][added.order])
+    groups = ((nodes.positions, nodes.gap, nodes.index, nodes.first, nodes.corners),
+              (where, added.gap, added.index, added.first, ends[added.order]))
+    if new is None:
+        fills = _void_fills(vertices, data, ends, nodes.cell, *groups)
+        return nodes._replace(fill=fills[0]), added._replace(fill=fills[1])
+    near, _ = _void_distances(nodes.cell)
+    old = (nodes.fill, added.fill)
+    rows = [np.flatnonzero(gap > near) for _, gap, *_ in groups]
+    # each kept node's place among the old ones, and those whose disks hold a new point
+    kept = [np.searchsorted(f.rows, r) for f, r in zip(old, rows)]
+    again = []
+    for f, k in zip(old, kept):
+        holds = np.zeros(f.rows.size, dtype=bool)
+        hit = _disks_holding(f.coordinates.disks[:, :2], f.coordinates.disks[:, 2], new)
+        holds[f.coordinates.owner[hit]] = True
+        again.append(holds[k])
+    if not any(a.any() for a in again) and all(k.size == f.rows.size for f, k in zip(old, kept)):
+        return nodes, added
+    found = _void_fills(vertices, data, ends, nodes.cell, *groups, rows=[r[a] for r, a in zip(rows, again)])
+    fills = []
+    for f, r, k, a, fresh in zip(old, rows, kept, again, found):
+        # the old rows of the nodes kept as they were, then the new ones, put back in order
+        both = join_places(take_places(f.coordinates, k[~a]), fresh.coordinates)
+        order = np.argsort(np.concatenate([np.flatnonzero(~a), np.flatnonzero(a)]), kind="stable")
+        fills.append(VoidFill(r, take_places(both, order)))
+    return nodes._replace(fill=fills[0]), added._replace(fill=fills[1])
 
 
 def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIGHBOURS,
@@ -1592,8 +1589,10 @@ def smooth_plan(mesh: Mesh, variogram: Variogram, neighbours: int = DEFAULT_NEIG
     refinement = refine_long_faces(mesh, spacing, longer_than, piece)
     n = vertices.shape[0]
     wanted = None if faces is None else _face_mask(faces, mesh_faces.shape[0])[refinement.parent]
-    nodes = smooth_neighbourhoods(refinement.mesh, k, spacing, data_vertices=n, faces=wanted)
-    added = _added_points(vertices, np.ascontiguousarray(refinement.mesh.vertices[n:]), nodes.cell, k)
+    nodes = _neighbourhoods(refinement.mesh, k, spacing, n, wanted, False)
+    added_positions = np.ascontiguousarray(refinement.mesh.vertices[n:])
+    added = _added_points(vertices, added_positions, nodes.cell, k)
+    nodes, added = _with_fills(refinement.mesh.vertices, n, nodes, added, refinement.ends)
     return SmoothPlan(refinement, nodes, added)
 
 
@@ -1642,11 +1641,17 @@ def _extended_plan(previous: SmoothPlan, mesh: Mesh, vertices: NDArray[np.float6
     else:
         refined = mesh
     index, radius = searched_again(nodes.centres, nodes.index, nodes.radius, lambda c: _nearest(vertices, c, k))
-    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners))
+    gap = nodes.gap if index is nodes.index else _gaps(vertices, index, nodes.first, nodes.positions, nodes.cell)
+    nodes = nodes._replace(index=index, radius=radius, corners=shifted(nodes.corners), gap=gap)
     # as _added_points searches them
     index, radius = searched_again(added.centres, added.index, added.radius,
                                    lambda c: _nearest_around(vertices, c, k, 6.0 * nodes.cell))
-    added = added._replace(index=index, radius=radius)
+    if index is not added.index:
+        added_positions = np.ascontiguousarray(refined.vertices[n:][added.order])
+        gap = _gaps(vertices, index, added.first, added_positions, nodes.cell)
+        added = added._replace(index=index, radius=radius, gap=gap)
+    # the voids' natural neighbours again, of the nodes whose disks hold a new vertex
+    nodes, added = _with_fills(refined.vertices, n, nodes, added, refinement.ends, new)
     return SmoothPlan(refinement._replace(mesh=refined), nodes, added)
 
 
@@ -1701,18 +1706,20 @@ def smooth_surface(
     z_all = np.empty(n + m)
     z_all[:n] = zv
     if m:
-        z_all[n:] = _krige_added(vertices, zv, variogram, plan.added, refined.vertices[n:], refinement.ends, refinement.t)
+        z_all[n:] = _krige_added(vertices, zv, variogram, plan.added, refined.vertices[n:], refinement.ends, refinement.t,
+                                 plan.nodes.cell)
     nodes = smooth_nodes(refined, z_all, variogram, k, neighbourhoods=plan.nodes)
     return SmoothSurface(refined, z_all, nodes, refinement.parent)
 
 
 def _krige_added(
     vertices: NDArray[np.float64], z: NDArray[np.float64], variogram: Variogram, added: AddedPoints,
-    positions: NDArray[np.float64], ends: NDArray[np.int64], t: NDArray[np.float64],
+    positions: NDArray[np.float64], ends: NDArray[np.int64], t: NDArray[np.float64], cell: float,
 ) -> NDArray[np.float64]:
     """The added points' values, kriged as the nodes are: each from its cell's system,
-    clamped as they are (to the neighbours' and its edge's ends' range); a
-    singular system gives the linear value ``(1 - t) z[first] + t z[second]``."""
+    clamped as they are (to the neighbours' and its edge's ends' range), those
+    in voids blended into the fill; a singular system gives the linear value
+    ``(1 - t) z[first] + t z[second]``."""
     n = positions.shape[0]
     order = added.order
     corners = np.full((n, 4), -1, dtype=np.int32)
@@ -1721,10 +1728,11 @@ def _krige_added(
     weights[:, 0] = 1.0 - t[order]
     weights[:, 1] = t[order]
     values = np.empty(n)
+    near, far = _void_distances(cell)
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
         np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
-        MODELS.index(variogram.model), _clamps_inside(variogram), values,
+        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n), near, far, values,
     )
     out = np.empty(n)
     out[order] = values

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+
 import numpy as np
 
 from meshcore.mesh import Mesh
@@ -73,3 +78,14 @@ def edge_faces(faces) -> dict[tuple[int, int], list[int]]:
             a, b = face[k], face[(k + 1) % n]
             sides.setdefault((min(a, b), max(a, b)), []).append(f)
     return sides
+
+
+def python_and_compiled(script: str) -> list[list[np.ndarray]]:
+    """The arrays ``script`` prints as a JSON list (``None`` for NaN), run with
+    ``NUMBA_DISABLE_JIT=1`` and then compiled: the kernels' Python form and theirs."""
+    runs = []
+    for disable in ("1", "0"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=disable)
+        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, check=True)
+        runs.append([np.array(a, dtype=np.float64) for a in json.loads(result.stdout)])
+    return runs

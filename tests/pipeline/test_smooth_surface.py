@@ -42,6 +42,8 @@ def test_tiled_smooth_dem_is_the_untiled_one_bit_for_bit(tmp_path, seed, share, 
     variogram = meshcore.Variogram.from_dict(prov[0]["smooth_surface"]["variogram"])
     plan = meshcore.smooth_plan(meshcore.build_mesh(xy - xy.min(axis=0)), variogram)
     assert plan.refinement.ends.shape[0] > 10
+    # and nodes in the voids take natural neighbours, read across the tiles' seams alike
+    assert np.count_nonzero(np.diff(plan.nodes.fill.coordinates.first)) > 10
 
 
 def test_a_sampled_variogram_is_the_same_at_any_tile_size_and_buffer(tmp_path, monkeypatch):
@@ -74,7 +76,7 @@ def test_a_sampled_variogram_is_the_same_at_any_tile_size_and_buffer(tmp_path, m
 def _assert_tiles_krig_from_the_whole_surveys_nearest_points(monkeypatch, run_it) -> None:
     """Every kriging system of every tile of ``run_it()`` (its nodes' and its
     added points') has the neighbours it has in the whole survey."""
-    from meshcore.smooth import _nearest
+    from meshcore._buckets import _nearest
 
     plans = []
     surface = meshcore.smooth_surface
