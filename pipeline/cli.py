@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .config import LAYERS, positive_integer
+from .config import LAYERS, Returns, positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
@@ -121,7 +121,11 @@ def _parser() -> argparse.ArgumentParser:
         help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
         "every point, kriged between them (more accurate; 2-5x the time)",
     )
-    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])}")
+    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])} (see docs/products.md)")
+    run.add_argument("--returns", choices=tuple(r.value for r in Returns),
+                     help="returns the DTM is made of (default all; the DSM always uses first returns)")
+    run.add_argument("--dsm-max-edge", type=float,
+                     help="longest edge and circumradius of the DSM's triangles (default: 5 point spacings)")
     run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
@@ -208,6 +212,8 @@ def _run_config(args: argparse.Namespace):
         "triangle_measure": args.triangle_measure,
         "merge": args.merge,
         "max_edge": args.max_edge,
+        "returns": args.returns,
+        "dsm_max_edge": args.dsm_max_edge,
         "surface": args.surface,
         "workers": args.workers,
         "scheduler": args.scheduler,
@@ -304,8 +310,8 @@ def _progress(args: argparse.Namespace) -> bool | None:
 
 
 _SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
-_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
-_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|skip_bad_files|tile_size)\b")
+_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|buffer|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
+_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|skip_bad_files|tile_size)\b")
 
 
 def _flag(name: str) -> str:

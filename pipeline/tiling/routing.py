@@ -33,7 +33,8 @@ __all__ = [
 @dataclass(frozen=True)
 class PointCounts:
     """One input file's points by fate: read, left out by class or as
-    withheld, outside the bbox, kept."""
+    withheld, outside the bbox, kept (in the DTM), left out by the return
+    filter, and kept for the products only (not the DTM's classes or returns)."""
 
     path: str
     read: int = 0
@@ -41,13 +42,18 @@ class PointCounts:
     filtered_withheld: int = 0
     outside_bbox: int = 0
     kept: int = 0
+    filtered_returns: int = 0
+    products_only: int = 0
 
     def by_fate(self) -> dict[str, int]:
-        """The counts by name, in :data:`POINT_FATES` order."""
-        return {name: getattr(self, name) for name in POINT_FATES}
+        """The counts by name, in :data:`POINT_FATES` order (the fates a run
+        without return filter nor products never has only when not zero, as
+        records always held them)."""
+        return {name: getattr(self, name) for name in POINT_FATES
+                if getattr(self, name) or name not in ("filtered_returns", "products_only")}
 
 
-POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
+POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept", "filtered_returns", "products_only")
 """The counts of :class:`PointCounts`, in order."""
 
 
@@ -69,6 +75,8 @@ class RouteResult(PointCounts):
     """The kept points' box; None when none was kept."""
     parts: tuple[tuple[int, ...], ...] = ()
     """The spill files written, for a resume to check they are still there."""
+    product_parts: tuple[tuple[int, ...], ...] = ()
+    """The product points' spill files written (:mod:`pipeline.products`)."""
     tile_points: tuple[tuple[int, int, int], ...] = ()
     """(row, col, points) of every tile it spilled to: the tiles' work."""
     sha256: str | None = None
@@ -94,9 +102,10 @@ class RouteResult(PointCounts):
         if self.window:
             return {"path": self.path, "window": True, "parts": [list(p) for p in self.parts], "sha256": self.sha256,
                     **self._bounds()}
+        products = {"product_parts": [list(p) for p in self.product_parts]} if self.product_parts else {}
         return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
                 "parts": [list(p) for p in self.parts], "tile_points": [list(t) for t in self.tile_points],
-                "sha256": self.sha256, "seconds": self.seconds}
+                "sha256": self.sha256, "seconds": self.seconds, **products}
 
     @classmethod
     def from_record(cls, payload: Mapping[str, Any]) -> RouteResult:
@@ -105,6 +114,7 @@ class RouteResult(PointCounts):
         if data.get("bounds") is not None:
             data["bounds"] = tuple(data["bounds"])
         data["parts"] = tuple(tuple(p) for p in data.get("parts", ()))
+        data["product_parts"] = tuple(tuple(p) for p in data.get("product_parts", ()))
         data["tile_points"] = tuple(tuple(t) for t in data.get("tile_points", ()))
         return cls(**data)
 
@@ -121,9 +131,16 @@ _ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
 
 class TileSpiller:
     """Routes points of one source to the tiles' spill files, holding at most
-    ``budget`` points in memory (bounded memory whatever the archive size)."""
+    ``budget`` points in memory (bounded memory whatever the archive size).
 
-    def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000):
+    ``folder``: a folder inside each tile's where its files go (the product
+    points' spill files, :mod:`pipeline.products`; empty: the DTM's points,
+    in the tile's own folder).  Points are rows of any number of columns,
+    x and y first (:meth:`add_rows`)."""
+
+    def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000,
+                 folder: str = ""):
+        self.folder = folder
         self.scratch = scratch
         self.grid = grid
         self.buffer = float(buffer)
@@ -135,11 +152,16 @@ class TileSpiller:
         self._points: dict[tuple[int, int], int] = {}
 
     def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
-        if x.size == 0:
+        self.add_rows(np.column_stack([x, y, z]))
+
+    def add_rows(self, rows: NDArray[np.float64]) -> None:
+        """Route points given as rows ``(n, k)``: x, y, then any other columns."""
+        if rows.shape[0] == 0:
             return
         g = self.grid
         offsets, pts = _route_kernel(
-            x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer, g.n_cols, g.n_tiles
+            _read_only(rows), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer,
+            g.n_cols, g.n_tiles,
         )
         for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
             s, e = int(offsets[k]), int(offsets[k + 1])
@@ -164,7 +186,8 @@ class TileSpiller:
         files = {}
         for key, chunks in self._pending.items():
             part = self._parts.get(key, 0)
-            files[f"{tile_dir(*key)}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
+            folder = f"{tile_dir(*key)}/{self.folder}" if self.folder else tile_dir(*key)
+            files[f"{folder}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
             self._parts[key] = part + 1
         self.scratch.save_many(files)
         self._pending.clear()
@@ -174,13 +197,21 @@ class TileSpiller:
 _ROUNDOFF = 2.0**-53
 
 
+def _read_only(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A C-contiguous read-only view (one compiled kernel, as the points read back from the scratch folder)."""
+    view = np.ascontiguousarray(rows, dtype=np.float64).view()
+    view.flags.writeable = False
+    return view
+
+
 @meshcore.kernel
-def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
-    """Every point copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
+def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
+    """Every point (a row: x, y, then its other columns) copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and
     column of their reach come first, then the next column, row, ...; each
     group in input order (a counting sort, stable)."""
-    n = x.shape[0]
+    n = rows.shape[0]
+    width = rows.shape[1]
     c_lo = empty(n, dtype=np.int32)
     r_lo = empty(n, dtype=np.int32)
     c_span = empty(n, dtype=np.int32)
@@ -188,8 +219,8 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     span_c = 1
     span_r = 1
     for i in range(n):
-        xi = x[i]
-        yi = y[i]
+        xi = rows[i, 0]
+        yi = rows[i, 1]
         # a tile claims every point of its closed window grown by the buffer
         # (``held_box``): a point on that box's edge, or a rounding away from
         # it, goes to the tile too (to both tiles, on a shared edge)
@@ -216,7 +247,7 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
                 start[((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc + 1] += 1
     for k in range(n_tiles * groups):
         start[k + 1] += start[k]
-    pts = empty((start[n_tiles * groups], 3))
+    pts = empty((start[n_tiles * groups], width))
     offsets = empty(n_tiles + 1, dtype=np.int64)
     for t in range(n_tiles + 1):
         offsets[t] = start[t * groups]
@@ -225,18 +256,16 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
             slot = (r_lo[i] * n_cols + c_lo[i]) * groups
             at = start[slot]
             start[slot] = at + 1
-            pts[at, 0] = x[i]
-            pts[at, 1] = y[i]
-            pts[at, 2] = z[i]
+            for k in range(width):
+                pts[at, k] = rows[i, k]
             continue
         for dr in range(r_span[i]):
             for dc in range(c_span[i]):
                 slot = ((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc
                 at = start[slot]
                 start[slot] = at + 1
-                pts[at, 0] = x[i]
-                pts[at, 1] = y[i]
-                pts[at, 2] = z[i]
+                for k in range(width):
+                    pts[at, k] = rows[i, k]
     return offsets, pts
 
 
@@ -244,9 +273,9 @@ def route_points(grid: TileGrid, buffer: float, points: NDArray[np.float64], row
     """The points of ``points`` (n, 3) that routing sends to tile (row, col),
     in the order routing gives them (:class:`TileSpiller`)."""
     g = grid
-    x, y, z = (np.ascontiguousarray(points[:, k]) for k in range(3))
     offsets, pts = _route_kernel(
-        x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer), g.n_cols, g.n_tiles
+        _read_only(points), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer),
+        g.n_cols, g.n_tiles,
     )
     t = row * g.n_cols + col
     return pts[offsets[t]:offsets[t + 1]]
@@ -264,8 +293,8 @@ def spill_by_source(scratch: Scratch, row: int, col: int) -> dict[int, NDArray[n
 
 
 def drop_source_spill(scratch: Scratch, source: int) -> None:
-    """Delete every spill file of one source (it is routed again, or left out)."""
-    scratch.remove(source_spill(scratch, f"{source:06d}"))
+    """Delete every spill file of one source, its product points' too (it is routed again, or left out)."""
+    scratch.remove(source_spill(scratch, f"{source:06d}") + scratch.glob(f"tiles/*/*/{source:06d}_*.npy"))
 
 
 def source_spill(scratch: Scratch, source: str) -> list[str]:
