@@ -142,7 +142,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Writes a synthetic LiDAR survey (four overlapping LAZ strips in Lambert-93: hills, a "
         "valley with a lake that returns nothing, buildings and trees as non-ground classes) into "
         "DIR/survey, runs 'terrain run' on it into DIR/dem.zarr, prints the report, and draws "
-        "DIR/dem.png (hillshade) and DIR/mesh.png (the combined mesh at the lake shore).",
+        "DIR/dem.png (hillshade, and the canopy height beside it) and DIR/mesh.png (the combined mesh at the "
+        "lake shore).",
     )
     demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
     demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
@@ -276,7 +277,8 @@ def _demo(args: argparse.Namespace) -> int:
     config = RunConfig(
         inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
         # bridge the ground under buildings (<= 30 m), not the lake (140 m across)
-        layers=("slope", "face_kind", "point_count"), max_edge=50.0, overwrite=True,
+        layers=("slope", "face_kind", "point_count", "dsm", "chm", "intensity", "density", "ground_density"),
+        max_edge=50.0, overwrite=True,
     )
     # a machine's first run compiles its mesh kernels: another process starts
     # now, while this one writes the survey on one core, and the run takes it over

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from .declare import ALL_BUT_NOISE, HEIGHT_UNITS, Preview, Product, Returns, Selection, TileContext
+from .declare import ALL_BUT_NOISE, HEIGHT_UNITS, Product, Returns, Selection, TileContext
 
 __all__ = ["DSM", "FIRST_RETURNS", "dsm_faces"]
 
@@ -117,5 +117,4 @@ DSM = Product(
     compute=_dsm,
     points=_points,
     needs=("elevation",),
-    preview=Preview("terrain", "surface"),
 )

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from .declare import Attribute, Preview, Product, TileContext
+from .declare import Attribute, Product, TileContext
 from .dsm import FIRST_RETURNS
 
 __all__ = ["INTENSITY"]
@@ -34,5 +34,4 @@ INTENSITY = Product(
     compute=_intensity,
     points=lambda settings: FIRST_RETURNS,
     attributes=(Attribute.INTENSITY,),
-    preview=Preview("gray", "intensity"),
 )

@@ -110,6 +110,7 @@ __all__ = [
     "read_tile_mesh",
     "read_layer",
     "layer_names",
+    "layer_attrs",
     "nodata_value",
 ]
 
@@ -143,7 +144,7 @@ def _layer_attrs(spec: Product, z_units: str | None, xy_unit: str | None) -> dic
             out["units"] = z_units
     elif spec.units == PER_AREA_UNITS:
         if xy_unit is not None:
-            out["units"] = f"{xy_unit}-2"
+            out["units"] = f"({xy_unit})-2" if " " in xy_unit else f"{xy_unit}-2"
     elif spec.units is not None:
         out["units"] = spec.units
     return out | dict(spec.attrs)
@@ -675,6 +676,16 @@ def layer_names(path: StorePath) -> list[Layer]:
     root = _open_group(path)
     held = set(root.array_keys())
     return [layer for layer in Layer if layer.value in held]
+
+
+def layer_attrs(path: StorePath, layer: Layer | str) -> dict[str, Any]:
+    """The attributes of one layer's array (``long_name``, ``units``, ...)."""
+    layer = Layer.parse(layer)
+    try:
+        array = zarr.open_array(store=_zarr_store(path, read_only=True), path=layer.value, mode="r")
+    except FileNotFoundError:
+        raise StoreError(f"{os.fspath(path)}: holds no layer {layer.value!r}") from None
+    return _user_attrs(array)
 
 
 def read_layer(path: StorePath, layer: Layer | str, rows: slice = slice(None), cols: slice = slice(None)) -> NDArray:
