@@ -21,7 +21,7 @@ from typing import Any
 
 from .errors import UsageError
 
-from .inputs.attributes import Returns
+from .products.attributes import Returns
 from .products.registry import names as _product_names
 
 __all__ = ["RunConfig", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
-from .attributes import Returns
+from ..products.attributes import Returns
 from .crs import crs_label, same_crs
 from .header import SourceInfo
 from ..errors import InputFileError, StorageUnreachableError, UsageError, one_line, os_error_reason
@@ -773,7 +773,7 @@ def iter_points(
         window = tuple(float(v) for v in window)  # type: ignore[assignment]
         if len(window) != 4 or not all(math.isfinite(v) for v in window) or window[0] > window[2] or window[1] > window[3]:
             raise UsageError(f"window must be (xmin, ymin, xmax, ymax) with min <= max, got {window!r}")
-    from .attributes import Attribute
+    from ..products.attributes import Attribute
 
     attributes = tuple(Attribute(a).value for a in attributes)
     return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size), window, attributes)

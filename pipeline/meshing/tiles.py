@@ -43,11 +43,12 @@ from meshcore.kernels import empty
 
 from ..errors import SeamError
 from ..products import ProductSettings, TileContext
-from ..products.tile import load_product_points, tile_layers, warm_up
+from ..products.points import from_columns
+from ..products.tile import tile_layers, warm_up
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
 from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
-from ..tiling.routing import neighbour_tile_points, points_in_box
+from ..tiling.routing import PRODUCT_SPILL, load_tile_points, neighbour_tile_points, points_in_box
 from .kernels import load_mesh_kernels, sample_grid_mesh
 
 __all__ = [
@@ -1048,7 +1049,9 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
         job.grid, job.row, job.col, settings, mesh=mesh, z=z, kinds=kinds,
         surface={"surface": job.surface if smooth is None else smooth}, height_scale=job.height_scale,
         max_edge=job.max_edge,
-        load_points=lambda: load_product_points(job.scratch, job.row, job.col, settings),
+        load_points=lambda: from_columns(
+            load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, 3 + len(settings.columns)), settings.columns
+        ),
         load_piece=lambda name: load_piece(job.scratch, job.row, job.col, (name,))[name],
     )
     return tile_layers(ctx, settings)

@@ -27,13 +27,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..inputs.attributes import RETURN_ATTRIBUTES, Attribute, Returns
+from .attributes import RETURN_ATTRIBUTES, Attribute, Returns
 
 if TYPE_CHECKING:
     import meshcore
-
-    from ..tiling.grid import TileGrid
-    from .points import ProductPoints
 
 __all__ = [
     "Returns", "Attribute", "Selection", "Product", "Preview", "TileContext", "NOISE_CLASSES", "ALL_BUT_NOISE",
@@ -115,7 +112,8 @@ class TileContext:
     already computed for them (its dependencies), the tile's points of a
     selection, the surface's mesh, and the run's product settings."""
 
-    grid: TileGrid
+    grid: Any
+    """The run's :class:`~pipeline.tiling.grid.TileGrid`."""
     row: int
     col: int
     settings: Any
@@ -127,9 +125,10 @@ class TileContext:
     surface: dict[str, Any] = field(default_factory=dict)
     height_scale: float = 1.0
     max_edge: float | None = None
-    load_points: Callable[[], ProductPoints] | None = None
+    load_points: Callable[[], Any] | None = None
+    """Reads the tile's :class:`~pipeline.products.points.ProductPoints`."""
     load_piece: Callable[[str], NDArray] | None = None
-    _points: ProductPoints | None = None
+    _points: Any = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -143,7 +142,7 @@ class TileContext:
         r0, _, c0, _ = g.cell_slice(self.row, self.col)
         return (g.x0 + c0 * g.resolution, g.y0 + r0 * g.resolution)
 
-    def points(self, selection: Selection) -> ProductPoints:
+    def points(self, selection: Selection) -> Any:
         """The tile's points (its cells plus the buffer) of ``selection``."""
         if self._points is None:
             if self.load_points is None:
@@ -151,7 +150,7 @@ class TileContext:
             self._points = self.load_points()
         return self._points.selected(selection)
 
-    def cell_counts(self, points: ProductPoints, weights: NDArray | None = None) -> NDArray:
+    def cell_counts(self, points: Any, weights: NDArray | None = None) -> NDArray:
         """Per cell of the tile: the number of ``points`` whose cell it is (or
         the sum of ``weights``, int64), by the grid's one rule of a point's
         cell: ``floor((x - x0) / resolution)``, the same at any tiling."""

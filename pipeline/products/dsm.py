@@ -37,7 +37,6 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-import meshcore
 
 from .declare import ALL_BUT_NOISE, HEIGHT_UNITS, Product, Returns, Selection, TileContext
 
@@ -82,7 +81,7 @@ def _smallest_corner(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[
 
 
 def _dsm(ctx: TileContext) -> NDArray[np.float32]:
-    from ..meshing.tiles import vertex_z
+    import meshcore
 
     shape = ctx.shape
     elevation = ctx.layers["elevation"]
@@ -91,7 +90,8 @@ def _dsm(ctx: TileContext) -> NDArray[np.float32]:
     max_edge = float(ctx.settings.dsm_max_edge)
     if len(points) >= 3:
         mesh = meshcore.build_mesh(points.xy, "delaunay", None)
-        z = vertex_z(mesh.input_to_vertex, mesh.vertices.shape[0], points.z, "highest")
+        z = np.full(mesh.vertices.shape[0], -np.inf)
+        np.maximum.at(z, mesh.input_to_vertex, points.z)  # points sharing x and y: the highest
         faces = dsm_faces(mesh.vertices, mesh.faces[:, :3].astype(np.int64), max_edge)
         if faces.shape[0]:
             x0, y0 = ctx.origin

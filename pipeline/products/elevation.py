@@ -7,7 +7,6 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-import meshcore
 
 from .declare import HEIGHT_UNITS, Product, TileContext
 
@@ -15,6 +14,8 @@ __all__ = ["ELEVATION"]
 
 
 def _elevation(ctx: TileContext) -> NDArray[np.float32]:
+    import meshcore
+
     shape = ctx.shape
     if ctx.mesh is None or ctx.mesh.faces.shape[0] == 0:
         return np.full(shape, np.nan, dtype=np.float32)

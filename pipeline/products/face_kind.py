@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-import meshcore
 
 from .declare import Product, TileContext
 
@@ -14,6 +13,8 @@ __all__ = ["FACE_KIND"]
 
 def _face_kind(ctx: TileContext) -> NDArray[np.int8]:
     """1 where a triangle covers the cell centre, 2 for a quadrangle, 0 for none."""
+    import meshcore
+
     mesh, shape = ctx.mesh, ctx.shape
     if mesh is None or mesh.faces.shape[0] == 0:
         return np.zeros(shape, dtype=np.int8)

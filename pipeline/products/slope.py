@@ -7,7 +7,6 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-import meshcore
 
 from .declare import Product, TileContext
 
@@ -15,6 +14,8 @@ __all__ = ["SLOPE"]
 
 
 def _slope(ctx: TileContext) -> NDArray[np.float32]:
+    import meshcore
+
     shape = ctx.shape
     slope = np.full(shape, np.nan, dtype=np.float32)
     ok = np.isfinite(ctx.layers["elevation"])
@@ -28,6 +29,8 @@ def _slope(ctx: TileContext) -> NDArray[np.float32]:
 
 
 def _warm_up() -> None:
+    import meshcore
+
     vertices = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0], [0.0, 4.0], [4.0, 4.0], [8.0, 5.0], [2.0, 8.0]])
     faces = np.array([[0, 1, 4, 3], [1, 2, 5, -1], [3, 4, 6, -1]])
     mesh = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))

@@ -38,7 +38,6 @@ import numpy as np
 from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
 from ..products.points import as_columns
-from ..products.tile import PRODUCT_SPILL
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import WorkDir, output_lock, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
@@ -54,7 +53,7 @@ from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
 from ..tiling.grid import TileGrid, tile_key
-from ..tiling.routing import RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
+from ..tiling.routing import PRODUCT_SPILL, RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 

@@ -26,15 +26,14 @@ from .scratch import Scratch
 __all__ = [
     "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_points", "drop_source_spill", "source_spill",
     "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box", "hull_candidates",
-    "grow_hull",
+    "grow_hull", "PRODUCT_SPILL",
 ]
 
 
 @dataclass(frozen=True)
 class PointCounts:
     """One input file's points by fate: read, left out by class or as
-    withheld, outside the bbox, kept (in the DTM), left out by the return
-    filter, and kept for the products only (not the DTM's classes or returns)."""
+    withheld, outside the bbox, kept."""
 
     path: str
     read: int = 0
@@ -42,18 +41,13 @@ class PointCounts:
     filtered_withheld: int = 0
     outside_bbox: int = 0
     kept: int = 0
-    filtered_returns: int = 0
-    products_only: int = 0
 
     def by_fate(self) -> dict[str, int]:
-        """The counts by name, in :data:`POINT_FATES` order (the fates a run
-        without return filter nor products never has only when not zero, as
-        records always held them)."""
-        return {name: getattr(self, name) for name in POINT_FATES
-                if getattr(self, name) or name not in ("filtered_returns", "products_only")}
+        """The counts by name, in :data:`POINT_FATES` order."""
+        return {name: getattr(self, name) for name in POINT_FATES}
 
 
-POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept", "filtered_returns", "products_only")
+POINT_FATES = ("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept")
 """The counts of :class:`PointCounts`, in order."""
 
 
@@ -84,6 +78,15 @@ class RouteResult(PointCounts):
     skipped: str | None = None
     window: bool = False
     hull: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False, repr=False)
+    filtered_returns: int = 0
+    """Points of the DTM's classes left out by the return filter (and read for no product)."""
+    products_only: int = 0
+    """Points read for the products only: not of the DTM's classes or returns."""
+
+    def _more_fates(self) -> dict[str, int]:
+        """The fates of a return filter or of products, when the file had any
+        (records and reports of other runs stay as they always were)."""
+        return {k: getattr(self, k) for k in ("filtered_returns", "products_only") if getattr(self, k)}
 
     def counted(self, read: int, filtered_class: int, filtered_withheld: int, outside_bbox: int, kept: int) -> RouteResult:
         """This result with the counts the tiles made of a window source."""
@@ -105,7 +108,7 @@ class RouteResult(PointCounts):
         products = {"product_parts": [list(p) for p in self.product_parts]} if self.product_parts else {}
         return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
                 "parts": [list(p) for p in self.parts], "tile_points": [list(t) for t in self.tile_points],
-                "sha256": self.sha256, "seconds": self.seconds, **products}
+                "sha256": self.sha256, "seconds": self.seconds, **products, **self._more_fates()}
 
     @classmethod
     def from_record(cls, payload: Mapping[str, Any]) -> RouteResult:
@@ -123,7 +126,7 @@ class RouteResult(PointCounts):
         if self.window:
             return {"path": self.path, "sha256": self.sha256, **self._bounds(), **self.by_fate()}
         return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
-                "sha256": self.sha256, "seconds": self.seconds}
+                "sha256": self.sha256, "seconds": self.seconds, **self._more_fates()}
 
 
 _ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
@@ -316,12 +319,17 @@ def spill_intact(scratch: Scratch, source: int, parts: list[list[int]]) -> bool:
     return True
 
 
-def load_tile_points(scratch: Scratch, row: int, col: int) -> NDArray[np.float64]:
-    """All points routed to a tile, ``(n, 3)``, in source then reading order."""
-    folder = tile_dir(row, col)
+PRODUCT_SPILL = "products"
+"""The folder, in each tile's work folder, of the product points routed to it (:mod:`pipeline.products`)."""
+
+
+def load_tile_points(scratch: Scratch, row: int, col: int, folder: str = "", width: int = 3) -> NDArray[np.float64]:
+    """All points routed to a tile, ``(n, 3)``, in source then reading order
+    (``folder``: the points of that spill folder, rows of ``width`` columns)."""
+    folder = f"{tile_dir(row, col)}/{folder}" if folder else tile_dir(row, col)
     parts = [f"{folder}/{name}" for name in scratch.names(folder) if name.endswith(".npy")]
     if not parts:
-        return np.empty((0, 3))
+        return np.empty((0, width))
     return np.concatenate(scratch.load_many(parts))
 
 
