@@ -33,7 +33,8 @@ from pathlib import Path
 
 from bench_mesh import table
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+HERE = Path(__file__).resolve().parents[1]
+SHARED = HERE.parent / "shared" / "data"
 LAYERS = "dsm,chm,intensity,density,ground_density"
 
 _WHITEBOX = textwrap.dedent(
@@ -55,7 +56,9 @@ _WHITEBOX = textwrap.dedent(
 def _timed(cmd: list[str]) -> tuple[float, float]:
     """Seconds and peak resident memory (MiB) of one fresh process."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # this checkout's pipeline, whatever the environment has installed
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=HERE, env=env)
     _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.perf_counter() - t0
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -106,6 +109,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--resolution", type=float, default=0.5)
     args = parser.parse_args()
+    sys.path.insert(0, str(HERE))
     rows = measure(args.file, args.repeat, args.resolution) if args.file.exists() else []
     if args.forest:
         with tempfile.TemporaryDirectory() as tmp:
