@@ -3,14 +3,18 @@
 ``pipeline.open("dem.zarr")`` gives a :class:`TiledStore`; ``tiles()`` lists
 the tiles, ``tile_mesh(tile)`` returns a tile's faces as a
 :class:`meshcore.Mesh` with its node elevations, ``tile_dem(tile)`` and
-``dem_window(x0, y0, x1, y1)`` return DEM windows as xarray datasets, and
-``map_tiles(fn)`` runs ``fn(tile, mesh, z)`` over every tile with dask.
+``dem_window(x0, y0, x1, y1)`` return DEM windows as xarray datasets (every
+layer the store holds: elevation, and the products asked for, ``dsm``,
+``chm``, ``intensity``, ...), ``layers()`` names them, and ``map_tiles(fn)``
+runs ``fn(tile, mesh, z)`` over every tile with dask (``map_tiles(fn,
+layers=("chm",))``: ``fn(tile, mesh, z, dem)`` with the tile's cells of
+those layers).
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -57,8 +61,21 @@ class TiledStore:
         """The whole DEM, lazily (dask arrays chunked by tile)."""
         return store.open_dem(self.path)
 
-    def dem_window(self, x0: float, y0: float, x1: float, y1: float) -> xr.Dataset:
-        return store.read_dem_window(self.path, x0, y0, x1, y1)
+    def layers(self) -> list[str]:
+        """The raster layers the store holds, elevation first (see :mod:`pipeline.products`)."""
+        return [layer.value for layer in store.layer_names(self.path)]
+
+    def dem_window(self, x0: float, y0: float, x1: float, y1: float, layers: Sequence[str] | None = None) -> xr.Dataset:
+        """The cells whose centres lie in the box, of every layer (or of ``layers``), loaded."""
+        ds = store.read_dem_window(self.path, x0, y0, x1, y1)
+        return ds if layers is None else ds[self._held(layers)]
+
+    def _held(self, layers: Sequence[str]) -> list[str]:
+        held = self.layers()
+        missing = [name for name in layers if name not in held]
+        if missing:
+            raise UsageError(f"{self.path}: holds no layer {', '.join(map(repr, missing))} (it holds {', '.join(held)})")
+        return list(layers)
 
     def tile_dem(self, tile: Tile) -> xr.Dataset:
         """The tile's own block of cells, loaded (picked by index: cell
@@ -78,13 +95,20 @@ class TiledStore:
         xy, z, faces = store.read_mesh(self.path)
         return meshcore.Mesh(np.asarray(xy), np.asarray(faces), np.arange(len(xy))), np.asarray(z)
 
-    def map_tiles(self, fn: Callable[[Tile, meshcore.Mesh, np.ndarray], Any], scheduler: str | None = None) -> list:
-        """``fn(tile, mesh, z)`` for every tile, run with dask; results in tile order."""
+    def map_tiles(self, fn: Callable[..., Any], scheduler: str | None = None,
+                  layers: Sequence[str] | None = None) -> list:
+        """``fn(tile, mesh, z)`` for every tile, run with dask; results in tile
+        order.  With ``layers``, ``fn(tile, mesh, z, dem)``: ``dem`` is the
+        tile's cells of those layers (:meth:`tile_dem`)."""
         import dask
+
+        chosen = None if layers is None else self._held(layers)
 
         def one(tile: Tile) -> Any:
             mesh, z = self.tile_mesh(tile)
-            return fn(tile, mesh, z)
+            if chosen is None:
+                return fn(tile, mesh, z)
+            return fn(tile, mesh, z, self.tile_dem(tile)[chosen])
 
         tasks = [dask.delayed(one)(t) for t in self.tiles()]
         if scheduler:

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .config import LAYERS, positive_integer
+from .config import LAYERS, Returns, positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
@@ -122,7 +122,11 @@ def _parser() -> argparse.ArgumentParser:
         "every point, kriged between them, voids filled from their rims (more accurate; 1.25-1.86x the time "
         "of a linear run on the real samples)",
     )
-    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])}")
+    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])} (see docs/products.md)")
+    run.add_argument("--returns", choices=tuple(r.value for r in Returns),
+                     help="returns the DTM is made of (default all; the DSM always uses first returns)")
+    run.add_argument("--dsm-max-edge", type=float,
+                     help="longest edge and circumradius of the DSM's triangles (default: 5 point spacings)")
     run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
     run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
     run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
@@ -139,7 +143,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Writes a synthetic LiDAR survey (four overlapping LAZ strips in Lambert-93: hills, a "
         "valley with a lake that returns nothing, buildings and trees as non-ground classes) into "
         "DIR/survey, runs 'terrain run' on it into DIR/dem.zarr, prints the report, and draws "
-        "DIR/dem.png (hillshade) and DIR/mesh.png (the combined mesh at the lake shore).",
+        "DIR/dem.png (hillshade, and the canopy height beside it) and DIR/mesh.png (the combined mesh at the "
+        "lake shore).",
     )
     demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
     demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
@@ -209,6 +214,8 @@ def _run_config(args: argparse.Namespace):
         "triangle_measure": args.triangle_measure,
         "merge": args.merge,
         "max_edge": args.max_edge,
+        "returns": args.returns,
+        "dsm_max_edge": args.dsm_max_edge,
         "surface": args.surface,
         "workers": args.workers,
         "scheduler": args.scheduler,
@@ -271,7 +278,8 @@ def _demo(args: argparse.Namespace) -> int:
     config = RunConfig(
         inputs=(str(survey),), output=str(out / "dem.zarr"), resolution=1.0, tile_size=256.0,
         # bridge the ground under buildings (<= 30 m), not the lake (140 m across)
-        layers=("slope", "face_kind", "point_count"), max_edge=50.0, overwrite=True,
+        layers=("slope", "face_kind", "point_count", "dsm", "chm", "intensity", "density", "ground_density"),
+        max_edge=50.0, overwrite=True,
     )
     # a machine's first run compiles its mesh kernels: another process starts
     # now, while this one writes the survey on one core, and the run takes it over
@@ -305,8 +313,8 @@ def _progress(args: argparse.Namespace) -> bool | None:
 
 
 _SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
-_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
-_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|max_edge|skip_bad_files|tile_size)\b")
+_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|buffer|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
+_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|skip_bad_files|tile_size)\b")
 
 
 def _flag(name: str) -> str:

@@ -21,15 +21,15 @@ from typing import Any
 
 from .errors import UsageError
 
-__all__ = ["RunConfig", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES"]
+from .products.attributes import Returns
+from .products.registry import names as _product_names
 
-class Layer(StrEnum):
-    """The raster layers a store can hold."""
+__all__ = ["RunConfig", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]
 
-    ELEVATION = "elevation"
-    SLOPE = "slope"
-    FACE_KIND = "face_kind"
-    POINT_COUNT = "point_count"
+
+class _LayerNames(StrEnum):
+    """The raster layers a store can hold: one per product of
+    :mod:`pipeline.products.registry`, in its order."""
 
     @classmethod
     def parse(cls, value: object) -> Layer:
@@ -44,6 +44,9 @@ class Layer(StrEnum):
             cls, value, "layer", error=UsageError, fold_case=False, message="unknown layer {value!r}; valid layers: {names}"
         )
 
+
+Layer = _LayerNames("Layer", [(name.upper(), name) for name in _product_names()], module=__name__)
+"""The raster layers a store can hold (``Layer.DSM``, ...), from the products' registry."""
 
 LAYERS = tuple(member.value for member in Layer)
 """The DEM layers a run can write, by name; ``elevation`` is always written."""
@@ -180,6 +183,12 @@ class RunConfig:
     """The surface the DEM samples: "linear" (the mesh's own faces) or
     "smooth" (cubic patches through every point, kriged between them)."""
     layers: tuple[str, ...] = ("elevation",)
+    returns: str = Returns.ALL.value
+    """The returns the DTM is made of: "all", "first", "last" or "single"
+    (the DSM is made of first returns whatever this says)."""
+    dsm_max_edge: float | None = None
+    """The longest edge (and circumradius) of the DSM's triangles; None: five
+    mean point spacings of the survey (every return counted)."""
     workers: int | None = None
     scheduler: str | None = None
     zarr_format: int = 3
@@ -215,6 +224,8 @@ class RunConfig:
         object.__setattr__(self, "tile_size", tile)
         object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True, allow_zero=True))
         object.__setattr__(self, "max_edge", _positive("max_edge", self.max_edge, allow_none=True))
+        object.__setattr__(self, "dsm_max_edge", _positive("dsm_max_edge", self.dsm_max_edge, allow_none=True))
+        object.__setattr__(self, "returns", _choice(Returns, self.returns, "returns"))
         classes = self.classes
         if isinstance(classes, str):  # "all", or "2,9" as on the command line
             words = [w.strip() for w in classes.split(",")]

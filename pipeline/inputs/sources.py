@@ -30,7 +30,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from laspy.vlrs.known import GeoKeyDirectoryVlr, WktCoordinateSystemVlr
 from pyproj.exceptions import CRSError
 
+from ..products.attributes import Returns
 from .crs import crs_label, same_crs
 from .header import SourceInfo
 from ..errors import InputFileError, StorageUnreachableError, UsageError, one_line, os_error_reason
@@ -622,6 +623,9 @@ class PointFilter:
         Classification codes to keep (0-255), or None for all classes.
     keep_withheld
         Keep points whose *withheld* flag is set (dropped by default).
+    returns
+        Which returns to keep (:class:`~pipeline.inputs.attributes.Returns`):
+        ``all`` (default), ``first``, ``last`` or ``single``.
 
     Examples
     --------
@@ -635,6 +639,7 @@ class PointFilter:
 
     classes: frozenset[int] | None = None
     keep_withheld: bool = False
+    returns: Returns = Returns.ALL
 
     def __post_init__(self) -> None:
         if self.classes is not None:
@@ -650,24 +655,29 @@ class PointFilter:
         if not isinstance(self.keep_withheld, (bool, np.bool_)):
             raise UsageError(f"keep_withheld must be True or False, got {self.keep_withheld!r}")
         object.__setattr__(self, "keep_withheld", bool(self.keep_withheld))
+        object.__setattr__(self, "returns", Returns.parse(self.returns))
 
     def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dictionary (inverse of :meth:`from_dict`)."""
-        return {
+        """A JSON-ready dictionary (inverse of :meth:`from_dict`); ``returns`` only when not all."""
+        out: dict[str, Any] = {
             "classes": None if self.classes is None else sorted(self.classes),
             "keep_withheld": self.keep_withheld,
         }
+        if self.returns is not Returns.ALL:
+            out["returns"] = self.returns.value
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> PointFilter:
         """Rebuild from :meth:`to_dict` output."""
-        unknown = set(data) - {"classes", "keep_withheld"}
+        unknown = set(data) - {"classes", "keep_withheld", "returns"}
         if unknown:
-            raise UsageError(f"unknown PointFilter fields {sorted(unknown)}; valid: classes, keep_withheld")
+            raise UsageError(f"unknown PointFilter fields {sorted(unknown)}; valid: classes, keep_withheld, returns")
         classes = data.get("classes")
         return cls(
             classes=None if classes is None else frozenset(classes),
             keep_withheld=data.get("keep_withheld", False),
+            returns=data.get("returns", Returns.ALL),
         )
 
 
@@ -675,9 +685,10 @@ class PointFilter:
 class PointChunk:
     """The points kept from one chunk of a file, and how many were dropped.
 
-    ``read == kept + filtered_withheld + filtered_class + outside_window``: withheld points
-    are counted in ``filtered_withheld`` whatever their class;
-    ``filtered_class`` counts the remaining points outside the kept classes.
+    ``read == kept + filtered_withheld + filtered_class + filtered_returns + outside_window``:
+    withheld points are counted in ``filtered_withheld`` whatever their class;
+    ``filtered_class`` counts the remaining points outside the kept classes,
+    ``filtered_returns`` those of the kept classes that the return filter drops.
 
     Parameters
     ----------
@@ -692,6 +703,10 @@ class PointChunk:
     outside_window
         Points of COPC nodes outside the ``window`` of :func:`iter_points`,
         never read (``read`` counts them too).
+    filtered_returns
+        Points dropped by the return filter.
+    attributes
+        The kept points' attributes asked of :func:`iter_points`, by name.
     """
 
     x: np.ndarray
@@ -701,6 +716,8 @@ class PointChunk:
     filtered_class: int
     filtered_withheld: int
     outside_window: int = 0
+    filtered_returns: int = 0
+    attributes: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def kept(self) -> int:
@@ -713,6 +730,7 @@ def iter_points(
     point_filter: PointFilter | None = None,
     chunk_size: int = 2_000_000,
     window: tuple[float, float, float, float] | None = None,
+    attributes: Sequence[str] = (),
 ) -> Iterator[PointChunk]:
     """Stream the filtered points of one file in chunks of at most ``chunk_size`` points.
 
@@ -734,6 +752,10 @@ def iter_points(
         (over HTTP, ranged requests for just those bytes); the points of the
         other nodes come as one chunk of ``outside_window`` points, none kept.
         Other files are read whole: the caller filters.
+    attributes
+        Point attributes (:class:`~pipeline.inputs.attributes.Attribute`
+        names) to decode for the kept points, in ``PointChunk.attributes``
+        (as float64); none by default: x, y, z only.
 
     Raises
     ------
@@ -751,7 +773,10 @@ def iter_points(
         window = tuple(float(v) for v in window)  # type: ignore[assignment]
         if len(window) != 4 or not all(math.isfinite(v) for v in window) or window[0] > window[2] or window[1] > window[3]:
             raise UsageError(f"window must be (xmin, ymin, xmax, ymax) with min <= max, got {window!r}")
-    return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size), window)
+    from ..products.attributes import Attribute
+
+    attributes = tuple(Attribute(a).value for a in attributes)
+    return _iter_points(as_location(path), point_filter, _check_chunk_size(chunk_size), window, attributes)
 
 
 #: the largest magnitude a stored coordinate (a 32-bit integer) can have
@@ -821,7 +846,8 @@ def _decoder(scale: float, offset: float) -> Callable[[NDArray[np.integer]], NDA
 
 
 def _iter_points(
-    path: Location, point_filter: PointFilter, chunk_size: int, window: tuple[float, float, float, float] | None
+    path: Location, point_filter: PointFilter, chunk_size: int, window: tuple[float, float, float, float] | None,
+    attributes: tuple[str, ...] = (),
 ) -> Iterator[PointChunk]:
     keep_class: np.ndarray | None = None
     if point_filter.classes is not None:
@@ -831,15 +857,16 @@ def _iter_points(
         windowed = _window_chunks(path, chunk_size, window)
         header = next(windowed)  # None: not a COPC file
         if header is not None:
-            yield from _kept_chunks(path, header, windowed, keep_class, point_filter.keep_withheld)
+            yield from _kept_chunks(path, header, windowed, keep_class, point_filter, attributes)
             return
     with _open(path, _POINT_SELECTION, streaming=True) as (reader, size):
         chunks = ((chunk, 0) for chunk in _chunks(path, reader, size, chunk_size))
-        yield from _kept_chunks(path, reader.header, chunks, keep_class, point_filter.keep_withheld)
+        yield from _kept_chunks(path, reader.header, chunks, keep_class, point_filter, attributes)
 
 
 def _kept_chunks(path: Location, header: laspy.LasHeader, chunks: Iterator[tuple[Any, int]],
-                 keep_class: np.ndarray | None, keep_withheld: bool) -> Iterator[PointChunk]:
+                 keep_class: np.ndarray | None, point_filter: PointFilter,
+                 attributes: tuple[str, ...]) -> Iterator[PointChunk]:
     scales = tuple(float(s) for s in header.scales)
     offsets = tuple(float(o) for o in header.offsets)
     if not _usable_scaling(path, scales, offsets, int(header.point_count)):
@@ -850,11 +877,12 @@ def _kept_chunks(path: Location, header: laspy.LasHeader, chunks: Iterator[tuple
             yield PointChunk(x=np.empty(0), y=np.empty(0), z=np.empty(0), read=unread, filtered_class=0,
                              filtered_withheld=0, outside_window=unread)
             continue
-        yield _kept(path, header, chunk, decoders, keep_class, keep_withheld)
+        yield _kept(path, header, chunk, decoders, keep_class, point_filter.keep_withheld, point_filter.returns,
+                    attributes)
 
 
 def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, keep_class: np.ndarray | None,
-          keep_withheld: bool) -> PointChunk:
+          keep_withheld: bool, returns: Returns = Returns.ALL, attributes: tuple[str, ...] = ()) -> PointChunk:
     """The points of one chunk of records that the filter keeps, decoded, and the counts of the others."""
     n = len(chunk)
     keep = np.ones(n, dtype=bool)
@@ -868,6 +896,11 @@ def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, k
         in_class = keep_class[np.asarray(chunk.classification, dtype=np.uint8)]
         filtered_class = int(np.count_nonzero(keep & ~in_class))
         keep &= in_class
+    filtered_returns = 0
+    if returns is not Returns.ALL:
+        by_return = returns.mask(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
+        filtered_returns = int(np.count_nonzero(keep & ~by_return))
+        keep &= by_return
     xyz = []
     for axis, decode in zip("xyz", decoders):
         values = decode(np.asarray(getattr(chunk, axis.upper()))[keep])
@@ -877,8 +910,10 @@ def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, k
                 f"(scales {[float(v) for v in header.scales]}, offsets {[float(v) for v in header.offsets]})"
             )
         xyz.append(values)
+    kept_attributes = {name: np.asarray(getattr(chunk, name))[keep].astype(np.float64) for name in attributes}
     return PointChunk(x=xyz[0], y=xyz[1], z=xyz[2], read=n, filtered_class=filtered_class,
-                      filtered_withheld=filtered_withheld)
+                      filtered_withheld=filtered_withheld, filtered_returns=filtered_returns,
+                      attributes=kept_attributes)
 
 
 def _is_copc(header: laspy.LasHeader) -> bool:
@@ -1014,7 +1049,7 @@ def _copc_nodes(path: Location, point_filter: PointFilter, window, wanted) -> It
             return
         decoders = [_decoder(sc, of) for sc, of in zip(scales, offsets)]
         total = int(header.point_count)
-        chosen = (point_filter.classes, point_filter.keep_withheld)
+        chosen = (point_filter.classes, point_filter.keep_withheld, point_filter.returns)
         levels: dict[int, list[_Node]] = {}
         for node in nodes:
             levels.setdefault(node.level, []).append(node)
@@ -1038,7 +1073,8 @@ def _copc_nodes(path: Location, point_filter: PointFilter, window, wanted) -> It
                 for node in missing:  # the records come in file order, node after node
                     stop = start + node.point_count
                     kept[node.key] = copc.keep(node.key, chosen, _kept(path, header, records[start:stop], decoders,
-                                                                       keep_class, point_filter.keep_withheld))
+                                                                       keep_class, point_filter.keep_withheld,
+                                                                       point_filter.returns))
                     start = stop
             for node in group:
                 yield CopcNode(level, node.offset, node.bounds, kept[node.key])

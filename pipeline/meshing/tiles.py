@@ -42,10 +42,13 @@ import meshcore
 from meshcore.kernels import empty
 
 from ..errors import SeamError
+from ..products import ProductSettings, TileContext
+from ..products.points import from_columns
+from ..products.tile import tile_layers, warm_up
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
 from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
-from ..tiling.routing import neighbour_tile_points, points_in_box
+from ..tiling.routing import PRODUCT_SPILL, load_tile_points, neighbour_tile_points, points_in_box
 from .kernels import load_mesh_kernels, sample_grid_mesh
 
 __all__ = [
@@ -93,6 +96,8 @@ class TileJob:
     """COPC inputs this tile reads by window (:mod:`pipeline.tiling.windows`), not from spill files."""
     assume_rounds: int = DEFAULT_ASSUMED_ROUNDS
     """The flip rounds the certificate allows the tiles around this one (see :func:`mesh_tile`)."""
+    products: ProductSettings | None = None
+    """The run's products (:mod:`pipeline.products`); None: ``layers`` of the DTM's mesh alone."""
 
 
 @dataclass(frozen=True)
@@ -996,51 +1001,20 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
-    """The DEM layers of one tile's cells (south-up), from the stitched faces around it."""
-    g = job.grid
-    r0, r1, c0, c1 = g.cell_slice(job.row, job.col)
-    x0 = g.x0 + c0 * g.resolution
-    y0 = g.y0 + r0 * g.resolution
+    """The DEM layers of one tile's cells (south-up), from the stitched faces
+    around it and, for the products that read points, the points routed to it."""
     mesh, z, kinds, smooth = _local_mesh(job)
-    surface = {"surface": job.surface if smooth is None else smooth}
-    shape = (r1 - r0, c1 - c0)
-    layers: dict[str, NDArray] = {}
-    if mesh.faces.shape[0] == 0:
-        layers["elevation"] = np.full(shape, np.nan, dtype=np.float32)
-    else:
-        elev = meshcore.rasterize(
-            mesh, z, x0, y0, g.resolution, shape[1], shape[0], max_edge=job.max_edge, **surface
-        )
-        layers["elevation"] = elev.astype(np.float32)
-    if "slope" in job.layers:
-        slope = np.full(shape, np.nan, dtype=np.float32)
-        ok = np.isfinite(layers["elevation"])
-        if ok.any():
-            jj, ii = np.nonzero(ok)
-            gx, gy = meshcore.gradient(
-                mesh, z, x0 + (ii + 0.5) * g.resolution, y0 + (jj + 0.5) * g.resolution, **surface
-            )
-            slope[jj, ii] = np.degrees(np.arctan(job.height_scale * np.hypot(gx, gy)))
-        layers["slope"] = slope
-    if "face_kind" in job.layers:
-        layers["face_kind"] = _face_kind(mesh, kinds, x0, y0, g.resolution, shape, job.max_edge)
-    if "point_count" in job.layers:
-        counts = load_piece(job.scratch, job.row, job.col, ("point_count",))["point_count"]
-        layers["point_count"] = counts if counts.size else np.zeros(shape, dtype=np.int32)
-    return layers
-
-
-def _face_kind(mesh, kinds, x0, y0, resolution, shape, max_edge) -> NDArray[np.int8]:
-    """1 where a triangle covers the cell centre, 2 for a quadrangle, 0 for none."""
-    if mesh.faces.shape[0] == 0:
-        return np.zeros(shape, dtype=np.int8)
-    f = mesh.faces
-    corners = np.where(f >= 0, np.arange(f.size).reshape(f.shape), -1)
-    vertices = mesh.vertices[np.maximum(f, 0)].reshape(-1, 2)
-    value = np.repeat(kinds.astype(np.float64), 4)
-    split = meshcore.Mesh(vertices, corners, np.arange(vertices.shape[0]))
-    out = meshcore.rasterize(split, value, x0, y0, resolution, shape[1], shape[0], max_edge=max_edge)
-    return np.nan_to_num(np.rint(out), nan=0.0).astype(np.int8)
+    settings = job.products or ProductSettings.for_run(job.layers, None, "all")
+    ctx = TileContext(
+        job.grid, job.row, job.col, settings, mesh=mesh, z=z, kinds=kinds,
+        surface={"surface": job.surface if smooth is None else smooth}, height_scale=job.height_scale,
+        max_edge=job.max_edge,
+        load_points=lambda: from_columns(
+            load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, 3 + len(settings.columns)), settings.columns
+        ),
+        load_piece=lambda name: load_piece(job.scratch, job.row, job.col, (name,))[name],
+    )
+    return tile_layers(ctx, settings)
 
 
 def load_kernels(job: TileJob) -> None:
@@ -1072,8 +1046,8 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
     _reaching_out(table, faces.astype(np.int32), (0.0, 0.0, 4.0, 4.0))
     table.flags.writeable = False  # points as read back from the scratch folder
     points_in_box(table, (0.0, 0.0, 4.0, 4.0))
-    if "slope" in layers and surface != "smooth":
-        meshcore.gradient(mesh, z, np.array([1.0, 5.0]), np.array([1.0, 2.0]))
+    if surface != "smooth":
+        warm_up(tuple(layers))  # the products' own kernels (the slope's gradient)
     if surface == "smooth":
         nodes = meshcore.linear_nodes(mesh.faces, z)
         nodes = meshcore.nodes_from_deviations(mesh.faces, z, meshcore.node_deviations(mesh.faces, z, nodes))

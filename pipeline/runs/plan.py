@@ -25,6 +25,7 @@ from ..errors import GridTooLargeError, InputFileError, PipelineError, UsageErro
 from ..tiling.grid import TileGrid, check_cells
 
 if TYPE_CHECKING:
+    from ..products import ProductSettings
     from ..inputs.crs import CrsPlan
     from ..inputs.header import SourceInfo
 
@@ -95,6 +96,16 @@ class RunPlan:
     kept: dict[str, float] = field(default_factory=dict)
     """The sizes (``tile_size``, ``buffer``) the config left unset that an
     incremental run took from its store, as the store's first run derived them."""
+    dsm_max_edge: float = math.inf
+    """The DSM's maximum edge (``config.dsm_max_edge``, or derived from the
+    point density); infinite when the run computes no DSM."""
+
+    def products(self, classes: tuple[int, ...] | None) -> ProductSettings:
+        """The run's products, for the DTM's ``classes`` (the config's, or a fallback's)."""
+        from ..products import ProductSettings
+
+        c = self.config
+        return ProductSettings.for_run(c.layers, classes, c.returns, self.dsm_max_edge, c.keep_withheld)
 
     @property
     def notes(self) -> list[str]:
@@ -132,7 +143,9 @@ def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
     sized = replace(config, **kept)
     infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(sized, paths, infos, crs)
     tile_cells, _ = _auto_sizes(sized, bounds, sum(i.point_count for i in infos))
-    derived = {"tile_size": tile_cells * config.resolution, "buffer": buffer}
+    dsm_edge = _dsm_max_edge(sized, bounds, sum(i.point_count for i in infos))
+    derived = {"tile_size": tile_cells * config.resolution, "buffer": buffer,
+               **({} if math.isinf(dsm_edge) else {"dsm_max_edge": dsm_edge})}
     derived = {name: value for name, value in derived.items() if getattr(config, name) is None}
     provenance = {
         "software": "terrain-pipeline",
@@ -149,8 +162,10 @@ def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
         "crs_wkt": crs.target_wkt,
         **job_frame_record(grid, bounds, buffer, crs),
     }
-    return RunPlan(config, tuple(paths), tuple(infos), tuple(skipped), crs, grid, bounds, buffer, tuple(file_bounds),
-                   provenance, kept)
+    plan = RunPlan(config, tuple(paths), tuple(infos), tuple(skipped), crs, grid, bounds, buffer, tuple(file_bounds),
+                   provenance, kept, dsm_edge)
+    plan.products(config.classes).check_buffer(buffer)
+    return plan
 
 
 DERIVED = "derived"
@@ -172,7 +187,7 @@ def kept_sizes(config: RunConfig) -> dict[str, float]:
         return {}
     attrs = store.read_attrs(config.output) or {}
     derived = attrs.get("provenance", {}).get(DERIVED, {})
-    unset = [name for name in ("tile_size", "buffer") if getattr(config, name) is None]
+    unset = [name for name in ("tile_size", "buffer", "dsm_max_edge") if getattr(config, name) is None]
     return {name: float(derived[name]) for name in unset if name in derived}
 
 
@@ -377,8 +392,27 @@ def union_bounds(boxes) -> tuple[float, float, float, float]:
     return xmin, ymin, xmax, ymax
 
 
+def _spacing(config: RunConfig, bounds, n_points: int) -> float:
+    """The survey's mean point spacing (every class), from the headers."""
+    area = max((bounds[2] - bounds[0]) * (bounds[3] - bounds[1]), config.resolution**2)
+    return 1.0 / math.sqrt(max(n_points, 1) / area)
+
+
+def _dsm_max_edge(config: RunConfig, bounds, n_points: int) -> float:
+    """The DSM's maximum edge: the config's, or :data:`~pipeline.products.DSM_EDGE_SPACINGS`
+    point spacings; infinite when the run computes no DSM."""
+    from ..products import DSM_EDGE_SPACINGS, layers_needed
+
+    if "dsm" not in layers_needed(config.layers):
+        return math.inf
+    if config.dsm_max_edge is not None:
+        return config.dsm_max_edge
+    return DSM_EDGE_SPACINGS * _spacing(config, bounds, n_points)
+
+
 def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
-    """Tile edge in cells and buffer (CRS units) from the point density."""
+    """Tile edge in cells and buffer (CRS units) from the point density (a
+    buffer that holds the DSM's margin too, when the run computes one)."""
     area = max((bounds[2] - bounds[0]) * (bounds[3] - bounds[1]), config.resolution**2)
     density = max(n_points, 1) / area
     spacing = 1.0 / math.sqrt(density)
@@ -400,7 +434,9 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         cells = [max(1.0, (bounds[2] - bounds[0]) / config.resolution), max(1.0, (bounds[3] - bounds[1]) / config.resolution)]
         even = max(math.ceil(side / max(1, math.ceil(side / target))) for side in cells)
         tile_cells = min(max(16, -(-even // 16) * 16), MAX_AUTO_TILE_CELLS)
-    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
+    dsm_edge = _dsm_max_edge(config, bounds, n_points)
+    margin = 0.0 if math.isinf(dsm_edge) else 2.0 * dsm_edge
+    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution, margin)
     return tile_cells, float(buffer)
 
 

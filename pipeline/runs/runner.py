@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 
 from ..config import DEFAULT_CLASSES, RunConfig
+from ..products import ProductSettings, Selection
+from ..products.points import as_columns
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import WorkDir, output_lock, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
@@ -51,7 +53,7 @@ from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
 from ..tiling.grid import TileGrid, tile_key
-from ..tiling.routing import RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
+from ..tiling.routing import PRODUCT_SPILL, RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -73,6 +75,10 @@ class RunReport:
     filtered_class: int = 0
     filtered_withheld: int = 0
     outside_bbox: int = 0
+    filtered_returns: int = 0
+    """Points of the DTM's classes left out by the return filter (``returns``), and read for no product."""
+    products_only: int = 0
+    """Points read for the products only (``layers``): not of the DTM's classes or returns."""
     duplicates: int = 0
     vertices: int = 0
     faces: int = 0
@@ -108,6 +114,8 @@ class RunReport:
             ("  filtered by class", f"{self.filtered_class:,}"),
             ("  withheld", f"{self.filtered_withheld:,}"),
             ("  outside bbox", f"{self.outside_bbox:,}"),
+            *([("  filtered by return", f"{self.filtered_returns:,}")] if self.filtered_returns else []),
+            *([("  for the products only", f"{self.products_only:,}")] if self.products_only else []),
             ("  duplicates merged", f"{self.duplicates:,}"),
             ("points kept (vertices)", f"{self.vertices:,}"),
             ("tiles", f"{self.tiles:,}"),
@@ -138,6 +146,8 @@ class _RouteJob:
     keep_withheld: bool
     bbox: tuple[float, float, float, float] | None
     skip_bad: bool = False
+    products: ProductSettings | None = None
+    """The run's products: the DTM's classes and returns, and the points and attributes the products read."""
 
 
 def route_source(job: _RouteJob) -> RouteResult:
@@ -162,32 +172,39 @@ def _route(job: _RouteJob) -> RouteResult:
     t0 = time.perf_counter()
     drop_source_spill(job.scratch, job.index)  # left by a stopped run: routed again from the start
     spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index)
+    settings = job.products or ProductSettings.for_run(("elevation",), job.classes, "all")
+    # one read for the DTM and the products: their points, and the attributes that tell them apart
+    split = _RouteSplit(job, settings)
     reproject = Reprojector(job.source_wkt, job.target_wkt, job.z_factor)
-    point_filter = PointFilter(
-        classes=None if job.classes is None else frozenset(job.classes), keep_withheld=job.keep_withheld
-    )
-    read = filtered_class = filtered_withheld = outside_bbox = kept = beyond_grid = 0
+    reading, attributes = settings.reading()
+    point_filter = PointFilter(reading.classes, job.keep_withheld, reading.returns)
+    counts = dict.fromkeys(("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept", "beyond_grid",
+                            "filtered_returns", "products_only"), 0)
     bounds: list[float] | None = None
     gx0, gy0, gx1, gy1 = job.grid.extent
     hull = np.empty((0, 3))
     # a COPC file in the target CRS reads only the octree nodes that meet the bbox
     window = job.bbox if reproject.is_identity else None
-    for chunk in iter_points(job.path, point_filter, ROUTE_CHUNK, window=window):
-        read += chunk.read
-        outside_bbox += chunk.outside_window
-        filtered_class += chunk.filtered_class
-        filtered_withheld += chunk.filtered_withheld
+    for chunk in iter_points(job.path, point_filter, ROUTE_CHUNK, window=window, attributes=attributes):
+        counts["read"] += chunk.read
+        counts["outside_bbox"] += chunk.outside_window
+        counts["filtered_class"] += chunk.filtered_class
+        counts["filtered_withheld"] += chunk.filtered_withheld
+        counts["filtered_returns"] += chunk.filtered_returns
         try:
             x, y, z = reproject.transform(chunk.x, chunk.y, chunk.z)
         except CrsError as exc:  # points of this file: a bad input, named (and skippable)
             raise InputFileError(f"{job.path}: {exc}") from None
+        extra = chunk.attributes
         if job.bbox is not None:
             inside = (x >= job.bbox[0]) & (x <= job.bbox[2]) & (y >= job.bbox[1]) & (y <= job.bbox[3])
-            outside_bbox += int(x.size - np.count_nonzero(inside))
+            counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
             x, y, z = x[inside], y[inside], z[inside]
-        kept += int(x.size)
+            extra = {k: v[inside] for k, v in extra.items()}
+        x, y, z = split.add(x, y, z, extra, counts)
+        counts["kept"] += int(x.size)
         # a stale header: kept points (in the mesh) where the DEM has no cells
-        beyond_grid += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
+        counts["beyond_grid"] += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
         if x.size:
             b = bounds = bounds or [math.inf, math.inf, -math.inf, -math.inf]
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
@@ -195,15 +212,60 @@ def _route(job: _RouteJob) -> RouteResult:
         spill.add(x, y, z)
         hull = grow_hull(hull, x, y, z)
     spill.flush()
+    split.flush()
     return RouteResult(
-        job.path, read, filtered_class, filtered_withheld, outside_bbox, kept, beyond_grid,
+        job.path, **counts,
         bounds=None if bounds is None else tuple(bounds),
         parts=tuple(tuple(p) for p in spill.parts),  # a resume checks they are still there
+        product_parts=tuple(tuple(p) for p in split.parts),
         tile_points=tuple(tuple(t) for t in spill.points),  # the tiles' work, to start the largest first
         sha256=file_digest(job.path),
         seconds=time.perf_counter() - t0,
         hull=hull,
     )
+
+
+class _RouteSplit:
+    """Parts one read into the DTM's points and the products' (spilled to
+    each tile's product folder with their attributes), counting the points
+    read for neither (those the reader kept for a union of the two)."""
+
+    def __init__(self, job: _RouteJob, settings: ProductSettings) -> None:
+        self.settings = settings
+        self.reading = settings.reading()[0]
+        self.spill = None
+        if settings.reads is not None:
+            self.spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index, folder=PRODUCT_SPILL)
+
+    def add(self, x, y, z, attributes, counts: dict[str, int]):
+        """The DTM's points of ``x, y, z``; the products' ones spilled."""
+        s = self.settings
+        if s.reads is None or s.dtm == self.reading:
+            dtm = None
+        else:
+            dtm = s.dtm.mask(x.size, attributes)
+        if s.reads is not None:
+            mine = s.reads.mask(x.size, attributes) if s.reads != self.reading else np.ones(x.size, dtype=bool)
+            self.spill.add_rows(as_columns(x[mine], y[mine], z[mine], {k: v[mine] for k, v in attributes.items()},
+                                           s.columns))
+            if dtm is not None:
+                counts["products_only"] += int(np.count_nonzero(mine & ~dtm))
+                neither = ~mine & ~dtm
+                if neither.any():  # the reader kept them for a union: the DTM's class, or not
+                    in_class = Selection(s.dtm.classes).mask(x.size, attributes)
+                    counts["filtered_returns"] += int(np.count_nonzero(neither & in_class))
+                    counts["filtered_class"] += int(np.count_nonzero(neither & ~in_class))
+        if dtm is None:
+            return x, y, z
+        return x[dtm], y[dtm], z[dtm]
+
+    @property
+    def parts(self) -> list[list[int]]:
+        return [] if self.spill is None else self.spill.parts
+
+    def flush(self) -> None:
+        if self.spill is not None:
+            self.spill.flush()
 
 
 def _skipped_note(skipped: list) -> str:
@@ -446,7 +508,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     jobs = [
         _RouteJob(
             i, str(p), scratch, grid, plan.buffer, crs.source_wkts[i], crs.target_wkt, crs.z_factor(i),
-            classes, config.keep_withheld, config.bbox, config.skip_bad_files,
+            classes, config.keep_withheld, config.bbox, config.skip_bad_files, plan.products(classes),
         )
         for i, p in enumerate(paths)
         if results[i] is None and i not in windowed
@@ -474,6 +536,8 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         report.filtered_class += c.filtered_class
         report.filtered_withheld += c.filtered_withheld
         report.outside_bbox += c.outside_bbox
+        report.filtered_returns += c.filtered_returns
+        report.products_only += c.products_only
         report.points_kept += c.kept
         if c.kept == 0:
             report.notes.append(f"{c.path}: no points of the chosen classes")
@@ -643,7 +707,10 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
             reaching[t].add(key)
     # the DEM under faces meshed again, however far they reach, is written again
     store.reset_tiles_done(config.output, sorted({t for job in meshed.meshed_now for t in reached[(job.row, job.col)]}))
-    tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)]))) for job in meshed.tile_jobs]
+    fallback = resume.class_fallback(work)
+    products = plan.products(config.classes if fallback is None else fallback.classes)
+    tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)])), products=products)
+                 for job in meshed.tile_jobs]
     written = store.tiles_done(config.output)
     pending = [job for job in tile_jobs if not written[job.row, job.col]]
 
@@ -700,16 +767,22 @@ def _tile_key(job: TileJob) -> str:
     return tile_key(job.row, job.col)
 
 
+def plan_reads_points(config: RunConfig) -> bool:
+    """Whether a product of the run reads points (they are routed, with their attributes)."""
+    return ProductSettings.for_run(config.layers, config.classes, config.returns).reads_points
+
+
 def _window_sources(config: RunConfig, classes: tuple[int, ...] | None, paths, infos, plan) -> tuple[WindowSource, ...]:
     """The inputs tiles read by window: COPC files already in the target CRS.
 
     The others are routed, and so is every file of a run that skips broken
     files (a routing pass finds a broken one before any tile uses it) or
-    samples a variogram (which needs the number of points kept beforehand).
+    samples a variogram (which needs the number of points kept beforehand),
+    or filters returns or computes products from points (read with their attributes).
     """
     from ..inputs.crs import Reprojector
 
-    if config.skip_bad_files or config.surface != "linear":
+    if config.skip_bad_files or config.surface != "linear" or config.returns != "all" or plan_reads_points(config):
         return ()
     return tuple(
         WindowSource(i, str(p), classes, config.keep_withheld, config.bbox)

@@ -12,6 +12,7 @@ item, so the folder can be moved or uploaded as it is.
 from __future__ import annotations
 
 import json
+import math
 import os
 import posixpath
 from collections.abc import Mapping, Sequence
@@ -77,12 +78,14 @@ def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | 
     }
     if crs is not None and properties["proj:code"] is None:
         properties["proj:wkt2"] = crs.to_wkt()
+    bands = _layer_bands(where)
     assets: dict[str, Any] = {
         "zarr": {
             "href": _relative(where, home),
             "type": ZARR_MEDIA_TYPE,
             "title": "DEM layers and the combined triangle/quad mesh (UGRID group 'mesh')",
             "roles": ["data"],
+            "terrain:layers": bands,
         }
     }
     for layer, paths in (files or {}).items():
@@ -93,13 +96,15 @@ def stac_item(store: str | os.PathLike[str], files: Mapping[str, Sequence[str | 
                 "href": _relative(path, home),
                 "type": VRT_MEDIA_TYPE if mosaic else COG_MEDIA_TYPE,
                 "title": f"{layer}: {'mosaic of its row blocks' if mosaic else 'Cloud-Optimized GeoTIFF'}",
+                "description": bands.get(layer, {}).get("description", layer),
                 "roles": ["data"] if k == 0 else ["data", "tile"],
+                "raster:bands": [_raster_band(bands.get(layer, {}))],
             }
     footprint = _footprint(crs, (x0, y0, x1, y1))
     item: dict[str, Any] = {
         "type": "Feature",
         "stac_version": STAC_VERSION,
-        "stac_extensions": [PROJECTION_EXTENSION],
+        "stac_extensions": [PROJECTION_EXTENSION, *([RASTER_EXTENSION] if files else [])],
         "id": _name(stac_item_path(where)).removesuffix(".stac.json"),
         "geometry": footprint,
     }
@@ -183,6 +188,34 @@ def _layer_of(asset_key: str) -> str:
     """``slope-002`` (a row block of slope) -> ``slope``."""
     head, _, tail = asset_key.rpartition("-")
     return head if head and tail.isdigit() else asset_key
+
+
+RASTER_EXTENSION = "https://stac-extensions.github.io/raster/v1.1.0/schema.json"
+
+
+def _layer_bands(store: str) -> dict[str, dict[str, Any]]:
+    """Each raster layer the store holds, as its product declares it and the
+    store records it: description, data type of its GeoTIFF, nodata, unit."""
+    from ..products import product
+    from .zarr_store import layer_attrs, layer_names
+
+    out: dict[str, dict[str, Any]] = {}
+    for layer in layer_names(store):
+        spec = product(layer.value)
+        units = layer_attrs(store, layer).get("units")
+        nodata = spec.nodata
+        out[layer.value] = {
+            "description": spec.description,
+            "data_type": spec.export_dtype,
+            **({} if nodata is None else {"nodata": "nan" if isinstance(nodata, float) and math.isnan(nodata) else nodata}),
+            **({} if units is None else {"unit": units}),
+        }
+    return out
+
+
+def _raster_band(band: Mapping[str, Any]) -> dict[str, Any]:
+    """The STAC raster extension's band of a layer's GeoTIFF."""
+    return {k: v for k, v in band.items() if k in ("data_type", "nodata", "unit")}
 
 
 def _epsg_code(crs: pyproj.CRS | None) -> str | None:

@@ -29,6 +29,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from ..config import Layer
+from ..products import product
 from ..errors import StoreError, UsageError
 from ..urls import is_url
 from .zarr_store import layer_names, nodata_value, read_attrs, read_layer
@@ -42,11 +43,7 @@ MAX_FILE_CELLS = 2**30
 _BLOCK = 512
 """COG tile edge in pixels."""
 
-#: the GeoTIFF sample type of each layer: face_kind as Byte, which every GDAL reads
-_DTYPES = {Layer.ELEVATION: "float32", Layer.SLOPE: "float32", Layer.FACE_KIND: "uint8", Layer.POINT_COUNT: "int32"}
 _GDAL_TYPES = {"float32": "Float32", "uint8": "Byte", "int32": "Int32"}
-#: how overviews summarise cells: means for surfaces, the commonest value for kinds
-_RESAMPLING = {Layer.ELEVATION: "AVERAGE", Layer.SLOPE: "AVERAGE", Layer.FACE_KIND: "MODE", Layer.POINT_COUNT: "NEAREST"}
 
 
 @dataclass(frozen=True)
@@ -162,7 +159,8 @@ def _export_layer(rasterio, store: str, grid: TileGrid, crs, layer: Layer, targe
 
 def _write_cog(rasterio, store: str, grid: TileGrid, crs, layer: Layer, target: Path, top: int, rows: int) -> None:
     """Rows ``top:top+rows`` (north-up) of ``layer`` as one COG at ``target``."""
-    dtype = _DTYPES[layer]
+    spec = product(layer.value)  # its GeoTIFF sample type and how its overviews summarise cells
+    dtype = spec.export_dtype
     nodata = nodata_value(layer)
     x0, res, _, y_top, _, _ = grid.geotransform
     transform = rasterio.transform.Affine(res, 0.0, x0, 0.0, -res, y_top - top * res)
@@ -184,14 +182,14 @@ def _write_cog(rasterio, store: str, grid: TileGrid, crs, layer: Layer, target: 
         partial = Path(scratch) / target.name
         rasterio.shutil.copy(
             staged, partial, driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES", BLOCKSIZE=str(_BLOCK),
-            OVERVIEWS="AUTO", RESAMPLING=_RESAMPLING[layer], BIGTIFF="IF_SAFER",
+            OVERVIEWS="AUTO", RESAMPLING=spec.resampling, BIGTIFF="IF_SAFER",
         )
         os.replace(partial, target)
 
 
 def _vrt_xml(grid: TileGrid, crs, layer: Layer, parts: list[Path], blocks: list[tuple[int, int]]) -> str:
     """A VRT mosaic of the row blocks: one band, each block a source at its rows."""
-    gdal_type = _GDAL_TYPES[_DTYPES[layer]]
+    gdal_type = _GDAL_TYPES[product(layer.value).export_dtype]
     nodata = nodata_value(layer)
     lines = [f'<VRTDataset rasterXSize="{grid.nx}" rasterYSize="{grid.ny}">']
     if crs is not None:

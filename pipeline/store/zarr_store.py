@@ -84,6 +84,7 @@ from zarr.codecs import BloscCodec
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import Layer
+from ..products import HEIGHT_UNITS, PER_AREA_UNITS, Product, product
 from ..errors import CrsError, StoreError, UsageError
 from ..tiling.grid import TileGrid
 from ..urls import describe_os_error, filesystem, is_url, options_for
@@ -109,6 +110,7 @@ __all__ = [
     "read_tile_mesh",
     "read_layer",
     "layer_names",
+    "layer_attrs",
     "nodata_value",
 ]
 
@@ -128,33 +130,24 @@ MESH_CHUNK = 1 << 18
 """Nodes (and faces) per chunk of the mesh arrays: 2 MiB of float64."""
 
 
-@dataclass(frozen=True)
-class _LayerSpec:
-    dtype: np.dtype
-    fill: float | int
-    masked: bool  # the fill value marks missing data (CF _FillValue)
-    attrs: dict[str, Any]
+def _spec(layer: Layer) -> Product:
+    """The declaration of ``layer`` (:mod:`pipeline.products`): its dtype, fill value and attributes."""
+    return product(layer.value)
 
 
-_LAYERS: dict[Layer, _LayerSpec] = {
-    Layer.ELEVATION: _LayerSpec(np.dtype(np.float32), math.nan, True, {"long_name": "elevation"}),
-    Layer.SLOPE: _LayerSpec(
-        np.dtype(np.float32), math.nan, True, {"long_name": "slope of the surface", "units": "degree"}
-    ),
-    Layer.FACE_KIND: _LayerSpec(
-        np.dtype(np.int8),
-        0,
-        False,
-        {
-            "long_name": "kind of the mesh face under the cell centre",
-            "flag_values": [0, 1, 2],
-            "flag_meanings": "none triangle quadrangle",
-        },
-    ),
-    Layer.POINT_COUNT: _LayerSpec(
-        np.dtype(np.int32), 0, False, {"long_name": "number of input points in the cell", "units": "1"}
-    ),
-}
+def _layer_attrs(spec: Product, z_units: str | None, xy_unit: str | None) -> dict[str, Any]:
+    """A layer's CF attributes: its long name, units (heights in the store's
+    height unit, densities per square horizontal unit) and flags."""
+    out: dict[str, Any] = {"long_name": spec.long_name}
+    if spec.units == HEIGHT_UNITS:
+        if z_units is not None:
+            out["units"] = z_units
+    elif spec.units == PER_AREA_UNITS:
+        if xy_unit is not None:
+            out["units"] = f"({xy_unit})-2" if " " in xy_unit else f"{xy_unit}-2"
+    elif spec.units is not None:
+        out["units"] = spec.units
+    return out | dict(spec.attrs)
 
 
 def _tile_window(grid: TileGrid, tile_row: int, tile_col: int) -> tuple[slice, slice]:
@@ -230,11 +223,10 @@ def create_store(
     _create_array(root, "y", data=grid.y, dims=("y",), attrs=y_attrs)
     _create_array(root, GRID_MAPPING, data=np.int32(0), dims=(), attrs=grid_mapping)
     gdal_crs = {} if crs is None else {"_CRS": {"wkt": grid_mapping["crs_wkt"]}}
+    xy_unit = x_attrs.get("units")
     for layer in wanted:
-        spec = _LAYERS[layer]
-        layer_attrs = dict(spec.attrs)
-        if layer is Layer.ELEVATION and z_units is not None:
-            layer_attrs["units"] = z_units
+        spec = _spec(layer)
+        layer_attrs = _layer_attrs(spec, z_units, xy_unit)
         _create_array(
             root,
             layer,
@@ -324,7 +316,7 @@ def _shift_rows(path: StorePath, layer: Layer, before: TileGrid, after: TileGrid
     no data."""
     array = _open_array(path, layer)  # every chunk stored, as the tiles store theirs
     shift, t = after.ny - before.ny, after.tile_cells
-    fill = _LAYERS[layer].fill
+    fill = _spec(layer).fill
     for k in reversed(range(-(-after.ny // t))):
         top, bottom = k * t, min((k + 1) * t, after.ny)
         first = max(top - shift, 0)  # the first row, before the move, that this chunk row takes
@@ -431,7 +423,7 @@ def write_tile(
             raise UsageError(
                 f"layer {layer.value!r} of tile ({tile_row}, {tile_col}): shape {values.shape}, expected {shape}"
             )
-        dtype = _LAYERS[layer].dtype
+        dtype = _spec(layer).dtype
         if not np.can_cast(values.dtype, dtype, casting="same_kind"):
             raise UsageError(f"layer {layer.value!r}: cannot store {values.dtype} values as {dtype}")
         checked.append((layer, values[::-1].astype(dtype, copy=False)))
@@ -686,6 +678,16 @@ def layer_names(path: StorePath) -> list[Layer]:
     return [layer for layer in Layer if layer.value in held]
 
 
+def layer_attrs(path: StorePath, layer: Layer | str) -> dict[str, Any]:
+    """The attributes of one layer's array (``long_name``, ``units``, ...)."""
+    layer = Layer.parse(layer)
+    try:
+        array = zarr.open_array(store=_zarr_store(path, read_only=True), path=layer.value, mode="r")
+    except FileNotFoundError:
+        raise StoreError(f"{os.fspath(path)}: holds no layer {layer.value!r}") from None
+    return _user_attrs(array)
+
+
 def read_layer(path: StorePath, layer: Layer | str, rows: slice = slice(None), cols: slice = slice(None)) -> NDArray:
     """A window of one layer's cells, loaded, north-up (row 0 is the northern-most)."""
     layer = Layer.parse(layer)
@@ -697,13 +699,10 @@ def read_layer(path: StorePath, layer: Layer | str, rows: slice = slice(None), c
 
 
 def nodata_value(layer: Layer | str) -> float | int | None:
-    """The value that marks a cell without data in ``layer``: NaN for elevation
-    and slope, 0 (no face) for face_kind, none for point_count (0 is a count)."""
-    layer = Layer.parse(layer)
-    spec = _LAYERS[layer]
-    if spec.masked or layer is Layer.FACE_KIND:
-        return spec.fill
-    return None
+    """The value that marks a cell without data in ``layer``, as its product
+    declares it: NaN for heights, slopes and means, 0 (no face) for
+    face_kind, none for counts and densities (0 is a count)."""
+    return _spec(Layer.parse(layer)).nodata
 
 
 def read_mesh(path: StorePath) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:

@@ -26,7 +26,7 @@ from .scratch import Scratch
 __all__ = [
     "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_points", "drop_source_spill", "source_spill",
     "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box", "hull_candidates",
-    "grow_hull",
+    "grow_hull", "PRODUCT_SPILL",
 ]
 
 
@@ -69,6 +69,8 @@ class RouteResult(PointCounts):
     """The kept points' box; None when none was kept."""
     parts: tuple[tuple[int, ...], ...] = ()
     """The spill files written, for a resume to check they are still there."""
+    product_parts: tuple[tuple[int, ...], ...] = ()
+    """The product points' spill files written (:mod:`pipeline.products`)."""
     tile_points: tuple[tuple[int, int, int], ...] = ()
     """(row, col, points) of every tile it spilled to: the tiles' work."""
     sha256: str | None = None
@@ -76,6 +78,15 @@ class RouteResult(PointCounts):
     skipped: str | None = None
     window: bool = False
     hull: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False, repr=False)
+    filtered_returns: int = 0
+    """Points of the DTM's classes left out by the return filter (and read for no product)."""
+    products_only: int = 0
+    """Points read for the products only: not of the DTM's classes or returns."""
+
+    def _more_fates(self) -> dict[str, int]:
+        """The fates of a return filter or of products, when the file had any
+        (records and reports of other runs stay as they always were)."""
+        return {k: getattr(self, k) for k in ("filtered_returns", "products_only") if getattr(self, k)}
 
     def counted(self, read: int, filtered_class: int, filtered_withheld: int, outside_bbox: int, kept: int) -> RouteResult:
         """This result with the counts the tiles made of a window source."""
@@ -94,9 +105,10 @@ class RouteResult(PointCounts):
         if self.window:
             return {"path": self.path, "window": True, "parts": [list(p) for p in self.parts], "sha256": self.sha256,
                     **self._bounds()}
+        products = {"product_parts": [list(p) for p in self.product_parts]} if self.product_parts else {}
         return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
                 "parts": [list(p) for p in self.parts], "tile_points": [list(t) for t in self.tile_points],
-                "sha256": self.sha256, "seconds": self.seconds}
+                "sha256": self.sha256, "seconds": self.seconds, **products, **self._more_fates()}
 
     @classmethod
     def from_record(cls, payload: Mapping[str, Any]) -> RouteResult:
@@ -105,6 +117,7 @@ class RouteResult(PointCounts):
         if data.get("bounds") is not None:
             data["bounds"] = tuple(data["bounds"])
         data["parts"] = tuple(tuple(p) for p in data.get("parts", ()))
+        data["product_parts"] = tuple(tuple(p) for p in data.get("product_parts", ()))
         data["tile_points"] = tuple(tuple(t) for t in data.get("tile_points", ()))
         return cls(**data)
 
@@ -113,7 +126,7 @@ class RouteResult(PointCounts):
         if self.window:
             return {"path": self.path, "sha256": self.sha256, **self._bounds(), **self.by_fate()}
         return {"path": self.path, **self.by_fate(), "beyond_grid": self.beyond_grid, **self._bounds(),
-                "sha256": self.sha256, "seconds": self.seconds}
+                "sha256": self.sha256, "seconds": self.seconds, **self._more_fates()}
 
 
 _ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
@@ -121,9 +134,16 @@ _ROUTE_FIELDS = frozenset(f.name for f in fields(RouteResult))
 
 class TileSpiller:
     """Routes points of one source to the tiles' spill files, holding at most
-    ``budget`` points in memory (bounded memory whatever the archive size)."""
+    ``budget`` points in memory (bounded memory whatever the archive size).
 
-    def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000):
+    ``folder``: a folder inside each tile's where its files go (the product
+    points' spill files, :mod:`pipeline.products`; empty: the DTM's points,
+    in the tile's own folder).  Points are rows of any number of columns,
+    x and y first (:meth:`add_rows`)."""
+
+    def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000,
+                 folder: str = ""):
+        self.folder = folder
         self.scratch = scratch
         self.grid = grid
         self.buffer = float(buffer)
@@ -135,11 +155,16 @@ class TileSpiller:
         self._points: dict[tuple[int, int], int] = {}
 
     def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
-        if x.size == 0:
+        self.add_rows(np.column_stack([x, y, z]))
+
+    def add_rows(self, rows: NDArray[np.float64]) -> None:
+        """Route points given as rows ``(n, k)``: x, y, then any other columns."""
+        if rows.shape[0] == 0:
             return
         g = self.grid
         offsets, pts = _route_kernel(
-            x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer, g.n_cols, g.n_tiles
+            _read_only(rows), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer,
+            g.n_cols, g.n_tiles,
         )
         for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
             s, e = int(offsets[k]), int(offsets[k + 1])
@@ -164,7 +189,8 @@ class TileSpiller:
         files = {}
         for key, chunks in self._pending.items():
             part = self._parts.get(key, 0)
-            files[f"{tile_dir(*key)}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
+            folder = f"{tile_dir(*key)}/{self.folder}" if self.folder else tile_dir(*key)
+            files[f"{folder}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
             self._parts[key] = part + 1
         self.scratch.save_many(files)
         self._pending.clear()
@@ -174,13 +200,21 @@ class TileSpiller:
 _ROUNDOFF = 2.0**-53
 
 
+def _read_only(rows: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A C-contiguous read-only view (one compiled kernel, as the points read back from the scratch folder)."""
+    view = np.ascontiguousarray(rows, dtype=np.float64).view()
+    view.flags.writeable = False
+    return view
+
+
 @meshcore.kernel
-def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
-    """Every point copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
+def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
+    """Every point (a row: x, y, then its other columns) copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and
     column of their reach come first, then the next column, row, ...; each
     group in input order (a counting sort, stable)."""
-    n = x.shape[0]
+    n = rows.shape[0]
+    width = rows.shape[1]
     c_lo = empty(n, dtype=np.int32)
     r_lo = empty(n, dtype=np.int32)
     c_span = empty(n, dtype=np.int32)
@@ -188,8 +222,8 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
     span_c = 1
     span_r = 1
     for i in range(n):
-        xi = x[i]
-        yi = y[i]
+        xi = rows[i, 0]
+        yi = rows[i, 1]
         # a tile claims every point of its closed window grown by the buffer
         # (``held_box``): a point on that box's edge, or a rounding away from
         # it, goes to the tile too (to both tiles, on a shared edge)
@@ -216,7 +250,7 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
                 start[((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc + 1] += 1
     for k in range(n_tiles * groups):
         start[k + 1] += start[k]
-    pts = empty((start[n_tiles * groups], 3))
+    pts = empty((start[n_tiles * groups], width))
     offsets = empty(n_tiles + 1, dtype=np.int64)
     for t in range(n_tiles + 1):
         offsets[t] = start[t * groups]
@@ -225,18 +259,16 @@ def _route_kernel(x, y, z, x0, y0, inv_size, below_x, above_x, below_y, above_y,
             slot = (r_lo[i] * n_cols + c_lo[i]) * groups
             at = start[slot]
             start[slot] = at + 1
-            pts[at, 0] = x[i]
-            pts[at, 1] = y[i]
-            pts[at, 2] = z[i]
+            for k in range(width):
+                pts[at, k] = rows[i, k]
             continue
         for dr in range(r_span[i]):
             for dc in range(c_span[i]):
                 slot = ((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc
                 at = start[slot]
                 start[slot] = at + 1
-                pts[at, 0] = x[i]
-                pts[at, 1] = y[i]
-                pts[at, 2] = z[i]
+                for k in range(width):
+                    pts[at, k] = rows[i, k]
     return offsets, pts
 
 
@@ -244,9 +276,9 @@ def route_points(grid: TileGrid, buffer: float, points: NDArray[np.float64], row
     """The points of ``points`` (n, 3) that routing sends to tile (row, col),
     in the order routing gives them (:class:`TileSpiller`)."""
     g = grid
-    x, y, z = (np.ascontiguousarray(points[:, k]) for k in range(3))
     offsets, pts = _route_kernel(
-        x, y, z, g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer), g.n_cols, g.n_tiles
+        _read_only(points), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer),
+        g.n_cols, g.n_tiles,
     )
     t = row * g.n_cols + col
     return pts[offsets[t]:offsets[t + 1]]
@@ -264,8 +296,8 @@ def spill_by_source(scratch: Scratch, row: int, col: int) -> dict[int, NDArray[n
 
 
 def drop_source_spill(scratch: Scratch, source: int) -> None:
-    """Delete every spill file of one source (it is routed again, or left out)."""
-    scratch.remove(source_spill(scratch, f"{source:06d}"))
+    """Delete every spill file of one source, its product points' too (it is routed again, or left out)."""
+    scratch.remove(source_spill(scratch, f"{source:06d}") + scratch.glob(f"tiles/*/*/{source:06d}_*.npy"))
 
 
 def source_spill(scratch: Scratch, source: str) -> list[str]:
@@ -287,12 +319,17 @@ def spill_intact(scratch: Scratch, source: int, parts: list[list[int]]) -> bool:
     return True
 
 
-def load_tile_points(scratch: Scratch, row: int, col: int) -> NDArray[np.float64]:
-    """All points routed to a tile, ``(n, 3)``, in source then reading order."""
-    folder = tile_dir(row, col)
+PRODUCT_SPILL = "products"
+"""The folder, in each tile's work folder, of the product points routed to it (:mod:`pipeline.products`)."""
+
+
+def load_tile_points(scratch: Scratch, row: int, col: int, folder: str = "", width: int = 3) -> NDArray[np.float64]:
+    """All points routed to a tile, ``(n, 3)``, in source then reading order
+    (``folder``: the points of that spill folder, rows of ``width`` columns)."""
+    folder = f"{tile_dir(row, col)}/{folder}" if folder else tile_dir(row, col)
     parts = [f"{folder}/{name}" for name in scratch.names(folder) if name.endswith(".npy")]
     if not parts:
-        return np.empty((0, 3))
+        return np.empty((0, width))
     return np.concatenate(scratch.load_many(parts))
 
 

@@ -1,6 +1,7 @@
 """Pictures of a store: a hillshaded DEM with a colour ramp, legend and scale
-bar, and optionally the combined mesh over a zoom window (triangles and
-quadrangles in two colours)."""
+bar, a panel beside it for each layer whose product declares a preview (the
+canopy height model), and optionally the combined mesh over a zoom window
+(triangles and quadrangles in two colours)."""
 
 from __future__ import annotations
 
@@ -35,10 +36,12 @@ def _nice_length(span: float) -> float:
 
 
 def _hillshade(elevation: np.ndarray, resolution: float, ramp=None, height_scale: float = 1.0):
-    """RGB of the elevation on a colour ramp (default: land colours), lit from
-    the north-west; NaN cells white.  ``height_scale`` puts a height in the unit
-    of ``resolution``, so the relief is drawn at its true steepness (times the
-    usual exaggeration).  Returns the RGB, the norm and the ramp."""
+    """A hillshade of the elevation (lit from the north-west at 45 degrees,
+    the cosine of the angle between the light and each cell's normal)
+    multiplied over its colour on a ramp (default: land colours); NaN cells
+    white.  ``height_scale`` puts a height in the unit of ``resolution``, so
+    the relief is shaded at its true steepness (times the usual exaggeration).
+    Returns the RGB(A), the norm and the ramp."""
     from matplotlib.colors import LightSource, Normalize
 
     ramp = _ramp() if ramp is None else ramp
@@ -50,9 +53,9 @@ def _hillshade(elevation: np.ndarray, resolution: float, ramp=None, height_scale
     filled = np.where(valid, elevation, np.nanmean(elevation))
     light = LightSource(azdeg=315, altdeg=45)
     norm = Normalize(lo, hi)
-    rgb = light.shade(
-        filled, cmap=ramp, norm=norm, blend_mode="soft", vert_exag=3.0 * height_scale, dx=resolution, dy=resolution
-    )
+    shade = light.hillshade(filled, vert_exag=3.0 * height_scale, dx=resolution, dy=resolution)
+    rgb = ramp(norm(filled))
+    rgb[..., :3] *= (0.25 + 0.75 * shade)[..., None]  # the relief's light and shadow over the heights' colours
     rgb[~valid] = (1.0, 1.0, 1.0, 1.0)
     return rgb, norm, ramp
 
@@ -87,6 +90,32 @@ def _units(ds) -> tuple[str, str, float]:
         return xy, xy, 1.0
     known = (symbol for name, symbol in _UNIT_SYMBOLS.items() if math.isclose(unit_metres(name) or 0.0, z_metres))
     return xy, next(known, f"{z_metres!r} m"), z_metres / xy_metres
+
+
+def _previewed_layers(ds) -> list:
+    """The products the store holds that declare a preview, in registry order (elevation has its own panel)."""
+    from ..products import PRODUCTS
+
+    return [p for p in PRODUCTS if p.preview is not None and p.name != "elevation" and p.name in ds]
+
+
+def _layer_panel(fig, ax, values: np.ndarray, spec, extent, z_unit: str, xy_unit: str) -> None:
+    """One product's cells on its preview's colour map, with a colour bar."""
+    import matplotlib.pyplot as plt
+
+    preview = spec.preview
+    valid = values[np.isfinite(values)]
+    lo, hi = (np.percentile(valid, preview.percentiles) if valid.size else (0.0, 1.0))
+    if hi <= lo:
+        hi = lo + 1.0
+    image = ax.imshow(np.ma.masked_invalid(values), extent=extent, origin="upper", interpolation="nearest",
+                      cmap=plt.get_cmap(preview.cmap).with_extremes(bad="white"), vmin=lo, vmax=hi)
+    units = z_unit if spec.units == "<height>" else (spec.units or "")
+    fig.colorbar(image, ax=ax, shrink=0.8, label=f"{preview.label} ({units})" if units else preview.label)
+    ax.set_title(f"{spec.name}: {spec.long_name}", fontsize=10)
+    ax.set_xlabel(f"x ({xy_unit})")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=8)
 
 
 def _window_faces(store_path: str, window: tuple[float, float, float, float]):
@@ -167,7 +196,8 @@ def render_preview(
     xy_unit, z_unit, height_scale = _units(ds)
     rgb, norm, ramp = _hillshade(elev, cell, height_scale=height_scale)
 
-    panels = 2 if window is not None else 1
+    drawn = _previewed_layers(ds)
+    panels = 1 + len(drawn) + (window is not None)
     fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
     ax = axes[0, 0]
     ax.imshow(rgb, extent=extent, origin="upper", interpolation="nearest")
@@ -179,11 +209,14 @@ def render_preview(
                 arrowprops={"arrowstyle": "-|>", "color": "black"}, fontsize=12, fontweight="bold")
     mappable = plt.cm.ScalarMappable(norm=norm, cmap=ramp)
     fig.colorbar(mappable, ax=ax, shrink=0.8, label=f"elevation ({z_unit})")
-    ax.set_title(f"{Path(store_path).name}: DEM, {res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
+    ax.set_title(f"{Path(store_path).name}: DEM hillshade, {res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
     ax.set_xlabel(f"x ({xy_unit})")
     ax.set_ylabel(f"y ({xy_unit})")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=8)
+    for k, spec in enumerate(drawn):
+        values = ds[spec.name].values[::step, ::step].astype(np.float64)[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
+        _layer_panel(fig, axes[0, 1 + k], values, spec, extent, z_unit, xy_unit)
 
     if window is not None:
         x0, y0, x1, y1 = window
@@ -201,7 +234,7 @@ def render_preview(
                 f"the window holds {polys.shape[0]:,} faces, too many to draw legibly "
                 f"(at most {MAX_MESH_FACES:,}); choose a smaller window"
             )
-        zoom = axes[0, 1]
+        zoom = axes[0, panels - 1]
         c0 = max(0, int((x0 - (xs[0] - res / 2)) // res))
         c1 = min(len(xs), int(math.ceil((x1 - (xs[0] - res / 2)) / res)))
         r0 = max(0, int(((ys[0] + res / 2) - y1) // res))

@@ -25,6 +25,7 @@ LAYERS = {
     "pipeline.config": 0,
     "pipeline.urls": 0,
     "pipeline.logs": 0,
+    "pipeline.products": 0,  # the layers' declarations, read by every stage
     "pipeline.inputs": 1,  # files -> points
     "pipeline.tiling": 2,  # points -> tiles
     "pipeline.meshing": 3,  # tiles -> meshes -> grids

@@ -232,9 +232,12 @@ def test_cli_demo_and_zarr_format_2(tmp_path):
 
     assert main(["demo", "--out", str(tmp_path), "--points", "40000"]) == 0
     ds = xr.open_zarr(tmp_path / "dem.zarr")
-    assert {"elevation", "slope", "face_kind", "point_count"} <= set(ds.data_vars)
+    assert {"elevation", "slope", "face_kind", "point_count", "dsm", "chm", "intensity", "density",
+            "ground_density"} <= set(ds.data_vars)
     report = ds.attrs["report"]
-    assert report["filtered_class"] > 0.05 * report["points_read"]  # buildings, trees, noise
+    # buildings, trees, noise: out of the DTM, read for the products
+    assert report["products_only"] > 0.05 * report["points_read"]
+    assert float(ds["chm"].max()) > 5.0
     spec = demo_spec()
     lx, ly, r = spec.lake
     x0, y0 = spec.origin
