@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, as_completed
+from concurrent.futures import wait as wait_futures
 from typing import Any
 
 from .. import urls
@@ -80,6 +81,14 @@ class LocalThreads:
         with self._lock:
             for future in list(self._pending):
                 future.cancel()
+
+    def wait_running(self) -> None:
+        """Until the tasks running now have ended: a run that failed leaves no
+        task writing behind it, which a run started next in this process (a
+        resume) would race with."""
+        with self._lock:
+            running = list(self._pending)
+        wait_futures(running)
 
     def close(self) -> None:
         self.cancel_pending()
@@ -162,8 +171,10 @@ def map_tasks(
         try:
             for future in as_completed(futures):
                 _take(future.result(), index[future], items, results, finished, progress, points)
-        except BaseException:
+        except BaseException as exc:
             client.cancel_pending()  # a failed task ends the stage, as on a cluster
+            if not isinstance(exc, KeyboardInterrupt):  # (an interrupt exits at once)
+                client.wait_running()
             raise
         return results
     from distributed import as_completed as as_completed_on_cluster
