@@ -67,6 +67,18 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser = add_parser  # type: ignore[method-assign]
 
+    _add_experiment(sub)
+    _add_run(sub)
+    _add_demo(sub)
+    _add_workflow(sub, nested)
+    _add_preview(sub)
+    _add_export(sub)
+    _add_info(sub)
+    return parser
+
+
+def _add_experiment(sub) -> None:
+    """``terrain experiment``: the paper's error experiment."""
     exp = sub.add_parser(
         "experiment",
         help="run the error experiment of the combined-mesh paper (Tables 1-3, Figure 2)",
@@ -84,6 +96,10 @@ def _parser() -> argparse.ArgumentParser:
     exp.add_argument(
         "--merge", choices=("greedy", "optimal"), default="greedy", help="elimination strategy (default greedy)"
     )
+
+
+def _add_run(sub) -> None:
+    """``terrain run``: its flags mirror :class:`pipeline.config.RunConfig`."""
     run = sub.add_parser(
         "run",
         help="LAS/LAZ files -> one seamless DEM and combined mesh in a Zarr store",
@@ -137,6 +153,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+
+def _add_demo(sub) -> None:
+    """``terrain demo``: the synthetic survey, run and drawn."""
     demo = sub.add_parser(
         "demo",
         help="write a realistic synthetic survey and run the whole job on it, with pictures",
@@ -149,6 +168,9 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("terrain-demo"), help="folder for the survey and the store")
     demo.add_argument("--points", type=_positive_int, default=400_000, help="points in the survey (default 400000)")
 
+
+def _add_workflow(sub, nested: argparse.ArgumentParser) -> None:
+    """``terrain workflow run|status``; ``nested`` carries the common flags to the actions."""
     wf = sub.add_parser(
         "workflow",
         help="incremental jobs from a TOML file (nightly archives)",
@@ -164,6 +186,9 @@ def _parser() -> argparse.ArgumentParser:
     wf_status.add_argument("job", type=Path, help="the workflow file (TOML)")
     wf_status.add_argument("--json", action="store_true", help="print JSON")
 
+
+def _add_preview(sub) -> None:
+    """``terrain preview``: a store drawn to a PNG."""
     preview = sub.add_parser(
         "preview",
         help="draw a store's DEM (hillshade, colour ramp, legend, scale) and optionally its mesh",
@@ -174,6 +199,9 @@ def _parser() -> argparse.ArgumentParser:
     preview.add_argument("-o", "--output", required=True, help="the PNG to write")
     preview.add_argument("--window", help="xmin,ymin,xmax,ymax (store CRS) to zoom into and draw the mesh")
 
+
+def _add_export(sub) -> None:
+    """``terrain export``: a store's layers as COGs, and its STAC item."""
     export = sub.add_parser(
         "export",
         help="write a store's layers as Cloud-Optimized GeoTIFFs (any GIS opens them), and its STAC item",
@@ -188,10 +216,12 @@ def _parser() -> argparse.ArgumentParser:
     export.add_argument("--layers", help="layers to write, e.g. elevation,slope (default: all the store holds)")
     export.add_argument("--max-file-cells", type=_positive_int, help="split layers above this many cells (default 2**30)")
 
+
+def _add_info(sub) -> None:
+    """``terrain info``: what LAS/LAZ headers say."""
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
     info.add_argument("--json", action="store_true", help="print JSON")
-    return parser
 
 
 def _run_config(args: argparse.Namespace):

@@ -621,6 +621,49 @@ def resolve_crs(
     option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
     notes: list[str] = []
 
+    sources, chosen_by = _file_crss(infos, cache, user_in, user_override, option, user, notes)
+    groups = _group_by_crs(sources)
+
+    plausible = _check_coordinates(infos, groups, chosen_by, notes)
+
+    target = _target_crs(user_out, groups, infos)
+    _check_target(
+        target, from_option=user_out is not None,
+        infos=[info for info, ok in zip(infos, plausible) if ok],
+        sources=[crs for crs, ok in zip(sources, plausible) if ok],
+    )
+
+    target_wkt = target.to_wkt()
+    horizontal_unit = _horizontal_unit(target)
+    z_factors, heights = _height_factors(groups, target, infos, notes)
+    if all(same_crs(crs, target) for crs, _ in groups):
+        notes.append(f"no reprojection: every file is already in {crs_label(target)}")
+    if horizontal_unit != "metre":
+        notes.append(f"horizontal unit is {horizontal_unit}: distances and cell sizes are in {horizontal_unit}")
+    height_unit, height_scale = _output_heights(heights, target, notes)
+
+    return CrsPlan(
+        paths=tuple(info.path for info in infos),
+        source_wkts=tuple(target_wkt if same_crs(crs, target) else crs.to_wkt() for crs in sources),
+        target_wkt=target_wkt,
+        target_name=crs_label(target),
+        horizontal_unit=horizontal_unit,
+        vertical_unit=_vertical_unit(target),
+        notes=tuple(notes),
+        height_unit=height_unit,
+        height_scale=height_scale,
+        z_factors=tuple(z_factors) if any(f != 1.0 for f in z_factors) else (),
+    )
+
+
+def _file_crss(
+    infos: Sequence[SourceInfo], cache: _CrsCache, user_in: pyproj.CRS | None, user_override: pyproj.CRS | None,
+    option: str, user: pyproj.CRS | None, notes: list[str],
+) -> tuple[list[pyproj.CRS], list[str | None]]:
+    """Each file's CRS: its own record, or ``user``, the CRS the option named
+    ``option`` gives; and per file that option (None: its own record).  Notes
+    are appended to ``notes``.  Files without a usable CRS, when none is
+    given, are an error naming them."""
     sources: list[pyproj.CRS] = []
     chosen_by: list[str | None] = []  # per file, the option whose CRS it takes; None: its own record
     unusable: list[str] = []
@@ -666,6 +709,11 @@ def resolve_crs(
     if defaulted and user is not None:
         notes.append(f"{option}={crs_label(user)!r} used for file(s) without a CRS: {_list_paths(defaulted)}")
 
+    return sources, chosen_by
+
+
+def _group_by_crs(sources: list[pyproj.CRS]) -> list[tuple[pyproj.CRS, list[int]]]:
+    """The files' CRSs, each once, in order of first use, with the indices of the files in it."""
     groups: list[tuple[pyproj.CRS, list[int]]] = []
     for i, crs in enumerate(sources):
         for group_crs, members in groups:
@@ -674,13 +722,16 @@ def resolve_crs(
                 break
         else:
             groups.append((crs, [i]))
+    return groups
 
-    plausible = _check_coordinates(infos, groups, chosen_by, notes)
 
+def _target_crs(user_out: pyproj.CRS | None, groups: list[tuple[pyproj.CRS, list[int]]],
+                infos: Sequence[SourceInfo]) -> pyproj.CRS:
+    """``out_crs`` when given, else the files' one CRS; files in several CRSs need ``out_crs``."""
     if user_out is not None:
-        target = user_out
+        return user_out
     elif len(groups) == 1:
-        target = groups[0][0]
+        return groups[0][0]
     else:
         listing = "; ".join(
             f"{crs_label(crs)}: {_list_paths([infos[i].path for i in members])}" for crs, members in groups
@@ -689,14 +740,12 @@ def resolve_crs(
             f"input files are in {len(groups)} different CRSs and no out_crs was given: {listing}; "
             "give out_crs to reproject them all to one CRS"
         )
-    _check_target(
-        target, from_option=user_out is not None,
-        infos=[info for info, ok in zip(infos, plausible) if ok],
-        sources=[crs for crs, ok in zip(sources, plausible) if ok],
-    )
 
-    target_wkt = target.to_wkt()
-    horizontal_unit = _horizontal_unit(target)
+
+def _height_factors(groups: list[tuple[pyproj.CRS, list[int]]], target: pyproj.CRS, infos: Sequence[SourceInfo],
+                    notes: list[str]) -> tuple[list[float], list[_Heights]]:
+    """Each file's factor from its heights' unit to the target's, and each CRS
+    group's heights; the notes of each reprojection are appended to ``notes``."""
     z_factors = [1.0] * len(infos)
     heights: list[_Heights] = []
     for crs, members in groups:
@@ -707,24 +756,7 @@ def resolve_crs(
             z_factors[i] = h.factor
         if not same_crs(crs, target):
             notes.extend(_reprojection_notes(crs, target, group_infos, h))
-    if all(same_crs(crs, target) for crs, _ in groups):
-        notes.append(f"no reprojection: every file is already in {crs_label(target)}")
-    if horizontal_unit != "metre":
-        notes.append(f"horizontal unit is {horizontal_unit}: distances and cell sizes are in {horizontal_unit}")
-    height_unit, height_scale = _output_heights(heights, target, notes)
-
-    return CrsPlan(
-        paths=tuple(info.path for info in infos),
-        source_wkts=tuple(target_wkt if same_crs(crs, target) else crs.to_wkt() for crs in sources),
-        target_wkt=target_wkt,
-        target_name=crs_label(target),
-        horizontal_unit=horizontal_unit,
-        vertical_unit=_vertical_unit(target),
-        notes=tuple(notes),
-        height_unit=height_unit,
-        height_scale=height_scale,
-        z_factors=tuple(z_factors) if any(f != 1.0 for f in z_factors) else (),
-    )
+    return z_factors, heights
 
 
 def _check_coordinates(

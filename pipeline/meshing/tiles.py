@@ -556,14 +556,13 @@ def _owned_in_boxes(g: TileGrid, parts: list, source: list, boxes: list, exclude
     return np.compress(keep, pts, axis=0)
 
 
-def mesh_tile(job: TileJob) -> TileSummary:
-    """Mesh one tile's piece and save it to the scratch folder."""
-    t0 = time.perf_counter()
+def _start_points(job: TileJob, held: list) -> tuple[NDArray[np.float64], list, NDArray[np.float64], int]:
+    """The tile's own points (its window plus buffer), what it counted of its
+    window sources, and the points it meshes first: its own, the global hull's
+    near it, and the bands along the survey's straight edges (their boxes join
+    ``held``), with how many of those were read beyond the buffer."""
     g = job.grid
-    window = g.window(job.row, job.col)
-    held = [held_box(g, job.row, job.col, job.buffer)]
     own, counted = tile_points(job.scratch, job.windows, g, job.buffer, job.row, job.col, held[0])
-    bx = g.box(job.row, job.col)
     points = own
     if job.hull is not None and job.hull.shape[0]:
         # the ends of the global hull's edges that pass the tile make the tile's
@@ -578,104 +577,169 @@ def mesh_tile(job: TileJob) -> TileSummary:
         loaded += extra.shape[0]
         points = np.concatenate([points, extra])
         held.extend(bands)
-    expansions = 0
-    hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
+    return own, counted, points, loaded
 
-    smooth = job.surface == "smooth"
 
-    def build(points):
+class _Certifying:
+    """A tile's mesh while its piece is being certified: the points it holds,
+    the boxes they fill (``held[0]`` the box held whole), the mesh of those
+    points and, for the smooth surface once the faces are certified, its plan.
+
+    ``meshed`` are the mesh's input points, in its order: ``points[:len(meshed)]``;
+    the others were loaded since, and lie in no circle of its faces.
+    """
+
+    def __init__(self, job: TileJob, held: list, points: NDArray[np.float64], loaded: int) -> None:
+        self.job = job
+        self.window = job.grid.window(job.row, job.col)
+        self.held = held
+        self.points = points
+        self.loaded = loaded
+        self.expansions = 0
+        self.hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
+        self.smooth = job.surface == "smooth"
+        self.mesh, self.meshed = self._build()
+        # the smooth surface's long faces and kriging systems over ``mesh``, once
+        # its faces are certified: every point held is then outside their
+        # circles, and joins the mesh as a vertex that no face uses
+        self.plan = None
+        self.sampled = None  # with the plan: the faces that hold a centre of the grid, the only ones given nodes
+        # what stays true while the mesh grows: its points' hull covering the
+        # window (points are only ever added)
+        self.covered = False
+        self.grown = 0.0  # how far the box held whole grew beyond the buffer, for the certificate
+
+    def _build(self):
         """The mesh of ``points``, and the points in the order it was given them."""
-        if smooth:
+        job, points = self.job, self.points
+        if self.smooth:
             # near in the plane, near in memory: the smooth surface's kernels read every vertex's neighbours
             # (random file orders made them 10-20% slower); the mesh is the same in any order
-            points = np.take(points, meshcore.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, held[0]), axis=0)
+            points = np.take(points, meshcore.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, self.held[0]), axis=0)
         mesh = meshcore.build_mesh(
-            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=window,
-            known=_HeldRegion(held, hull_xy, job.extent), assume_rounds=job.assume_rounds,
+            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=self.window,
+            known=_HeldRegion(self.held, self.hull_xy, job.extent), assume_rounds=job.assume_rounds,
         )
         return mesh, points
 
-    # ``meshed``: the mesh's input points, in its order: ``points[:len(meshed)]``;
-    # the others were loaded since, and lie in no circle of its faces
-    mesh, meshed = build(points)
-    # the smooth surface's long faces and kriging systems over ``mesh``, once
-    # its faces are certified: every point held is then outside their
-    # circles, and joins the mesh as a vertex that no face uses
-    plan = None
-    sampled = None  # with the plan: the faces that hold a centre of the grid, the only ones given nodes
+    def rebuild(self) -> None:
+        """Mesh every point held again; the smooth plan starts over."""
+        (self.mesh, self.meshed), self.plan = self._build(), None
 
-    def held_as_vertices():
+    def _hold_as_vertices(self) -> None:
         """``mesh`` and ``meshed`` with the points loaded since the build as vertices that no face uses."""
-        since = points[meshed.shape[0]:]
-        return meshcore.with_vertices(mesh, since[:, :2]), np.concatenate([meshed, since])
+        since = self.points[self.meshed.shape[0]:]
+        self.mesh, self.meshed = meshcore.with_vertices(self.mesh, since[:, :2]), np.concatenate([self.meshed, since])
 
-    ext = job.extent
-    # what stays true while the mesh grows: its points' hull covering the
-    # window (points are only ever added)
-    covered = False
-    grown = 0.0  # how far the box held whole grew beyond the buffer, for the certificate
-    while True:
+    def _hold(self, boxes: list) -> NDArray[np.float64]:
+        """Load the points of ``boxes`` not held yet; the boxes count as held."""
+        extra = _load_boxes(self.job, boxes, self.held)
+        self.held.extend(boxes)
+        return extra
+
+    def open_circles(self) -> tuple[list, list, bool, bool]:
+        """The circles (and the smooth plan's disks) not yet vouched for, the
+        boxes to load for them this round, whether the mesh still leaves a gap
+        in the window, and whether this round's reach spans the survey."""
+        job, g, ext, held = self.job, self.job.grid, self.job.extent, self.held
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
         # points usually break it)
         circles = []
         requests = []
-        reach = g.tile_size * 2.0**expansions
+        reach = g.tile_size * 2.0**self.expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
-        wanted = mesh.window_escapes
-        if plan is not None:  # the smoother's neighbourhoods must be held too
-            wanted = np.concatenate([wanted, _open_disks(plan.disks, held[0])])
-        for i, rest in _open_lenses(wanted, hull_xy, ext, held):
+        wanted = self.mesh.window_escapes
+        if self.plan is not None:  # the smoother's neighbourhoods must be held too
+            wanted = np.concatenate([wanted, _open_disks(self.plan.disks, held[0])])
+        for i, rest in _open_lenses(wanted, self.hull_xy, ext, held):
             circles.append(tuple(wanted[i]))
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
-        covered = covered or _covers_window(meshed[:, :2], window, hull_xy)
-        gap = not covered
+        self.covered = self.covered or _covers_window(self.meshed[:, :2], self.window, self.hull_xy)
+        gap = not self.covered
         if gap:  # points beyond a void: look around, farther each time
             around = intersect_boxes(near, ext)
             requests.extend([] if around is None else _uncovered(around, held))
-        if not (circles or gap) and not mesh.certificate.certified:
-            # the flips and merges of the window's faces read triangles the tile may not have as the
-            # survey has them: hold the circles their doubt came from, with a buffer around each (doubt
-            # from the rim of what is held spreads a few rings a round), and a wider box where it came
-            # from a hull edge of the tile's points
-            cert = mesh.certificate
-            step = max(job.buffer, g.resolution)
-            margin = step * 2.0 ** min(expansions, 4)  # a chain of voids: ever more margin
-            wants = [] if cert.open_edges else [
-                (max(ext[0], b[0] - margin), max(ext[1], b[1] - margin), min(ext[2], b[2] + margin),
-                 min(ext[3], b[3] + margin))
-                for b in _disk_boxes_in_hull(cert.blocking, hull_xy, ext) if b is not None
-            ]
-            fresh = _merge_boxes([part for want in wants for part in _uncovered(want, held)])
-            if not fresh:
-                wider = _grown_box(held[0], max(step, grown), ext)
-                if wider == held[0]:
-                    raise SeamError(
-                        f"tile ({job.row}, {job.col}): its piece cannot be certified although it holds every "
-                        "point of the survey (its flips or merges read triangles it does not have)"
-                    )
-                grown += max(step, grown)
-                fresh = _uncovered(wider, held)
-            else:
-                wider = held[0]
-                grown = max(grown, _beyond(fresh, held[0]))
-            expansions += 1
-            extra = _load_boxes(job, fresh, held) if fresh else np.empty((0, 3))
-            held.extend(fresh)
-            held[0] = wider  # after the load, which reads only what was not held
-            loaded += extra.shape[0]
-            points = np.concatenate([points, extra])
-            (mesh, meshed), plan = build(points), None
-            continue
+        return circles, requests, gap, everywhere
+
+    def hold_doubt(self) -> None:
+        """The flips and merges of the window's faces read triangles the tile may not have as the
+        survey has them: hold the circles their doubt came from, with a buffer around each (doubt
+        from the rim of what is held spreads a few rings a round), and a wider box where it came
+        from a hull edge of the tile's points; then mesh again."""
+        job, g, ext, held = self.job, self.job.grid, self.job.extent, self.held
+        cert = self.mesh.certificate
+        step = max(job.buffer, g.resolution)
+        margin = step * 2.0 ** min(self.expansions, 4)  # a chain of voids: ever more margin
+        wants = [] if cert.open_edges else [
+            (max(ext[0], b[0] - margin), max(ext[1], b[1] - margin), min(ext[2], b[2] + margin),
+             min(ext[3], b[3] + margin))
+            for b in _disk_boxes_in_hull(cert.blocking, self.hull_xy, ext) if b is not None
+        ]
+        fresh = _merge_boxes([part for want in wants for part in _uncovered(want, held)])
+        if not fresh:
+            wider = _grown_box(held[0], max(step, self.grown), ext)
+            if wider == held[0]:
+                raise SeamError(
+                    f"tile ({job.row}, {job.col}): its piece cannot be certified although it holds every "
+                    "point of the survey (its flips or merges read triangles it does not have)"
+                )
+            self.grown += max(step, self.grown)
+            fresh = _uncovered(wider, held)
+        else:
+            wider = held[0]
+            self.grown = max(self.grown, _beyond(fresh, held[0]))
+        self.expansions += 1
+        extra = self._hold(fresh) if fresh else np.empty((0, 3))
+        held[0] = wider  # after the load, which reads only what was not held
+        self.loaded += extra.shape[0]
+        self.points = np.concatenate([self.points, extra])
+        self.rebuild()
+
+    def plan_smooth(self) -> None:
+        """The smooth surface's plan over the certified faces that hold a centre of the grid."""
+        g = self.job.grid
+        self._hold_as_vertices()
+        self.sampled = meshcore.sampled_faces(self.mesh, g.x0, g.y0, g.resolution, g.nx, g.ny)
+        self.plan = meshcore.smooth_plan(self.mesh, self.job.variogram, faces=self.sampled)
+
+    def load_open(self, requests: list, circles: list, gap: bool) -> None:
+        """Load the points of ``requests`` for the open ``circles`` (or the
+        ``gap``), and mesh again, or extend the plan, as they require."""
+        extra = self._hold(_merge_boxes(requests))
+        if extra.shape[0] == 0:
+            return
+        self.loaded += extra.shape[0]
+        # kept even when no circle holds it: its box now counts as held, so a
+        # circle of a later build that reaches it is vouched for by it
+        self.points = np.concatenate([self.points, extra])
+        if self.plan is not None and not gap:
+            # the faces' circles are held, and the points lie outside what was
+            # held: vertices, kriged from where a disk holds them
+            self._hold_as_vertices()
+            self.plan = meshcore.smooth_plan(self.mesh, self.job.variogram, previous=self.plan)
+        elif gap or _any_in_circles(extra, np.array(circles).reshape(-1, 3)):
+            # a loaded point lies in a circle, or may close the gap: build again
+            self.rebuild()
+
+
+def _certify(work: _Certifying) -> None:
+    """Load points and mesh again until every circle of the window's faces is
+    vouched for, the window is covered, the flips' certificate holds and, for
+    the smooth surface, every kriging disk is held too."""
+    job = work.job
+    while True:
+        circles, requests, gap, everywhere = work.open_circles()
         if not (circles or gap):
-            if smooth and plan is None:
-                mesh, meshed = held_as_vertices()
-                sampled = meshcore.sampled_faces(mesh, g.x0, g.y0, g.resolution, g.nx, g.ny)
-                plan = meshcore.smooth_plan(mesh, job.variogram, faces=sampled)
+            if not work.mesh.certificate.certified:
+                work.hold_doubt()
                 continue
-            break
-        expansions += 1
+            if work.smooth and work.plan is None:
+                work.plan_smooth()
+                continue
+            return
+        work.expansions += 1
         if not requests:
             if everywhere:
                 # every point that could lie in the circles is held: only a bug gets here
@@ -684,23 +748,24 @@ def mesh_tile(job: TileJob) -> TileSummary:
                     f"its {len(circles)} open circle(s) or neighbourhood(s) reach (gap in its window: {gap})"
                 )
             continue  # what is missing lies farther than this round reaches
-        requests = _merge_boxes(requests)
-        extra = _load_boxes(job, requests, held)
-        held.extend(requests)
-        if extra.shape[0] == 0:
-            continue
-        loaded += extra.shape[0]
-        # kept even when no circle holds it: its box now counts as held, so a
-        # circle of a later build that reaches it is vouched for by it
-        points = np.concatenate([points, extra])
-        if plan is not None and not gap:
-            # the faces' circles are held, and the points lie outside what was
-            # held: vertices, kriged from where a disk holds them
-            mesh, meshed = held_as_vertices()
-            plan = meshcore.smooth_plan(mesh, job.variogram, previous=plan)
-        elif gap or _any_in_circles(extra, np.array(circles).reshape(-1, 3)):
-            # a loaded point lies in a circle, or may close the gap: build again
-            (mesh, meshed), plan = build(points), None
+        work.load_open(requests, circles, gap)
+
+
+@dataclass(frozen=True)
+class _PieceTables:
+    """A certified mesh as the tile's piece: vertex heights, the vertex order of
+    the piece's table and the map to it, the faces in it, and what the tile owns."""
+
+    z: NDArray[np.float64]
+    order: NDArray[np.int64]
+    remap: NDArray[np.int32]
+    faces: NDArray[np.int32]
+    points_owned: int
+    vertices_owned: int
+
+
+def _piece_tables(job: TileJob, mesh: meshcore.Mesh, meshed: NDArray[np.float64], own: NDArray[np.float64]) -> _PieceTables:
+    g = job.grid
     xy = mesh.vertices
     z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
 
@@ -726,14 +791,22 @@ def mesh_tile(job: TileJob) -> TileSummary:
     remap = np.full(n + 1, -1, dtype=np.int32)
     remap[order] = np.arange(order.size, dtype=np.int32)
     faces = remap[mesh.faces]
+    return _PieceTables(z, order, remap, faces, points_owned, vertices_owned)
+
+
+def _save_piece_and_border(job: TileJob, work: _Certifying, tables: _PieceTables, own: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Save the piece and its faces that leave the tile's box (``border``);
+    returns the border's vertices."""
+    mesh, faces = work.mesh, tables.faces
     counts = None
     if "point_count" in job.layers:
         counts = _point_counts(job, own)
-    vertices = np.column_stack([np.take(xy, order, axis=0), z[order]])
+    vertices = np.column_stack([np.take(mesh.vertices, tables.order, axis=0), tables.z[tables.order]])
     # the smooth surface's arrays: from the neighbourhoods held, the same in every tile
     surface = {}
-    if smooth:
-        surface = _piece_surface(meshcore.smooth_surface(mesh, z, job.variogram, plan=plan), mesh.faces, z, remap, sampled)
+    if work.smooth:
+        surface = _piece_surface(meshcore.smooth_surface(mesh, tables.z, job.variogram, plan=work.plan), mesh.faces,
+                                 tables.z, tables.remap, work.sampled)
     save_piece(
         job.scratch, job.row, job.col, "piece",
         vertices=vertices,
@@ -741,28 +814,40 @@ def mesh_tile(job: TileJob) -> TileSummary:
         point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
         **surface,
     )
-    reaching = _reaching_out(vertices, faces, bx)
+    reaching = _reaching_out(vertices, faces, job.grid.box(job.row, job.col))
     border = _select_faces({"vertices": vertices, "faces": faces, **surface}, reaching)
-    border_v = border["vertices"]
     save_piece(job.scratch, job.row, job.col, "border", **border)
+    return border["vertices"]
+
+
+def mesh_tile(job: TileJob) -> TileSummary:
+    """Mesh one tile's piece and save it to the scratch folder."""
+    t0 = time.perf_counter()
+    held = [held_box(job.grid, job.row, job.col, job.buffer)]
+    own, counted, points, loaded = _start_points(job, held)
+    work = _Certifying(job, held, points, loaded)
+    _certify(work)
+    tables = _piece_tables(job, work.mesh, work.meshed, own)
+    border_v = _save_piece_and_border(job, work, tables, own)
+    faces = tables.faces
     return TileSummary(
         row=job.row,
         col=job.col,
-        points_owned=points_owned,
-        vertices_owned=vertices_owned,
-        duplicates=points_owned - vertices_owned,
+        points_owned=tables.points_owned,
+        vertices_owned=tables.vertices_owned,
+        duplicates=tables.points_owned - tables.vertices_owned,
         faces=int(faces.shape[0]),
         quads=int(np.count_nonzero(faces[:, 3] >= 0)),
-        expansions=expansions,
+        expansions=work.expansions,
         certified=True,
         points_held=int(own.shape[0]),
-        points_loaded=loaded,
+        points_loaded=work.loaded,
         window_counts=tuple((c.path, c.read, c.filtered_class, c.filtered_withheld, c.outside_bbox, c.kept) for c in counted),
         seconds=time.perf_counter() - t0,
-        held=tuple(tuple(float(v) for v in box) for box in held),
-        last_flip_round=mesh.certificate.last_flip_round,
+        held=tuple(tuple(float(v) for v in box) for box in work.held),
+        last_flip_round=work.mesh.certificate.last_flip_round,
         assumed_rounds=job.assume_rounds,
-        grown=grown,
+        grown=work.grown,
         reach=None if border_v.shape[0] == 0 else (
             *(float(v) for v in border_v[:, :2].min(axis=0)), *(float(v) for v in border_v[:, :2].max(axis=0))
         ),

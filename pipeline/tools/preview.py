@@ -6,6 +6,7 @@ canopy height model), and optionally the combined mesh over a zoom window
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -168,9 +169,6 @@ def render_preview(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-    from matplotlib.patches import Patch
-    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     from ..store.zarr_store import StoreError, open_dem, read_attrs
 
@@ -179,6 +177,65 @@ def render_preview(
     ds = open_dem(store_path)
     if "elevation" not in ds:
         raise UsageError(f"{store_path}: the store has no elevation layer")
+    view = _overview(ds, store_path, max_pixels)
+    xy_unit, z_unit, height_scale = _units(ds)
+    rgb, norm, ramp = _hillshade(view.elev, view.cell, height_scale=height_scale)
+
+    drawn = _previewed_layers(ds)
+    panels = 1 + len(drawn) + (window is not None)
+    fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
+    ax = axes[0, 0]
+    _overview_panel(fig, ax, ds, store_path, view, rgb, norm, ramp, xy_unit, z_unit)
+    rows, cols, step = view.rows, view.cols, view.step
+    for k, spec in enumerate(drawn):
+        values = ds[spec.name].values[::step, ::step].astype(np.float64)[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
+        _layer_panel(fig, axes[0, 1 + k], values, spec, view.extent, z_unit, xy_unit)
+
+    if window is not None:
+        x0, y0, x1, y1 = window
+        if not (x0 < x1 and y0 < y1):
+            raise UsageError(f"window={window!r} must be (xmin, ymin, xmax, ymax) with min < max")
+        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="red", linewidth=1.5))
+        extent = view.extent
+        polys, quads = _window_faces(str(store_path), window)
+        if polys.shape[0] == 0:
+            plt.close(fig)
+            raise UsageError(f"window={window!r} meets no face of the mesh (its extent: x {extent[0]:g} .. "
+                             f"{extent[1]:g}, y {extent[2]:g} .. {extent[3]:g})")
+        if polys.shape[0] > MAX_MESH_FACES:
+            plt.close(fig)
+            raise UsageError(
+                f"the window holds {polys.shape[0]:,} faces, too many to draw legibly "
+                f"(at most {MAX_MESH_FACES:,}); choose a smaller window"
+            )
+        _mesh_panel(axes[0, panels - 1], ds, window, polys, quads, view, height_scale, xy_unit)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+@dataclass(frozen=True)
+class _Overview:
+    """The DEM subsampled by ``step`` and cropped to its cells with data
+    (``rows``, ``cols`` of the subsampled grid), drawn over ``extent``
+    (left, right, bottom, top) with cells of ``cell``; ``res``, ``xs`` and
+    ``ys`` are the store's own cells."""
+
+    elev: np.ndarray
+    extent: tuple[float, float, float, float]
+    cell: float
+    step: int
+    rows: np.ndarray
+    cols: np.ndarray
+    res: float
+    xs: np.ndarray
+    ys: np.ndarray
+
+
+def _overview(ds, store_path, max_pixels: int) -> _Overview:
+    """The DEM's overview: at most ``max_pixels`` cells a side, cropped to its data."""
     res = float(abs(ds["x"].values[1] - ds["x"].values[0])) if ds.sizes["x"] > 1 else 1.0
     step = max(1, math.ceil(max(ds.sizes["x"], ds.sizes["y"]) / max_pixels))
     elev = ds["elevation"].values[::step, ::step].astype(np.float64)
@@ -193,13 +250,15 @@ def render_preview(
     cell = res * step
     left, top = extent[0] + cols[0] * cell, extent[3] - rows[0] * cell
     extent = (left, left + elev.shape[1] * cell, top - elev.shape[0] * cell, top)
-    xy_unit, z_unit, height_scale = _units(ds)
-    rgb, norm, ramp = _hillshade(elev, cell, height_scale=height_scale)
+    return _Overview(elev, extent, cell, step, rows, cols, res, xs, ys)
 
-    drawn = _previewed_layers(ds)
-    panels = 1 + len(drawn) + (window is not None)
-    fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
-    ax = axes[0, 0]
+
+def _overview_panel(fig, ax, ds, store_path, view: _Overview, rgb, norm, ramp, xy_unit: str, z_unit: str) -> None:
+    """The hillshaded DEM with its scale bar, north arrow and colour bar."""
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    extent, res = view.extent, view.res
     ax.imshow(rgb, extent=extent, origin="upper", interpolation="nearest")
     span = extent[1] - extent[0]
     length = _nice_length(span)
@@ -214,66 +273,51 @@ def render_preview(
     ax.set_ylabel(f"y ({xy_unit})")
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.tick_params(labelsize=8)
-    for k, spec in enumerate(drawn):
-        values = ds[spec.name].values[::step, ::step].astype(np.float64)[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
-        _layer_panel(fig, axes[0, 1 + k], values, spec, extent, z_unit, xy_unit)
 
-    if window is not None:
-        x0, y0, x1, y1 = window
-        if not (x0 < x1 and y0 < y1):
-            raise UsageError(f"window={window!r} must be (xmin, ymin, xmax, ymax) with min < max")
-        ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="red", linewidth=1.5))
-        polys, quads = _window_faces(str(store_path), window)
-        if polys.shape[0] == 0:
-            plt.close(fig)
-            raise UsageError(f"window={window!r} meets no face of the mesh (its extent: x {extent[0]:g} .. "
-                             f"{extent[1]:g}, y {extent[2]:g} .. {extent[3]:g})")
-        if polys.shape[0] > MAX_MESH_FACES:
-            plt.close(fig)
-            raise UsageError(
-                f"the window holds {polys.shape[0]:,} faces, too many to draw legibly "
-                f"(at most {MAX_MESH_FACES:,}); choose a smaller window"
-            )
-        zoom = axes[0, panels - 1]
-        c0 = max(0, int((x0 - (xs[0] - res / 2)) // res))
-        c1 = min(len(xs), int(math.ceil((x1 - (xs[0] - res / 2)) / res)))
-        r0 = max(0, int(((ys[0] + res / 2) - y1) // res))
-        r1 = min(len(ys), int(math.ceil(((ys[0] + res / 2) - y0) / res)))
-        sub = ds["elevation"].values[r0:r1, c0:c1].astype(np.float64)
-        if np.isfinite(sub).any():
-            # grey relief under the mesh, so the two face colours read clearly
-            zrgb, _, _ = _hillshade(sub, res, ramp=plt.get_cmap("Greys_r"), height_scale=height_scale)
-            zoom.imshow(zrgb, extent=(xs[0] - res / 2 + c0 * res, xs[0] - res / 2 + c1 * res,
-                                      ys[0] + res / 2 - r1 * res, ys[0] + res / 2 - r0 * res),
-                        origin="upper", interpolation="nearest", alpha=0.5)
-        max_edge = ds.attrs.get("provenance", {}).get("parameters", {}).get("max_edge")
-        closed = np.concatenate([polys, polys[:, :1]], axis=1)
-        longest = np.sqrt((np.diff(closed, axis=1) ** 2).sum(axis=2)).max(axis=1)
-        bridged = longest > max_edge if max_edge else np.zeros(len(polys), dtype=bool)
-        colours = {"triangles": "#2166ac", "quadrangles": "#f4a516"}
-        handles = []
-        for label, sel in (("triangles", ~quads & ~bridged), ("quadrangles", quads & ~bridged)):
-            zoom.add_collection(PolyCollection(polys[sel], facecolors=colours[label], edgecolors="#202020",
-                                               linewidths=0.3, alpha=0.6))
-            handles.append(Patch(facecolor=colours[label], alpha=0.6, edgecolor="#202020",
-                                 label=f"{label} ({int(sel.sum()):,})"))
-        if bridged.any():
-            zoom.add_collection(PolyCollection(polys[bridged], facecolors="none", edgecolors="#808080",
-                                               linewidths=0.4, linestyles="dashed"))
-            handles.append(Patch(facecolor="white", edgecolor="#808080", linestyle="dashed",
-                                 label=f"edge > max_edge {max_edge:g} {xy_unit}: no DEM ({int(bridged.sum()):,})"))
-        zoom.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
-        zoom.set_xlim(x0, x1)
-        zoom.set_ylim(y0, y1)
-        zoom.set_aspect("equal")
-        zlen = _nice_length(x1 - x0)
-        zoom.add_artist(AnchoredSizeBar(zoom.transData, zlen, f"{zlen:g} {xy_unit}", "lower left", pad=0.5,
-                                        color="black", frameon=True, size_vertical=(x1 - x0) / 250))
-        zoom.set_title("combined mesh in the red box", fontsize=10)
-        zoom.ticklabel_format(useOffset=False, style="plain")
-        zoom.tick_params(labelsize=8)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+
+def _mesh_panel(zoom, ds, window, polys, quads, view: _Overview, height_scale: float, xy_unit: str) -> None:
+    """The combined mesh's faces in ``window`` over a grey relief, faces longer than ``max_edge`` dashed."""
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Patch
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    x0, y0, x1, y1 = window
+    xs, ys, res = view.xs, view.ys, view.res
+    c0 = max(0, int((x0 - (xs[0] - res / 2)) // res))
+    c1 = min(len(xs), int(math.ceil((x1 - (xs[0] - res / 2)) / res)))
+    r0 = max(0, int(((ys[0] + res / 2) - y1) // res))
+    r1 = min(len(ys), int(math.ceil(((ys[0] + res / 2) - y0) / res)))
+    sub = ds["elevation"].values[r0:r1, c0:c1].astype(np.float64)
+    if np.isfinite(sub).any():
+        # grey relief under the mesh, so the two face colours read clearly
+        zrgb, _, _ = _hillshade(sub, res, ramp=plt.get_cmap("Greys_r"), height_scale=height_scale)
+        zoom.imshow(zrgb, extent=(xs[0] - res / 2 + c0 * res, xs[0] - res / 2 + c1 * res,
+                                  ys[0] + res / 2 - r1 * res, ys[0] + res / 2 - r0 * res),
+                    origin="upper", interpolation="nearest", alpha=0.5)
+    max_edge = ds.attrs.get("provenance", {}).get("parameters", {}).get("max_edge")
+    closed = np.concatenate([polys, polys[:, :1]], axis=1)
+    longest = np.sqrt((np.diff(closed, axis=1) ** 2).sum(axis=2)).max(axis=1)
+    bridged = longest > max_edge if max_edge else np.zeros(len(polys), dtype=bool)
+    colours = {"triangles": "#2166ac", "quadrangles": "#f4a516"}
+    handles = []
+    for label, sel in (("triangles", ~quads & ~bridged), ("quadrangles", quads & ~bridged)):
+        zoom.add_collection(PolyCollection(polys[sel], facecolors=colours[label], edgecolors="#202020",
+                                           linewidths=0.3, alpha=0.6))
+        handles.append(Patch(facecolor=colours[label], alpha=0.6, edgecolor="#202020",
+                             label=f"{label} ({int(sel.sum()):,})"))
+    if bridged.any():
+        zoom.add_collection(PolyCollection(polys[bridged], facecolors="none", edgecolors="#808080",
+                                           linewidths=0.4, linestyles="dashed"))
+        handles.append(Patch(facecolor="white", edgecolor="#808080", linestyle="dashed",
+                             label=f"edge > max_edge {max_edge:g} {xy_unit}: no DEM ({int(bridged.sum()):,})"))
+    zoom.legend(handles=handles, loc="upper right", fontsize=8, framealpha=0.9)
+    zoom.set_xlim(x0, x1)
+    zoom.set_ylim(y0, y1)
+    zoom.set_aspect("equal")
+    zlen = _nice_length(x1 - x0)
+    zoom.add_artist(AnchoredSizeBar(zoom.transData, zlen, f"{zlen:g} {xy_unit}", "lower left", pad=0.5,
+                                    color="black", frameon=True, size_vertical=(x1 - x0) / 250))
+    zoom.set_title("combined mesh in the red box", fontsize=10)
+    zoom.ticklabel_format(useOffset=False, style="plain")
+    zoom.tick_params(labelsize=8)

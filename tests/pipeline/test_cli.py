@@ -305,18 +305,18 @@ def test_a_record_its_coordinates_contradict_is_one_line_exit_2_and_the_override
     assert any(str(path) in note and "replaced by override_crs=" in note for note in attrs["report"]["notes"])
 
 
-def test_the_smooth_surfaces_cost_in_the_help_is_the_readmes():
-    """``terrain run --help`` and the README's "Which surface" give the same cost of ``--surface smooth``."""
+def test_the_smooth_surfaces_cost_in_the_help_is_the_docs():
+    """``terrain run --help`` and docs/surfaces.md's "Which surface" give the same cost of ``--surface smooth``."""
     import re
     from pathlib import Path
 
     from pipeline.cli import _parser
 
     run = next(a for a in _parser()._subparsers._group_actions[0].choices["run"]._actions if "--surface" in a.option_strings)
-    readme = Path(__file__).resolve().parents[2] / "README.md"
-    section = readme.read_text().split("## Which surface", 1)[1].split("\n## ", 1)[0]
+    page = Path(__file__).resolve().parents[2] / "docs" / "surfaces.md"
+    section = page.read_text().split("## Which surface", 1)[1].split("\n## ", 1)[0]
     ratio = r"(\d+(?:\.\d+)?)[-–](\d+(?:\.\d+)?)x"
     in_help = re.search(ratio, run.help)
-    in_readme = re.search(ratio + r" the linear run", " ".join(section.split()))
-    assert in_help and in_readme
-    assert (float(in_help[1]), float(in_help[2])) == (float(in_readme[1]), float(in_readme[2]))
+    in_docs = re.search(ratio + r" the linear run", " ".join(section.split()))
+    assert in_help and in_docs
+    assert (float(in_help[1]), float(in_help[2])) == (float(in_docs[1]), float(in_docs[2]))
