@@ -87,14 +87,21 @@ class GroundParameters:
         Side of the cells of the lowest surface, metres.
     max_window : float
         Radius of the largest opening, metres: half the width of the widest
-        object that is not ground (a 60 m building needs 30 m).
+        object that is not ground (a 100 m building needs 50 m).
     slope : float
         Terrain slope that the openings take for ground (rise over run).
     threshold : float
         Height above or below the ground TIN within which a point is ground,
         metres, on flat ground.
     scalar : float
-        Added to ``threshold`` per unit of the TIN's slope, metres.
+        Added to ``threshold`` per unit of the TIN's slope, metres.  Pingel's
+        1.25 is for the gradient of a smoothed grid; a TIN facet's slope is
+        steeper wherever one seed is off, so less of it is taken.
+    object_height : float
+        A drop of the opening larger than this from one radius to the next
+        marks an object whatever the radius, metres (Pingel's threshold
+        ``slope * r * cell`` alone lets low buildings wider than
+        ``2 object_height / slope`` through).
     outlier_depth : float
         How far below the points of its neighbourhood a point must lie to be
         a low outlier, metres.
@@ -103,10 +110,11 @@ class GroundParameters:
     """
 
     cell: float = 1.0
-    max_window: float = 30.0
+    max_window: float = 50.0
     slope: float = 0.15
     threshold: float = 0.5
-    scalar: float = 1.25
+    scalar: float = 0.5
+    object_height: float = 2.0
     outlier_depth: float = 1.0
     outlier_cell: float = 5.0
 
@@ -300,7 +308,7 @@ def _opening(surface, r, scratch, out) -> None:
 
 
 @njit
-def _object_kernel(surface, radii, slope_cell, objects) -> None:
+def _object_kernel(surface, radii, slope_cell, cap, objects) -> None:
     """Pingel's progressive test: ``objects`` where the opening of radius
     ``r`` lies more than ``slope_cell * r`` below the opening of radius ``r - 1``."""
     ny, nx = surface.shape
@@ -309,7 +317,7 @@ def _object_kernel(surface, radii, slope_cell, objects) -> None:
     scratch = np.empty_like(surface)
     for r in range(1, radii + 1):
         _opening(surface, r, scratch, current)
-        limit = slope_cell * r
+        limit = min(slope_cell * r, cap)
         for i in range(ny):
             for j in range(nx):
                 if previous[i, j] - current[i, j] > limit:
@@ -446,12 +454,13 @@ def classify_ground(
     surface = surface.reshape(ny, nx)
     objects = np.zeros((ny, nx), dtype=np.bool_)
     radii = max(1, math.ceil(p.max_window / p.cell))
-    _object_kernel(surface, radii, p.slope * size, objects)
+    _object_kernel(surface, radii, p.slope * size, p.object_height / unit, objects)
     seeds = lowest[~objects.ravel()[cell[lowest]]]
 
     # 3. the ground TIN
     if seeds.shape[0] >= 3:
         tin = delaunay(np.column_stack([x[seeds], y[seeds]]))
+    if seeds.shape[0] >= 3 and tin.triangles.shape[0] > 0:  # collinear seeds make no triangle
         vz = z[seeds][tin.order]
         visit = np.argsort(cell, kind="stable")
         _tin_kernel(
