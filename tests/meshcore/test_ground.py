@@ -1,0 +1,271 @@
+"""Ground classification: synthetic scenes with known ground, shaped like real
+surveys, and the shared samples with their classes removed."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshcore.errors import InvalidInputError
+from meshcore.ground import GroundParameters, classify_ground
+
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+X0, Y0 = 650_000.0, 6_860_000.0
+
+# labels of the synthetic scene
+GROUND, ROOF, TREE, SHRUB, DECK, OUTLIER = range(6)
+
+
+def _terrain(x, y):
+    """Hills, a 10 m cliff along x = 150 (south half), a 40-degree valley side
+    (north of y = 250) and a 6 m deep channel 30 m wide under a bridge."""
+    z = 100.0 + 3.0 * np.sin(x / 35.0) * np.cos(y / 45.0) + 0.02 * y
+    z = z + np.where((x > 150.0) & (y < 120.0), 10.0, 0.0)
+    z = z + np.where(y > 250.0, math.tan(math.radians(40.0)) * (y - 250.0), 0.0)
+    channel = np.abs(x - 240.0) < 15.0
+    z = z - np.where(channel & (y > 140.0) & (y < 240.0), 6.0, 0.0)
+    return z
+
+
+# x, y, width, depth, height of the eaves, of the gable above them: flat 60 x 40 m, low flat 30 x 30 m, gabled
+BUILDINGS = [(20, 140, 60, 40, 10.0, 0.0), (100, 20, 30, 30, 4.0, 0.0), (40, 40, 20, 36, 5.0, 4.0)]
+
+
+def _scene(rng, density=2.0):
+    """A 300 m x 300 m scene, LAS-rounded, at survey offsets, in random order:
+    ``(x, y, z, label, true ground height at each point)``."""
+    size = 300.0
+    n = int(density * size * size)
+    x = rng.uniform(0, size, n)
+    y = rng.uniform(0, size, n)
+    z = _terrain(x, y)
+    label = np.full(n, GROUND)
+    # buildings: flat 60 x 40 m (10 m), flat 30 x 30 m (4 m), gabled 20 x 36 m (eaves 5 m, ridge 9 m)
+    for (bx, by, w, h, height, gable) in BUILDINGS:
+        inside = (x > bx) & (x < bx + w) & (y > by) & (y < by + h)
+        base = _terrain(np.full(inside.sum(), bx + w / 2), np.full(inside.sum(), by + h / 2))
+        ridge = gable * (1.0 - np.abs(x[inside] - (bx + w / 2)) / (w / 2))
+        z[inside] = base + height + ridge
+        label[inside] = ROOF
+    # a bridge deck 8 m wide across the channel, level with the banks
+    deck = (np.abs(y - 190.0) < 4.0) & (np.abs(x - 240.0) < 20.0)
+    z[deck] = _terrain(np.full(deck.sum(), 200.0), np.full(deck.sum(), 190.0)) + 0.5
+    label[deck] = DECK
+    extra = []
+    # trees: crowns of 3-6 m radius, 5-15 m above the ground, a third of the crown points reaching the ground
+    for cx, cy in rng.uniform([160, 130], [300, 240], (25, 2)):
+        r = rng.uniform(3, 6)
+        m = int(density * math.pi * r * r * 1.5)
+        a, d = rng.uniform(0, 2 * math.pi, m), r * np.sqrt(rng.uniform(0, 1, m))
+        px, py = cx + d * np.cos(a), cy + d * np.sin(a)
+        top = rng.uniform(8, 15)
+        pz = _terrain(px, py) + top * (1 - 0.5 * (d / r) ** 2) - rng.uniform(0, 3, m)
+        extra.append((px, py, pz, np.full(m, TREE)))
+    # shrubs: 1-2 m above the ground, patches 2 m across
+    for cx, cy in rng.uniform([10, 200], [140, 245], (40, 2)):
+        m = int(density * 4)
+        px, py = cx + rng.uniform(-1, 1, m), cy + rng.uniform(-1, 1, m)
+        extra.append((px, py, _terrain(px, py) + rng.uniform(1.0, 2.0, m), np.full(m, SHRUB)))
+    # low outliers: multipath 3-40 m below the ground (off the 40-degree side, where a point a few
+    # metres below the ground is level with the ground a few metres downhill)
+    m = 60
+    px, py = rng.uniform(0, size, m), rng.uniform(0, 240, m)
+    extra.append((px, py, _terrain(px, py) - rng.uniform(3, 40, m), np.full(m, OUTLIER)))
+    for px, py, pz, lab in extra:
+        keep = (px >= 0) & (px < size) & (py >= 0) & (py < size)
+        x, y, z, label = (np.concatenate([a, b[keep]]) for a, b in ((x, px), (y, py), (z, pz), (label, lab)))
+    order = rng.permutation(x.shape[0])
+    x, y, z, label = x[order], y[order], z[order], label[order]
+    truth = _terrain(x, y)
+    # LAS storage: centimetres at a survey offset
+    x = np.round((x + X0) * 100) / 100
+    y = np.round((y + Y0) * 100) / 100
+    z = np.round(z * 100) / 100
+    return x, y, z, label, truth
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(42)
+    x, y, z, label, truth = _scene(rng)
+    return x, y, z, label, truth, classify_ground(x, y, z)
+
+
+def test_scene_objects_are_not_ground(scene):
+    x, y, z, label, truth, result = scene
+    g = result.ground
+    assert g[label == ROOF].mean() < 0.002
+    assert g[label == TREE].mean() < 0.01
+    assert g[label == SHRUB].mean() < 0.02
+    middle = (label == DECK) & (np.abs(x - X0 - 240.0) < 10.0)
+    assert middle.sum() > 50
+    assert not g[middle].any()
+
+
+def test_scene_low_outliers_never_ground(scene):
+    x, y, z, label, truth, result = scene
+    assert not result.ground[label == OUTLIER].any()
+    assert result.low_outlier[label == OUTLIER].mean() > 0.95
+    # and the true ground is hardly ever taken for one
+    assert result.low_outlier[label == GROUND].mean() < 0.001
+    assert result.low_outliers == int(result.low_outlier.sum())
+
+
+def _interior(lx, ly, margin=40.0):
+    """Away from the data's edges: at an edge the openings cannot tell a rise
+    from an object (a bank between a channel and the edge looks like a
+    building), which the pipeline's tile buffers leave to the neighbour tile."""
+    return (lx > margin) & (lx < 300 - margin) & (ly > margin) & (ly < 300 - margin)
+
+
+def test_scene_ground_found_everywhere(scene):
+    x, y, z, label, truth, result = scene
+    g = result.ground
+    lx, ly = x - X0, y - Y0
+    ground = (label == GROUND) & _interior(lx, ly)
+    assert g[ground].mean() > 0.97
+    steep = ground & (ly > 255.0)
+    assert steep.sum() > 2000
+    assert g[steep].mean() > 0.9
+    cliff = ground & (np.abs(lx - 150.0) < 10.0) & (ly < 110.0)
+    assert g[cliff].mean() > 0.85
+    channel = ground & (np.abs(lx - 240.0) < 12.0) & (ly > 150.0) & (ly < 230.0)
+    assert g[channel].mean() > 0.9
+
+
+def test_scene_dtm(scene):
+    """The TIN of the ground found stays near the true ground everywhere but at vertical steps (inside the edges)."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    x, y, z, label, truth, result = scene
+    g = result.ground
+    gx, gy = np.meshgrid(np.arange(40.5, 260, 1.0), np.arange(40.5, 260, 1.0))
+    # a TIN cannot follow a vertical step: the cells within 3 m of the cliff's two sides and the channel's walls
+    away = ~((np.abs(gx - 150.0) < 3.0) & (gy < 123.0)) & ~((np.abs(gy - 120.0) < 3.0) & (gx > 147.0))
+    away &= ~((np.abs(np.abs(gx - 240.0) - 15.0) < 3.0) & (gy > 137.0) & (gy < 243.0))
+    away &= ~((np.abs(gx - 240.0) < 18.0) & ((np.abs(gy - 140.0) < 3.0) | (np.abs(gy - 240.0) < 3.0)))
+    for bx, by, w, h, _, _ in BUILDINGS:  # no ground under a roof, in the scene as in a survey
+        away &= ~((gx > bx - 1) & (gx < bx + w + 1) & (gy > by - 1) & (gy < by + h + 1))
+    dtm = LinearNDInterpolator(np.column_stack([x[g] - X0, y[g] - Y0]), z[g])(gx, gy)
+    d = (dtm - _terrain(gx, gy))[away]
+    assert np.isfinite(d).all()
+    assert np.sqrt(np.mean(d * d)) < 0.3
+    # the largest errors (up to 5 m) are where the top of a vertical step is lost beyond its 3 m band
+    assert np.percentile(np.abs(d), 99) < 1.0
+
+
+def test_feet_scale(scene):
+    """The same scene in feet, with unit=0.3048, gives the same ground."""
+    x, y, z, label, truth, result = scene
+    ft = 0.3048
+    feet = classify_ground(x / ft, y / ft, z / ft, unit=ft)
+    assert (feet.ground == result.ground).mean() > 0.995
+    # while the metre parameters read as feet would not
+    wrong = classify_ground(x / ft, y / ft, z / ft)
+    assert (wrong.ground == result.ground).mean() < (feet.ground == result.ground).mean()
+
+
+def test_last_returns_seed_the_surface(rng):
+    """A first of two returns on a flat canopy never seeds the ground, even where it is the lowest point."""
+    n = 20000
+    x, y = rng.uniform(0, 100, (2, n))
+    z = 50.0 + 0.01 * x
+    canopy = rng.random(n) < 0.5
+    z[canopy] += 0.8  # a dense low canopy: its first returns near the ground
+    rn = np.where(canopy, 1, 2)
+    nr = np.full(n, 2)
+    # under part of it, only canopy returns
+    hole = (np.abs(x - 50) < 3) & (np.abs(y - 50) < 3)
+    keep = ~(hole & ~canopy)
+    res = classify_ground(x[keep], y[keep], z[keep], return_number=rn[keep], number_of_returns=nr[keep])
+    assert res.ground[~canopy[keep]].mean() > 0.99
+
+
+def test_decisions_are_local(scene):
+    """A point whose reach (the module docstring's bound) lies inside a window
+    gets the same class from the window's points alone."""
+    x, y, z, label, truth, _ = scene
+    p = GroundParameters(max_window=8.0)
+    result = classify_ground(x, y, z, parameters=p)
+    radii = math.ceil(p.max_window / p.cell)
+    reach = 2 * result.circumradius + math.sqrt(2) * (2 * radii + 2) * p.cell + 2 * math.sqrt(2) * p.outlier_cell
+    lx, ly = x - X0, y - Y0
+    window = (lx > 40) & (lx < 290) & (ly > 30) & (ly < 280)
+    part = classify_ground(x[window], y[window], z[window], parameters=p)
+    lx, ly, reach = lx[window], ly[window], reach[window]
+    inside = (lx - reach > 40) & (lx + reach < 290) & (ly - reach > 30) & (ly + reach < 280)
+    assert inside.sum() > 1000
+    np.testing.assert_array_equal(part.ground[inside], result.ground[window][inside])
+    np.testing.assert_array_equal(part.low_outlier[inside], result.low_outlier[window][inside])
+
+
+def test_inputs_checked():
+    with pytest.raises(InvalidInputError):
+        classify_ground([0.0, 1.0], [0.0], [0.0, 1.0])
+    with pytest.raises(InvalidInputError):
+        classify_ground([0.0], [0.0], [np.nan])
+    with pytest.raises(InvalidInputError):
+        classify_ground([0.0], [0.0], [0.0], unit=0.0)
+    with pytest.raises(InvalidInputError):
+        GroundParameters(cell=0.0)
+    with pytest.raises(InvalidInputError):
+        GroundParameters.from_dict({"window": 3.0})
+    p = GroundParameters(max_window=40.0)
+    assert GroundParameters.from_dict(p.to_dict()) == p
+
+
+def test_degenerate_inputs():
+    empty = classify_ground([], [], [])
+    assert empty.ground.shape == (0,) and empty.low_outliers == 0
+    one = classify_ground([650000.0], [6860000.0], [12.0])
+    assert one.ground.tolist() == [True]
+    line = classify_ground(np.arange(10.0), np.zeros(10), np.zeros(10))
+    assert line.ground.all()
+
+
+def test_inputs_unchanged(rng):
+    x, y, z = rng.uniform(0, 50, (3, 2000))
+    copies = [a.copy() for a in (x, y, z)]
+    classify_ground(x, y, z)
+    for a, b in zip((x, y, z), copies):
+        np.testing.assert_array_equal(a, b)
+
+
+# --- the shared samples, classes removed ----------------------------------------------------------------------
+
+# file, metres per unit, largest RMS of the DTM difference in the file's unit
+SAMPLES = [
+    ("ign_semis_lambert93.laz", 1.0, 0.8),
+    ("4_6_crop_us_feet.las", 1200 / 3937, 0.5),
+    ("startinpy_small_extrabytes.laz", 1.0, 0.2),
+    ("extra_byte_blocks_lambert93.laz", 1.0, 0.1),
+    ("autzen_trim.las", 0.3048, 0.8),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, unit, rms_limit", SAMPLES)
+def test_shared_sample(name, unit, rms_limit):
+    laspy = pytest.importorskip("laspy")
+    from scipy.interpolate import LinearNDInterpolator
+
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f"{path} is not available")
+    las = laspy.read(path)
+    x, y, z = (np.asarray(v) for v in (las.x, las.y, las.z))
+    ref = np.asarray(las.classification) == 2
+    res = classify_ground(
+        x, y, z, unit=unit, return_number=np.asarray(las.return_number), number_of_returns=np.asarray(las.number_of_returns)
+    )
+    g = res.ground
+    assert (ref & ~g).sum() / ref.sum() < 0.02  # type I
+    gx, gy = np.meshgrid(np.arange(math.floor(x.min()), x.max()) + 0.5, np.arange(math.floor(y.min()), y.max()) + 0.5)
+    a = LinearNDInterpolator(np.column_stack([x[g], y[g]]), z[g])(gx, gy)
+    b = LinearNDInterpolator(np.column_stack([x[ref], y[ref]]), z[ref])(gx, gy)
+    d = (a - b)[np.isfinite(a - b)]
+    assert d.size > 0.9 * gx.size * 0.5
+    assert np.sqrt(np.mean(d * d)) < rms_limit
