@@ -69,7 +69,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._jit import njit
-from .delaunay import _locate, delaunay
+from .delaunay import _locate, _next, _walk, delaunay
 from .errors import InvalidInputError
 
 __all__ = ["GroundParameters", "GroundResult", "classify_ground"]
@@ -329,15 +329,33 @@ def _object_kernel(surface, radii, slope_cell, cap, objects) -> None:
 
 
 @njit
-def _tin_kernel(tri, he, vx, vy, vz, px, py, pz, visit, threshold, scalar, ground, radius) -> None:
+def _tin_kernel(tri, he, vx, vy, vz, px, py, pz, visit, threshold, scalar, reach, ground, radius) -> None:
     """For each point (in the order ``visit``, neighbours one after another):
     the TIN triangle under it, its height and slope there, and whether it
-    lies within ``threshold + scalar * slope`` of it."""
+    lies within ``threshold + scalar * slope`` of it.  A point outside the
+    TIN but within ``reach`` of its hull (the rim of the survey, beyond its
+    edge cells' lowest points) is tested against the plane of the hull
+    triangle it lies beyond."""
     t = 0
     state = 12345
     for k in range(visit.shape[0]):
         p = visit[k]
-        found, state = _locate(tri, he, vx, vy, px[p], py[p], t, state)
+        found, state, beyond = _walk(tri, he, vx, vy, px[p], py[p], t, state)
+        extra = 0.0
+        if found == -2:  # a walk too long: a broken triangulation
+            found, state = _locate(tri, he, vx, vy, px[p], py[p], t, state)
+        if found == -1 and beyond >= 0:
+            a = tri[beyond]
+            b = tri[_next(beyond)]
+            ex = vx[b] - vx[a]
+            ey = vy[b] - vy[a]
+            length2 = ex * ex + ey * ey
+            u = 0.0 if length2 == 0.0 else min(max(((px[p] - vx[a]) * ex + (py[p] - vy[a]) * ey) / length2, 0.0), 1.0)
+            dx = px[p] - (vx[a] + u * ex)
+            dy = py[p] - (vy[a] + u * ey)
+            if dx * dx + dy * dy <= reach * reach:
+                found = beyond // 3
+                extra = reach  # its decision reads as far as the triangle's, plus its way to it
         if found < 0:
             radius[p] = np.inf
             continue
@@ -367,7 +385,7 @@ def _tin_kernel(tri, he, vx, vy, vz, px, py, pz, visit, threshold, scalar, groun
         cl = cx * cx + cy * cy
         ux = (cy * bl - by * cl) * 0.5 / det
         uy = (bx * cl - cx * bl) * 0.5 / det
-        radius[p] = math.sqrt(ux * ux + uy * uy)
+        radius[p] = math.sqrt(ux * ux + uy * uy) + extra
 
 
 # --- public --------------------------------------------------------------------------------------------------
@@ -465,7 +483,7 @@ def classify_ground(
         visit = np.argsort(cell, kind="stable")
         _tin_kernel(
             tin.triangles, tin.halfedges, tin.x, tin.y, vz, x - tin.origin[0], y - tin.origin[1], z, visit,
-            p.threshold / unit, p.scalar / unit, ground, radius,
+            p.threshold / unit, p.scalar / unit, math.sqrt(2.0) * size, ground, radius,
         )
     ground[seeds] = True
     ground &= ~outlier
