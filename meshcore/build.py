@@ -10,7 +10,7 @@ from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
 from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_taint, open_hull_edges
-from .flip import _centroid, _centroid_in, _meets_box, flip_edges
+from .flip import _centroid, _meets_box, flip_edges
 from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
@@ -391,13 +391,13 @@ def _owned_faces(x, y, ox, oy, tri, he, partner, window) -> np.ndarray:
     whose centroid lies in it, or the first triangle of a quadrangle whose
     deleted diagonal's midpoint does (input frame, the same bits in every run)."""
     nt = tri.shape[0] // 3
-    owned = zeros(nt, dtype=np.uint8)
+    # the centroid rule, settled without the centroid for the triangles well inside the window
+    owned = _window_mask(x, y, ox, oy, tri, window[0], window[1], window[2], window[3])
     for t in range(nt):
         e = partner[t]
         if e == -1:
-            if _centroid_in(x, y, tri, t, ox, oy, window):
-                owned[t] = 1
             continue
+        owned[t] = 0
         f = he[e]
         if t > f // 3:
             continue

@@ -182,16 +182,6 @@ def _centroid(ax, ay, bx, by, cx, cy, ox, oy) -> tuple[float, float]:
 
 
 @njit_helper
-def _centroid_in(x, y, tri, t: int, ox: float, oy: float, window) -> bool:
-    """Whether the centroid of triangle ``t`` (see :func:`_centroid`) lies in the half-open ``window``."""
-    a = tri[3 * t]
-    b = tri[3 * t + 1]
-    c = tri[3 * t + 2]
-    gx, gy = _centroid(x[a], y[a], x[b], y[b], x[c], y[c], ox, oy)
-    return window[0] <= gx < window[2] and window[1] <= gy < window[3]
-
-
-@njit_helper
 def _outside_edge(px, py, qx, qy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
     """True when the whole box lies clearly right of the directed line p -> q."""
     dx = qx - px

@@ -219,13 +219,15 @@ def _disk_boxes_in_hull(circles: NDArray[np.float64], hull_xy: NDArray[np.float6
     beyond it needs no points loaded: along a survey edge the circles of the
     slivers there reach far out of the hull but only a thin lens into it.
     """
-    if circles.shape[0] == 0:
-        return []
-    boxes = meshcore.certificate.lens_boxes(
+    return [None if math.isnan(b[0]) else tuple(b) for b in _lens_array(circles, hull_xy, box).tolist()]
+
+
+def _lens_array(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box) -> NDArray[np.float64]:
+    """:func:`_disk_boxes_in_hull` as an ``(n, 4)`` array, a row of NaN for None."""
+    return meshcore.certificate.lens_boxes(
         np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
         np.ascontiguousarray(hull_xy, dtype=np.float64).reshape(-1, 2), np.array(box, dtype=np.float64),
     )
-    return [None if math.isnan(b[0]) else tuple(b) for b in boxes.tolist()]
 
 
 def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box, held: list) -> list:
@@ -233,10 +235,7 @@ def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box
     inside the held boxes: ``(index, the parts of its box outside them)``."""
     if circles.shape[0] == 0:
         return []
-    boxes = meshcore.certificate.lens_boxes(
-        np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
-        np.ascontiguousarray(hull_xy, dtype=np.float64).reshape(-1, 2), np.array(box, dtype=np.float64),
-    )
+    boxes = _lens_array(circles, hull_xy, box)
     held_array = np.array(held, dtype=np.float64).reshape(-1, 4)
     open_ = ~np.isnan(boxes[:, 0])
     for h in held_array:  # most lie inside one held box: settled at once
