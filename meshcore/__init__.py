@@ -19,6 +19,7 @@ from ._order import block_order, lexicographic_order
 from .build import KERNEL_STAGES, build_mesh, load_kernels
 from .certificate import KnownRegion, WindowCertificate
 from .errors import InvalidInputError, InvalidMeshError, MeshError
+from .ground import GroundParameters, GroundResult, classify_ground
 from .interpolate import gradient, interpolate
 from .mesh import Mesh, with_vertices
 from .natural import NaturalCoordinates, natural_coordinates, natural_values
@@ -65,6 +66,9 @@ def kernels_compiled() -> bool:
 
 __all__ = [
     "Mesh",
+    "classify_ground",
+    "GroundParameters",
+    "GroundResult",
     "with_vertices",
     "build_mesh",
     "KnownRegion",

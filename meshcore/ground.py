@@ -22,34 +22,44 @@ Mitchell 2013, the filter PDAL runs by default) with three changes:
    same (openings by nested squares form a granulometry), and it bounds what
    a cell's flag depends on.
 3. **A TIN of the ground cells instead of an inpainted grid.**  The lowest
-   points of the cells not flagged are triangulated (Delaunay,
-   :func:`meshcore.delaunay.delaunay`); a point is ground when it lies within
-   ``threshold + scalar * s`` of that TIN, ``s`` the slope of the triangle
-   under it (Pingel's final test, with the triangle's exact slope instead of
-   a gridded one).  Where return numbers are given, only last returns seed
-   the surface (a first of several returns is not the ground).
+   points of the cells not flagged (the seeds) are triangulated (Delaunay,
+   :func:`meshcore.delaunay.delaunay`), and the triangles of circumradius
+   at most ``max_radius`` kept (the live TIN: a wider gap between seeds, a
+   roof or a water body, is not bridged).  A point is ground when it lies
+   within ``threshold + scalar * s`` of a live triangle containing it, ``s``
+   that triangle's slope (Pingel's final test, with the triangle's exact
+   slope instead of a gridded one).  A point on an edge or a corner is
+   tested against every live triangle there, so the answer does not depend
+   on the path that found it.  A point in no live triangle (the survey's
+   rim, beyond its edge cells' lowest points, or the edge of a void) is
+   tested against the plane of the nearest edge of the live TIN within
+   ``sqrt(2) cell``, ties by the edge's corners.  A seed is ground, and so
+   is every exact copy of it (x, y and z).  Where return numbers are
+   given, only last returns seed the surface (a first of several returns
+   is not the ground).
 
 What a point's class depends on
 -------------------------------
-Everything is computed on grids aligned on multiples of the cell sizes, so a
-point's class depends only on the points near it:
+Everything is computed on grids aligned on multiples of the cell sizes, ties
+are broken by coordinates and the arithmetic is done in the caller's
+coordinates, so a point's class depends only on the points near it:
 
-* a low-outlier decision on the points within ``2 sqrt(2) outlier_cell``
-  (the block of 3 x 3 cells);
-* a cell's object flag on the lowest points within ``sqrt(2) (2 R + 1) cell``
-  (an opening of radius ``R`` reads ``2 R`` cells each way), each of which
-  depends on the outliers as above;
-* a point's class on the three seeds of the TIN triangle under it, a triangle
-  of the Delaunay TIN of the seeds, fixed by the seeds inside its
-  circumcircle.
+* a low-outlier decision on the block of 3 x 3 ``outlier_cell`` cells around
+  the point's own;
+* a cell's object flag on the lowest points of the cells within ``2 R`` of
+  it (an opening of radius ``R`` reads ``2 R`` cells each way), each of
+  which depends on the outliers as above: so a seed depends on the points
+  within :meth:`GroundParameters.margin` of it (a square);
+* a point's class on the seeds of the live triangles containing it, fixed by
+  the seeds inside their circumcircles, all within ``2 rho`` of it (``rho``
+  the largest of their circumradii); or, in no live triangle, on the seeds
+  within ``sqrt(2) cell + 2 max_radius``.
 
-So the class of a point ``p`` depends only on points within
-``reach(p) = 2 rho(p) + sqrt(2) (2 R + 2) cell + 2 sqrt(2) outlier_cell``,
-``rho(p)`` the circumradius of the TIN triangle under ``p``
-(:attr:`GroundResult.circumradius`): a tile whose loaded points cover that
-disc around each of its own points decided them as an unbounded cloud would
-have.  ``rho`` is small wherever ground cells are dense, and long only across
-large areas without a ground cell (water, a very large roof).
+:attr:`GroundResult.reach` adds the two: a subset of the cloud that holds
+every point of the square of half-side ``reach`` around one of its points
+decides that point as the whole cloud does.  ``reach`` is small wherever
+ground cells are dense, and never more than
+:meth:`GroundParameters.max_reach`.
 
 >>> import numpy as np
 >>> rng = np.random.default_rng(0)
@@ -68,8 +78,9 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
-from .delaunay import _locate, _next, _walk, delaunay
+from ._jit import njit, njit_helper
+from .delaunay import _locate, _next, _prev, _walk, delaunay
+from .predicates import orient2d
 from .errors import InvalidInputError
 
 __all__ = ["GroundParameters", "GroundResult", "classify_ground"]
@@ -107,6 +118,11 @@ class GroundParameters:
         a low outlier, metres.
     outlier_cell : float
         Side of the cells of the low-outlier test, metres.
+    max_radius : float
+        Largest circumradius of a triangle of the ground TIN, metres: wider
+        gaps between ground seeds (a roof, a water body) are not bridged, and
+        a point there is ground only near the TIN's edge.  It bounds how far a
+        decision reads.
     """
 
     cell: float = 1.0
@@ -117,6 +133,20 @@ class GroundParameters:
     object_height: float = 2.0
     outlier_depth: float = 1.0
     outlier_cell: float = 5.0
+    max_radius: float = 50.0
+
+    def margin(self, unit: float = 1.0) -> float:
+        """How far, in the coordinates' units, beyond the seeds a decision
+        reads lie the points those seeds depend on: the openings read ``2 R``
+        cells around a seed's cell (``R = ceil(max_window / cell)``), and a
+        low-outlier test the block of 3 x 3 ``outlier_cell`` cells around a
+        point's own."""
+        radii = max(1, math.ceil(self.max_window / self.cell))
+        return ((2 * radii + 1) * self.cell + 2 * self.outlier_cell) / unit
+
+    def max_reach(self, unit: float = 1.0) -> float:
+        """The largest :attr:`GroundResult.reach` of any point, in the coordinates' units."""
+        return self.margin(unit) + (math.sqrt(2.0) * self.cell + 2 * self.max_radius) / unit
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -148,15 +178,17 @@ class GroundResult:
         Ground points.
     low_outlier : (n,) bool
         Low outliers (never ground).
-    circumradius : (n,) float64
-        Circumradius of the ground-TIN triangle under the point, in the
-        input's units (infinite outside the TIN): the ``rho`` of the module
-        docstring's reach.
+    reach : (n,) float64
+        Half the side of the square around the point, in the coordinates'
+        units, that holds every point its decision read: a subset of the
+        cloud holding every point of that square gives the point the same
+        class (see the module docstring).  At most
+        :meth:`GroundParameters.max_reach`.
     """
 
     ground: NDArray[np.bool_]
     low_outlier: NDArray[np.bool_]
-    circumradius: NDArray[np.float64]
+    reach: NDArray[np.float64]
 
     @property
     def low_outliers(self) -> int:
@@ -329,63 +361,220 @@ def _object_kernel(surface, radii, slope_cell, cap, objects) -> None:
 
 
 @njit
-def _tin_kernel(tri, he, vx, vy, vz, px, py, pz, visit, threshold, scalar, reach, ground, radius) -> None:
-    """For each point (in the order ``visit``, neighbours one after another):
-    the TIN triangle under it, its height and slope there, and whether it
-    lies within ``threshold + scalar * slope`` of it.  A point outside the
-    TIN but within ``reach`` of its hull (the rim of the survey, beyond its
-    edge cells' lowest points) is tested against the plane of the hull
-    triangle it lies beyond."""
-    t = 0
-    state = 12345
-    for k in range(visit.shape[0]):
-        p = visit[k]
-        found, state, beyond = _walk(tri, he, vx, vy, px[p], py[p], t, state)
-        extra = 0.0
-        if found == -2:  # a walk too long: a broken triangulation
-            found, state = _locate(tri, he, vx, vy, px[p], py[p], t, state)
-        if found == -1 and beyond >= 0:
-            a = tri[beyond]
-            b = tri[_next(beyond)]
-            ex = vx[b] - vx[a]
-            ey = vy[b] - vy[a]
-            length2 = ex * ex + ey * ey
-            u = 0.0 if length2 == 0.0 else min(max(((px[p] - vx[a]) * ex + (py[p] - vy[a]) * ey) / length2, 0.0), 1.0)
-            dx = px[p] - (vx[a] + u * ex)
-            dy = py[p] - (vy[a] + u * ey)
-            if dx * dx + dy * dy <= reach * reach:
-                found = beyond // 3
-                extra = reach  # its decision reads as far as the triangle's, plus its way to it
-        if found < 0:
-            radius[p] = np.inf
-            continue
-        t = found
+def _triangle_radii(tri, ax, ay, radius) -> None:
+    """Circumradius of every triangle, from the absolute coordinates ``ax, ay``
+    (the same arithmetic in any tile, so the same value)."""
+    for t in range(tri.shape[0] // 3):
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
-        ax = vx[a]
-        ay = vy[a]
-        bx = vx[b] - ax
-        by = vy[b] - ay
-        cx = vx[c] - ax
-        cy = vy[c] - ay
-        bz = vz[b] - vz[a]
-        cz = vz[c] - vz[a]
+        bx = ax[b] - ax[a]
+        by = ay[b] - ay[a]
+        cx = ax[c] - ax[a]
+        cy = ay[c] - ay[a]
         det = bx * cy - by * cx
         if det == 0.0:
-            radius[p] = np.inf
+            radius[t] = np.inf
             continue
-        gx = (bz * cy - by * cz) / det
-        gy = (bx * cz - bz * cx) / det
-        height = vz[a] + gx * (px[p] - ax) + gy * (py[p] - ay)
-        s = math.sqrt(gx * gx + gy * gy)
-        if abs(pz[p] - height) <= threshold + scalar * s:
-            ground[p] = True
         bl = bx * bx + by * by
         cl = cx * cx + cy * cy
         ux = (cy * bl - by * cl) * 0.5 / det
         uy = (bx * cl - cx * bl) * 0.5 / det
-        radius[p] = math.sqrt(ux * ux + uy * uy) + extra
+        radius[t] = math.sqrt(ux * ux + uy * uy)
+
+
+@njit_helper
+def _plane_test(tri, ax, ay, vz, t, px, py, pz, threshold, scalar) -> bool:
+    """Whether ``(px, py, pz)`` lies within ``threshold + scalar * slope`` of triangle ``t``'s plane."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    bx = ax[b] - ax[a]
+    by = ay[b] - ay[a]
+    cx = ax[c] - ax[a]
+    cy = ay[c] - ay[a]
+    bz = vz[b] - vz[a]
+    cz = vz[c] - vz[a]
+    det = bx * cy - by * cx
+    if det == 0.0:
+        return False
+    gx = (bz * cy - by * cz) / det
+    gy = (bx * cz - bz * cx) / det
+    height = vz[a] + gx * (px - ax[a]) + gy * (py - ay[a])
+    return abs(pz - height) <= threshold + scalar * math.sqrt(gx * gx + gy * gy)
+
+
+@njit_helper
+def _edge_key_before(ax, ay, tri, e: int, f: int) -> bool:
+    """Whether half-edge ``e`` comes before ``f`` by its corners' coordinates."""
+    for k in range(2):
+        ve = tri[e] if k == 0 else tri[_next(e)]
+        vf = tri[f] if k == 0 else tri[_next(f)]
+        if ax[ve] != ax[vf]:
+            return ax[ve] < ax[vf]
+        if ay[ve] != ay[vf]:
+            return ay[ve] < ay[vf]
+    return e < f
+
+
+@njit_helper
+def _rim_edge(tri, he, live, e: int) -> bool:
+    """Whether half-edge ``e`` bounds the live TIN: its triangle is live, its twin missing or not live."""
+    if not live[e // 3]:
+        return False
+    f = he[e]
+    return f == -1 or not live[f // 3]
+
+
+@njit_helper
+def _edge_cells(tri, ax, ay, e: int, x0: float, y0: float, size: float, nx: int, ny: int, reach: float):
+    """The range of grid cells that edge ``e``'s box, grown by ``reach``, meets."""
+    a = tri[e]
+    b = tri[_next(e)]
+    i0 = max(int(math.floor((min(ax[a], ax[b]) - reach - x0) / size)), 0)
+    i1 = min(int(math.floor((max(ax[a], ax[b]) + reach - x0) / size)), nx - 1)
+    j0 = max(int(math.floor((min(ay[a], ay[b]) - reach - y0) / size)), 0)
+    j1 = min(int(math.floor((max(ay[a], ay[b]) + reach - y0) / size)), ny - 1)
+    return i0, i1, j0, j1
+
+
+@njit
+def _rim_index(tri, he, live, ax, ay, x0, y0, size, nx, ny, reach):
+    """The boundary half-edges of the live TIN (a live triangle's edge whose
+    twin is missing or not live), bucketed on a grid of ``size`` cells from
+    ``(x0, y0)``: each edge in every cell its box grown by ``reach`` meets.
+    Returns ``(starts, edges)`` in CSR form."""
+    counts = np.zeros(nx * ny + 1, dtype=np.int64)
+    for e in range(tri.shape[0]):
+        if _rim_edge(tri, he, live, e):
+            i0, i1, j0, j1 = _edge_cells(tri, ax, ay, e, x0, y0, size, nx, ny, reach)
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    counts[j * nx + i + 1] += 1
+    for i in range(nx * ny):
+        counts[i + 1] += counts[i]
+    edges = np.empty(counts[nx * ny], dtype=np.int64)
+    fill = counts[:-1].copy()
+    for e in range(tri.shape[0]):
+        if _rim_edge(tri, he, live, e):
+            i0, i1, j0, j1 = _edge_cells(tri, ax, ay, e, x0, y0, size, nx, ny, reach)
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    edges[fill[j * nx + i]] = e
+                    fill[j * nx + i] += 1
+    return counts, edges
+
+
+@njit
+def _tin_kernel(tri, he, lx, ly, ax, ay, vz, live, tri_radius, plx, ply, px, py, pz, visit, threshold, scalar,
+                rim, cap, x0, y0, size, nx, ny, starts, rim_edges, ground, reach) -> None:
+    """For each point (in the order ``visit``, neighbours one after another):
+    the live triangles of the TIN containing it (every one, where it lies on
+    an edge or a corner, so the walk's path does not matter), and whether it
+    lies within ``threshold + scalar * slope`` of one of them.  A point in no
+    live triangle is tested against the nearest boundary edge of the live
+    TIN within ``rim`` (ties by the edge's corners).  ``reach`` gets the
+    radius around the point that holds every seed the decision read.
+
+    ``lx, ly`` and ``plx, ply`` are the local exact coordinates of the seeds
+    and the points (for the exact orientation tests), ``ax, ay`` and ``px,
+    py`` the caller's (for the arithmetic, the same in any tile)."""
+    t = 0
+    state = 12345
+    fan = np.empty(64, dtype=np.int64)
+    for k in range(visit.shape[0]):
+        p = visit[k]
+        found, state, beyond = _walk(tri, he, lx, ly, plx[p], ply[p], t, state)
+        if found == -2:  # a walk too long: a broken triangulation
+            found, state = _locate(tri, he, lx, ly, plx[p], ply[p], t, state)
+        nfan = 0
+        if found >= 0:
+            t = found
+            z0 = -1
+            z1 = -1
+            for j in range(3):
+                e = 3 * found + j
+                if orient2d(lx[tri[e]], ly[tri[e]], lx[tri[_next(e)]], ly[tri[_next(e)]], plx[p], ply[p]) == 0:
+                    if z0 == -1:
+                        z0 = j
+                    else:
+                        z1 = j
+            zero = -1
+            zeros = 0
+            if z0 >= 0 and z1 == -1:
+                zeros = 1
+                zero = 3 * found + z0
+            elif z1 >= 0:
+                zeros = 2  # on the corner the two edges share; half-edge zero leaves it
+                zero = 3 * found + (z1 if z1 == z0 + 1 else z0)
+            fan[0] = found
+            nfan = 1
+            if zeros == 1:
+                f = he[zero]
+                if f != -1:
+                    fan[1] = f // 3
+                    nfan = 2
+            elif zeros >= 2:
+                # every triangle around corner tri[zero]: half-edge zero leaves it
+                e = zero
+                while True:
+                    f = he[_prev(e)]
+                    if f == -1 or f == zero:
+                        break
+                    if nfan < fan.shape[0]:
+                        fan[nfan] = f // 3
+                        nfan += 1
+                    e = f
+                if f == -1:
+                    e = zero
+                    while True:
+                        f = he[e]
+                        if f == -1:
+                            break
+                        e = _next(f)
+                        if nfan < fan.shape[0]:
+                            fan[nfan] = e // 3
+                            nfan += 1
+        decided = False
+        far = 0.0
+        for j in range(nfan):
+            s = fan[j]
+            if not live[s]:
+                continue
+            far = max(far, 2.0 * tri_radius[s])
+            decided = True
+            if _plane_test(tri, ax, ay, vz, s, px[p], py[p], pz[p], threshold, scalar):
+                ground[p] = True
+        if decided:
+            reach[p] = far
+            continue
+        # in no live triangle: the nearest boundary edge of the live TIN within rim
+        reach[p] = rim + 2.0 * cap
+        i = int(math.floor((px[p] - x0) / size))
+        j = int(math.floor((py[p] - y0) / size))
+        if i < 0 or j < 0 or i >= nx or j >= ny:
+            continue
+        c = j * nx + i
+        best = -1
+        best_d2 = 0.0
+        for m in range(starts[c], starts[c + 1]):
+            e = rim_edges[m]
+            a = tri[e]
+            b = tri[_next(e)]
+            ex = ax[b] - ax[a]
+            ey = ay[b] - ay[a]
+            length2 = ex * ex + ey * ey
+            u = 0.0 if length2 == 0.0 else min(max(((px[p] - ax[a]) * ex + (py[p] - ay[a]) * ey) / length2, 0.0), 1.0)
+            dx = px[p] - (ax[a] + u * ex)
+            dy = py[p] - (ay[a] + u * ey)
+            d2 = dx * dx + dy * dy
+            if d2 > rim * rim:
+                continue
+            if best == -1 or d2 < best_d2 or (d2 == best_d2 and _edge_key_before(ax, ay, tri, e, best)):
+                best = e
+                best_d2 = d2
+        if best >= 0 and _plane_test(tri, ax, ay, vz, best // 3, px[p], py[p], pz[p], threshold, scalar):
+            ground[p] = True
 
 
 # --- public --------------------------------------------------------------------------------------------------
@@ -441,9 +630,10 @@ def classify_ground(
     n = x.shape[0]
     ground = np.zeros(n, dtype=np.bool_)
     outlier = np.zeros(n, dtype=np.bool_)
-    radius = np.full(n, np.inf)
+    margin = p.margin(unit)
+    reach = np.full(n, p.max_reach(unit))
     if n == 0:
-        return GroundResult(ground, outlier, radius)
+        return GroundResult(ground, outlier, reach)
 
     # 1. low outliers
     cell, nx, ny = _cells(x, y, p.outlier_cell / unit)
@@ -458,33 +648,57 @@ def classify_ground(
         if rn.shape != (n,) or nr.shape != (n,):
             raise InvalidInputError("return_number and number_of_returns must have one entry per point")
         eligible &= rn >= nr
-        if not eligible.any():
-            eligible = ~outlier
     size = p.cell / unit
     cell, nx, ny = _cells(x, y, size)
     ids = np.flatnonzero(eligible)
-    order = ids[np.lexsort((z[ids], cell[ids]))]
+    order = ids[np.lexsort((y[ids], x[ids], z[ids], cell[ids]))]  # ties by coordinates, not by input order
     first = np.ones(order.shape[0], dtype=np.bool_)
     first[1:] = cell[order[1:]] != cell[order[:-1]]
     lowest = order[first]
     surface = np.full(nx * ny, np.nan)
     surface[cell[lowest]] = z[lowest]
     surface = surface.reshape(ny, nx)
-    objects = np.zeros((ny, nx), dtype=np.bool_)
     radii = max(1, math.ceil(p.max_window / p.cell))
-    _object_kernel(surface, radii, p.slope * size, p.object_height / unit, objects)
+    # the openings of the unbounded plane: an erosion is finite up to radii cells beyond the data, and a
+    # dilation reads it there, so the grid is padded by radii cells (else the data's extent would matter)
+    padded = np.pad(surface, radii, constant_values=np.nan)
+    objects = np.zeros(padded.shape, dtype=np.bool_)
+    _object_kernel(padded, radii, p.slope * size, p.object_height / unit, objects)
+    objects = objects[radii:-radii, radii:-radii]
     seeds = lowest[~objects.ravel()[cell[lowest]]]
 
     # 3. the ground TIN
-    if seeds.shape[0] >= 3:
-        tin = delaunay(np.column_stack([x[seeds], y[seeds]]))
-    if seeds.shape[0] >= 3 and tin.triangles.shape[0] > 0:  # collinear seeds make no triangle
-        vz = z[seeds][tin.order]
-        visit = np.argsort(cell, kind="stable")
-        _tin_kernel(
-            tin.triangles, tin.halfedges, tin.x, tin.y, vz, x - tin.origin[0], y - tin.origin[1], z, visit,
-            p.threshold / unit, p.scalar / unit, math.sqrt(2.0) * size, ground, radius,
-        )
-    ground[seeds] = True
+    tin = delaunay(np.column_stack([x[seeds], y[seeds]])) if seeds.shape[0] >= 3 else None
+    if tin is not None and tin.triangles.shape[0] > 0:  # collinear seeds make no triangle
+        _tin_pass(tin, x[seeds], y[seeds], z[seeds], x, y, z, p, unit, ground, reach)
+    reach += margin
+    # a seed is ground, and so is each of its exact copies (one class per position, whichever copy is the seed)
+    seed_of = np.full(nx * ny, -1, dtype=np.int64)
+    seed_of[cell[seeds]] = seeds
+    mate = seed_of[cell]
+    has = mate >= 0
+    twin = np.zeros(n, dtype=np.bool_)
+    twin[has] = (x[has] == x[mate[has]]) & (y[has] == y[mate[has]]) & (z[has] == z[mate[has]])
+    ground |= twin
     ground &= ~outlier
-    return GroundResult(ground, outlier, radius)
+    return GroundResult(ground, outlier, reach)
+
+
+def _tin_pass(tin, sx, sy, sz, x, y, z, p: GroundParameters, unit: float, ground, reach) -> None:
+    """Step 3 of :func:`classify_ground` over the seeds' triangulation ``tin``."""
+    tri, he = tin.triangles, tin.halfedges
+    ax, ay, vz = sx[tin.order], sy[tin.order], sz[tin.order]
+    tri_radius = np.empty(tri.shape[0] // 3)
+    _triangle_radii(tri, ax, ay, tri_radius)
+    cap = p.max_radius / unit
+    live = tri_radius <= cap
+    rim = math.sqrt(2.0) * p.cell / unit
+    x0, y0 = float(x.min()), float(y.min())
+    size = max(rim, (float(x.max()) - x0) / 2048, (float(y.max()) - y0) / 2048)
+    nx = int((float(x.max()) - x0) // size) + 1
+    ny = int((float(y.max()) - y0) // size) + 1
+    starts, rim_edges = _rim_index(tri, he, live, ax, ay, x0, y0, size, nx, ny, rim)
+    visit = np.lexsort((np.floor((y - y0) / rim), np.floor((x - x0) / rim)))  # neighbours one after another
+    _tin_kernel(tri, he, tin.x, tin.y, ax, ay, vz, live, tri_radius, x - tin.origin[0], y - tin.origin[1],
+                x, y, z, visit, p.threshold / unit, p.scalar / unit, rim, cap, x0, y0, size, nx, ny,
+                starts, rim_edges, ground, reach)

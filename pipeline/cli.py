@@ -116,7 +116,9 @@ def _add_run(sub) -> None:
     run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile)")
     run.add_argument("--buffer", type=float, help="overlap around each tile in CRS units (default: 12 point spacings)")
     run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground; "
-                     "a survey whose ground makes no surface: every class but noise, with a note)")
+                     "a survey whose ground makes no surface: its ground is classified, with a note)")
+    run.add_argument("--classify-ground", action="store_true", default=None,
+                     help="classify the ground from every point but noise, ignoring the files' classes")
     run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
     run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
     run.add_argument(
@@ -237,6 +239,7 @@ def _run_config(args: argparse.Namespace):
         "tile_size": args.tile_size,
         "buffer": args.buffer,
         "keep_withheld": args.keep_withheld,
+        "classify_ground": args.classify_ground,
         "in_crs": args.in_crs,
         "override_crs": args.override_crs,
         "out_crs": args.out_crs,
@@ -342,7 +345,7 @@ def _progress(args: argparse.Namespace) -> bool | None:
     return None
 
 
-_SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld)=True\b")
+_SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld|classify_ground)=True\b")
 _VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|buffer|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
 _NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|skip_bad_files|tile_size)\b")
 

@@ -163,6 +163,11 @@ class RunConfig:
     tile_size: float | None = None
     buffer: float | None = None
     classes: tuple[int, ...] | None = DEFAULT_CLASSES
+    classify_ground: bool = False
+    """Classify the ground from every point but noise (classes 7 and 18),
+    ignoring the files' own classes (:mod:`pipeline.meshing.ground`).  A
+    survey whose points of the default classes make no surface is classified
+    so whatever this says."""
     keep_withheld: bool = False
     bbox: tuple[float, float, float, float] | None = None
     extent: tuple[float, float, float, float] | None = None
@@ -260,7 +265,7 @@ class RunConfig:
         if self.zarr_format not in (2, 3) or isinstance(self.zarr_format, (bool, float)):
             raise UsageError(f"zarr_format must be 2 or 3, got {self.zarr_format!r}")
         object.__setattr__(self, "max_cells", _whole("max_cells", self.max_cells))
-        for name in ("keep_withheld", "overwrite", "skip_bad_files"):
+        for name in ("classify_ground", "keep_withheld", "overwrite", "skip_bad_files"):
             object.__setattr__(self, name, _flag(name, getattr(self, name)))
         options = self.storage_options
         if not isinstance(options, Mapping) or not all(isinstance(k, str) for k in options):

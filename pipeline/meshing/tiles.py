@@ -1097,6 +1097,7 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
             load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, 3 + len(settings.columns)), settings.columns
         ),
         load_piece=lambda name: load_piece(job.scratch, job.row, job.col, (name,))[name],
+        load_dtm_points=lambda: from_columns(load_tile_points(job.scratch, job.row, job.col), ()),
     )
     return tile_layers(ctx, settings)
 

@@ -128,6 +128,8 @@ class TileContext:
     load_points: Callable[[], Any] | None = None
     """Reads the tile's :class:`~pipeline.products.points.ProductPoints`."""
     load_piece: Callable[[str], NDArray] | None = None
+    load_dtm_points: Callable[[], Any] | None = None
+    """Reads the tile's points the DTM is made of (its cells plus the buffer), as :class:`~pipeline.products.points.ProductPoints`."""
     _points: Any = None
 
     @property
@@ -188,7 +190,8 @@ class Product:
     compute
         ``compute(ctx) -> array`` of the tile's cells (south-up).
     points
-        ``points(settings) -> Selection`` of the points it reads, or None.
+        ``points(settings) -> Selection`` of the points it reads (or None: none, for
+        these settings), or None: it never reads points.
     attributes
         The point attributes it reads beyond x, y, z.
     needs
@@ -212,7 +215,7 @@ class Product:
     long_name: str
     description: str
     compute: Callable[[TileContext], NDArray]
-    points: Callable[[Any], Selection] | None = None
+    points: Callable[[Any], Selection | None] | None = None
     attributes: tuple[Attribute, ...] = ()
     needs: tuple[str, ...] = ()
     export_dtype: str = "float32"

@@ -10,12 +10,17 @@ from .declare import PER_AREA_UNITS, Product, Selection, TileContext
 __all__ = ["GROUND_DENSITY"]
 
 
-def _points(settings) -> Selection:
-    return settings.dtm  # the classes (ground by default) and returns the DTM is made of
+def _points(settings) -> Selection | None:
+    # the classes (ground by default) and returns the DTM is made of; the ground stage's points are read apart
+    return None if settings.classified else settings.dtm
 
 
 def _ground_density(ctx: TileContext) -> NDArray[np.float32]:
-    counts = ctx.cell_counts(ctx.points(ctx.settings.dtm))
+    if ctx.settings.classified:  # the ground stage's points, not a class of the files
+        assert ctx.load_dtm_points is not None
+        counts = ctx.cell_counts(ctx.load_dtm_points())
+    else:
+        counts = ctx.cell_counts(ctx.points(ctx.settings.dtm))
     return (counts / ctx.grid.resolution**2).astype(np.float32)
 
 

@@ -53,15 +53,20 @@ class ProductSettings:
     """The attributes the product points carry (beyond x, y, z), in order."""
     dsm_max_edge: float = math.inf
     keep_withheld: bool = False
+    classified: bool = False
+    """The DTM's points are the ground stage's (:mod:`pipeline.meshing.ground`), not a class of the files:
+    :attr:`dtm` selects the points it classified, and the tiles read its ground points for the DTM's."""
 
     @classmethod
     def for_run(cls, layers: tuple[str, ...], classes: tuple[int, ...] | None, returns: str,
-                dsm_max_edge: float | None = None, keep_withheld: bool = False) -> ProductSettings:
+                dsm_max_edge: float | None = None, keep_withheld: bool = False,
+                classified: bool = False) -> ProductSettings:
         computed = layers_needed(layers)
         dtm = Selection(None if classes is None else frozenset(classes), Returns.parse(returns))
         partial = cls(tuple(layers), computed, dtm, None, (), math.inf if dsm_max_edge is None else dsm_max_edge,
-                      keep_withheld)
-        selections = [p.points(partial) for p in map(product, computed) if p.points is not None]
+                      keep_withheld, classified)
+        selections = [s for s in (p.points(partial) for p in map(product, computed) if p.points is not None)
+                      if s is not None]
         if not selections:
             return partial
         reads = selections[0]
@@ -70,11 +75,12 @@ class ProductSettings:
         wanted: list[Attribute] = []
         for name in computed:
             p = product(name)
-            if p.points is not None:
-                wanted.extend(p.points(partial).attributes_to_split(reads))
+            selection = None if p.points is None else p.points(partial)
+            if selection is not None:
+                wanted.extend(selection.attributes_to_split(reads))
             wanted.extend(p.attributes)
         columns = tuple(a.value for a in Attribute if a in wanted)
-        return cls(tuple(layers), computed, dtm, reads, columns, partial.dsm_max_edge, keep_withheld)
+        return cls(tuple(layers), computed, dtm, reads, columns, partial.dsm_max_edge, keep_withheld, classified)
 
     @property
     def reads_points(self) -> bool:

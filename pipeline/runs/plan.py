@@ -100,12 +100,13 @@ class RunPlan:
     """The DSM's maximum edge (``config.dsm_max_edge``, or derived from the
     point density); infinite when the run computes no DSM."""
 
-    def products(self, classes: tuple[int, ...] | None) -> ProductSettings:
-        """The run's products, for the DTM's ``classes`` (the config's, or a fallback's)."""
+    def products(self, classes: tuple[int, ...] | None, classified: bool = False) -> ProductSettings:
+        """The run's products, for the DTM's ``classes`` (the config's, or a fallback's; with
+        ``classified``, those the ground stage classifies)."""
         from ..products import ProductSettings
 
         c = self.config
-        return ProductSettings.for_run(c.layers, classes, c.returns, self.dsm_max_edge, c.keep_withheld)
+        return ProductSettings.for_run(c.layers, classes, c.returns, self.dsm_max_edge, c.keep_withheld, classified)
 
     @property
     def notes(self) -> list[str]:

@@ -163,12 +163,13 @@ def class_fallback(work: WorkDir) -> ClassFallback | None:
 
 
 def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
-    """Start the job over keeping every class but noise: its inputs' points of
-    the default classes (ground), ``default_points`` of them, made no surface.
+    """Start the job over classifying the ground from every class but noise:
+    its inputs' points of the default classes (ground), ``default_points`` of
+    them, made no surface.
 
     A survey that was never classified (class 0 or 1 throughout), or holds a
-    ground point or two, is valid input; it gives a surface of every point
-    instead of none.  The work folder starts empty with the fallback recorded
+    ground point or two, is valid input; its ground is classified by the
+    ground stage (:mod:`pipeline.meshing.ground`) instead of giving no surface.  The work folder starts empty with the fallback recorded
     first, so that a run stopped while routing again resumes with it; the
     store forgets any tile it marked written.
     """
@@ -219,10 +220,13 @@ def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, not
         why = "was written by another version of the software" if work.exists() else "was missing"
         _start_over(work, config.output)
         notes.append(f"the work folder {why}: every tile was computed again")
-    elif not resume.same_inputs and class_fallback(work) is not None:
-        # the inputs held no ground point: whether the new ones do decides the classes again
+    elif not resume.same_inputs and (class_fallback(work) is not None or config.classify_ground):
+        # the inputs held no ground point: whether the new ones do decides the classes again; and a new point
+        # may change the class of points far beyond its tile (the ground stage reads far)
         _start_over(work, config.output)
-        notes.append("inputs changed in a survey that held no point of the default classes: every tile was computed again")
+        why = ("in a survey whose ground is classified" if config.classify_ground
+               else "in a survey that held no point of the default classes")
+        notes.append(f"inputs changed {why}: every tile was computed again")
         store.finalize_store(config.output, {"provenance": provenance, "complete": False})
     elif not resume.same_inputs:
         update = plan_update(plan, resume, work)

@@ -53,7 +53,10 @@ from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
 from .plan import RunPlan, plan_run, union_bounds
 from ..tiling.grid import TileGrid, tile_key
-from ..tiling.routing import PRODUCT_SPILL, RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
+from ..inputs.crs import unit_metres
+from ..meshing.ground import GROUND_COLUMNS, GroundJob, GroundSummary, classify_block, ground_blocks, ground_provenance
+from ..meshing.ground import tile_done as ground_tile_done
+from ..tiling.routing import GROUND_SPILL, PRODUCT_SPILL, RouteResult, TileSpiller, drop_source_spill, grow_hull, hull_candidates, spill_by_source
 
 __all__ = ["run", "execute", "RunReport", "route_source"]
 
@@ -79,6 +82,10 @@ class RunReport:
     """Points of the DTM's classes left out by the return filter (``returns``), and read for no product."""
     products_only: int = 0
     """Points read for the products only (``layers``): not of the DTM's classes or returns."""
+    not_ground: int = 0
+    """Points the ground stage classified as not ground (``classify_ground``), low outliers included."""
+    low_outliers: int = 0
+    """Of those, points below the ground (multipath), which the ground stage never takes for ground."""
     duplicates: int = 0
     vertices: int = 0
     faces: int = 0
@@ -116,6 +123,8 @@ class RunReport:
             ("  outside bbox", f"{self.outside_bbox:,}"),
             *([("  filtered by return", f"{self.filtered_returns:,}")] if self.filtered_returns else []),
             *([("  for the products only", f"{self.products_only:,}")] if self.products_only else []),
+            *([("  classified not ground", f"{self.not_ground:,}"),
+               ("    of them low outliers", f"{self.low_outliers:,}")] if self.not_ground else []),
             ("  duplicates merged", f"{self.duplicates:,}"),
             ("points kept (vertices)", f"{self.vertices:,}"),
             ("tiles", f"{self.tiles:,}"),
@@ -148,6 +157,8 @@ class _RouteJob:
     skip_bad: bool = False
     products: ProductSettings | None = None
     """The run's products: the DTM's classes and returns, and the points and attributes the products read."""
+    classify: bool = False
+    """The DTM's points go to the ground stage's spill files, with their returns (:mod:`pipeline.meshing.ground`)."""
 
 
 def route_source(job: _RouteJob) -> RouteResult:
@@ -171,12 +182,14 @@ def _route(job: _RouteJob) -> RouteResult:
 
     t0 = time.perf_counter()
     drop_source_spill(job.scratch, job.index)  # left by a stopped run: routed again from the start
-    spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index)
+    spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index, folder=GROUND_SPILL if job.classify else "")
     settings = job.products or ProductSettings.for_run(("elevation",), job.classes, "all")
     # one read for the DTM and the products: their points, and the attributes that tell them apart
     split = _RouteSplit(job, settings)
     reproject = Reprojector(job.source_wkt, job.target_wkt, job.z_factor)
     reading, attributes = settings.reading()
+    if job.classify:  # the ground stage seeds its surface with last returns
+        attributes = tuple(dict.fromkeys((*attributes, *GROUND_COLUMNS)))
     point_filter = PointFilter(reading.classes, job.keep_withheld, reading.returns)
     counts = dict.fromkeys(("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept", "beyond_grid",
                             "filtered_returns", "products_only"), 0)
@@ -201,7 +214,7 @@ def _route(job: _RouteJob) -> RouteResult:
             counts["outside_bbox"] += int(x.size - np.count_nonzero(inside))
             x, y, z = x[inside], y[inside], z[inside]
             extra = {k: v[inside] for k, v in extra.items()}
-        x, y, z = split.add(x, y, z, extra, counts)
+        x, y, z, extra = split.add(x, y, z, extra, counts)
         counts["kept"] += int(x.size)
         # a stale header: kept points (in the mesh) where the DEM has no cells
         counts["beyond_grid"] += int(x.size - np.count_nonzero((x >= gx0) & (x <= gx1) & (y >= gy0) & (y <= gy1)))
@@ -209,7 +222,10 @@ def _route(job: _RouteJob) -> RouteResult:
             b = bounds = bounds or [math.inf, math.inf, -math.inf, -math.inf]
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
             b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
-        spill.add(x, y, z)
+        if job.classify:
+            spill.add_rows(as_columns(x, y, z, extra, GROUND_COLUMNS))
+        else:
+            spill.add(x, y, z)
         hull = grow_hull(hull, x, y, z)
     spill.flush()
     split.flush()
@@ -238,7 +254,7 @@ class _RouteSplit:
             self.spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index, folder=PRODUCT_SPILL)
 
     def add(self, x, y, z, attributes, counts: dict[str, int]):
-        """The DTM's points of ``x, y, z``; the products' ones spilled."""
+        """The DTM's points of ``x, y, z`` and their attributes; the products' ones spilled."""
         s = self.settings
         if s.reads is None or s.dtm == self.reading:
             dtm = None
@@ -256,8 +272,8 @@ class _RouteSplit:
                     counts["filtered_returns"] += int(np.count_nonzero(neither & in_class))
                     counts["filtered_class"] += int(np.count_nonzero(neither & ~in_class))
         if dtm is None:
-            return x, y, z
-        return x[dtm], y[dtm], z[dtm]
+            return x, y, z, attributes
+        return x[dtm], y[dtm], z[dtm], {k: v[dtm] for k, v in attributes.items()}
 
     @property
     def parts(self) -> list[list[int]]:
@@ -452,6 +468,11 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     t0 = time.perf_counter()
     routed = _route_stage(plan, work, client, show, report)
     report.stages["route"] = time.perf_counter() - t0
+    if routed.classify:
+        t0 = time.perf_counter()
+        routed = replace(routed, hull=_ground_stage(plan, work, client, routed, show, report))
+        report.stages["ground"] = time.perf_counter() - t0
+        provenance["ground_classification"] = ground_provenance()
     if routed.fallback is not None:
         found = routed.fallback.default_points
         default = ", ".join(str(c) for c in DEFAULT_CLASSES)
@@ -460,9 +481,8 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
         provenance["classes_kept"] = {"classes": routed.fallback.classes, "why": why}
         noise = " and ".join(str(c) for c in resume.NOISE_CLASSES)
         report.notes.append(
-            f"{why}{'' if found == 0 else ', too few or all on one line'}: the surface was made from every point but "
-            f"noise (classes {noise}), of whatever the survey hit, not of bare earth; classify the ground first for a "
-            "terrain model"
+            f"{why}{'' if found == 0 else ', too few or all on one line'}: the ground was classified from every point "
+            f"but noise (classes {noise}) and the surface made from it (as with classify_ground)"
         )
     variogram = None
     if config.surface == "smooth":
@@ -487,7 +507,9 @@ class Routed:
     windows: tuple[WindowSource, ...]
     hull: np.ndarray
     fallback: resume.ClassFallback | None
-    """Every class but noise, kept because the default ones made no surface (None: the run's classes)."""
+    """Every class but noise classified, because the default ones made no surface (None: the run's classes)."""
+    classify: bool = False
+    """The ground stage classifies the ground (``classify_ground``, or the fallback)."""
 
 
 def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport) -> Routed:
@@ -498,17 +520,18 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     config, grid, crs, scratch = plan.config, plan.grid, plan.crs, work.scratch
     paths, infos = plan.paths, plan.infos
     fallback = resume.class_fallback(work)
-    classes = config.classes if fallback is None else fallback.classes
+    classify = config.classify_ground or fallback is not None
+    classes = resume.ALL_BUT_NOISE if classify else config.classes
     records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
     results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
-    windows = tuple(w for w in _window_sources(config, classes, paths, infos, crs)
-                    if results[w.index] is None or results[w.index].window)
+    windows = () if classify else tuple(w for w in _window_sources(config, classes, paths, infos, crs)
+                                        if results[w.index] is None or results[w.index].window)
     windowed = {w.index for w in windows}
     jobs = [
         _RouteJob(
             i, str(p), scratch, grid, plan.buffer, crs.source_wkts[i], crs.target_wkt, crs.z_factor(i),
-            classes, config.keep_withheld, config.bbox, config.skip_bad_files, plan.products(classes),
+            classes, config.keep_withheld, config.bbox, config.skip_bad_files, plan.products(classes), classify,
         )
         for i, p in enumerate(paths)
         if results[i] is None and i not in windowed
@@ -548,13 +571,61 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
             )
     if report.skipped_files:
         report.notes.append(_skipped_note(report.skipped_files))
-    hull = _hull_points(np.concatenate([c.hull for c in done]), grid, scratch, config.duplicates, windows)
+    hull = np.empty((0, 3))
+    if not classify:  # else the hull of the ground stage's points
+        hull = _settled_hull(plan, work, np.concatenate([c.hull for c in done]), windows, report)
+    return Routed(done, windows, hull, fallback, classify)
+
+
+def _settled_hull(plan: RunPlan, work: WorkDir, candidates: np.ndarray, windows: tuple[WindowSource, ...],
+                  report: RunReport) -> np.ndarray:
+    """The global hull of the kept points (from their parts' hulls, ``candidates``), saved; the tiles near a
+    part of it that moved since the work folder's last run are computed again."""
+    config, grid = plan.config, plan.grid
+    hull = _hull_points(candidates, grid, work.scratch, config.duplicates, windows)
     moved = tiles_whose_hull_moved(work, grid, plan.buffer, hull)
     if moved:
         forget_tiles(work, config.output, grid, moved)
         report.notes.append(f"the convex hull changed near {len(moved)} tile(s): computed again")
     work.save("hull.npy", hull)
-    return Routed(done, windows, hull, fallback)
+    return hull
+
+
+def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport) -> np.ndarray:
+    """Classify the ground of every block of tiles not done (:mod:`pipeline.meshing.ground`), count the
+    points it left out, and return the global hull of the ground points."""
+    from meshcore import GroundParameters
+
+    grid, scratch = plan.grid, work.scratch
+    unit = unit_metres(plan.crs.horizontal_unit) or 1.0
+    points: dict[tuple[int, int], int] = {}
+    for c in routed.results:
+        for r, col, n in c.tile_points:
+            points[(r, col)] = points.get((r, col), 0) + n
+
+    def done(r: int, c: int) -> bool:
+        return ground_tile_done(scratch, r, c) and work.recorded("ground", tile_key(r, c)) is not None
+
+    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit)
+            for rows, cols in ground_blocks(grid, points, GroundParameters().margin(unit))]
+    jobs = [job for job in jobs if not all(done(r, c) for r, c in job.tiles())]
+
+    def classified(job: GroundJob, summaries: list[GroundSummary]) -> None:
+        for s in summaries:
+            work.record("ground", tile_key(s.row, s.col), s.to_record(), hull=s.hull)
+
+    map_tasks(client, classify_block, jobs, Progress("ground", len(jobs), show),
+              lambda summaries: sum(s.ground + s.not_ground for s in summaries), classified)
+    hulls = []
+    for r, c in grid.tiles():
+        rec = work.recorded("ground", tile_key(r, c), "hull")
+        if rec is None:
+            continue
+        report.not_ground += int(rec["not_ground"])
+        report.low_outliers += int(rec["low_outliers"])
+        hulls.append(np.asarray(rec["hull"]).reshape(-1, 3))
+    report.points_kept -= report.not_ground
+    return _settled_hull(plan, work, np.concatenate(hulls) if hulls else np.empty((0, 3)), (), report)
 
 
 def _load_surface_kernels(job: TileJob) -> None:
@@ -708,7 +779,8 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     # the DEM under faces meshed again, however far they reach, is written again
     store.reset_tiles_done(config.output, sorted({t for job in meshed.meshed_now for t in reached[(job.row, job.col)]}))
     fallback = resume.class_fallback(work)
-    products = plan.products(config.classes if fallback is None else fallback.classes)
+    classify = config.classify_ground or fallback is not None
+    products = plan.products(resume.ALL_BUT_NOISE if classify else config.classes, classified=classify)
     tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)])), products=products)
                  for job in meshed.tile_jobs]
     written = store.tiles_done(config.output)

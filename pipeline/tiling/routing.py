@@ -26,7 +26,7 @@ from .scratch import Scratch
 __all__ = [
     "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_points", "drop_source_spill", "source_spill",
     "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box", "hull_candidates",
-    "grow_hull", "PRODUCT_SPILL",
+    "grow_hull", "PRODUCT_SPILL", "GROUND_SPILL",
 ]
 
 
@@ -318,6 +318,11 @@ def spill_intact(scratch: Scratch, source: int, parts: list[list[int]]) -> bool:
             return False
     return True
 
+
+GROUND_SPILL = "ground"
+"""The folder, in each tile's work folder, of the points routed to it for the
+ground stage (:mod:`pipeline.meshing.ground`): x, y, z, return number and
+number of returns.  The stage writes the ground ones as the tile's spill files."""
 
 PRODUCT_SPILL = "products"
 """The folder, in each tile's work folder, of the product points routed to it (:mod:`pipeline.products`)."""

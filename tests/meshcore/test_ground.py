@@ -186,22 +186,35 @@ def test_last_returns_seed_the_surface(rng):
     assert res.ground[~canopy[keep]].mean() > 0.99
 
 
-def test_decisions_are_local(scene):
-    """A point whose reach (the module docstring's bound) lies inside a window
-    gets the same class from the window's points alone."""
+@pytest.mark.parametrize("box", [(40, 30, 290, 280), (0, 0, 160, 330), (120, 90, 330, 330)])
+def test_decisions_are_local(scene, box):
+    """A point whose reach (:attr:`GroundResult.reach`) lies inside a window
+    gets the same class from the window's points alone, whatever the window."""
     x, y, z, label, truth, _ = scene
-    p = GroundParameters(max_window=8.0)
+    p = GroundParameters(max_window=8.0, max_radius=12.0)
     result = classify_ground(x, y, z, parameters=p)
-    radii = math.ceil(p.max_window / p.cell)
-    reach = 2 * result.circumradius + math.sqrt(2) * (2 * radii + 2) * p.cell + 2 * math.sqrt(2) * p.outlier_cell
+    assert (result.reach <= p.max_reach() + 1e-9).all()
+    x0, y0, x1, y1 = box
     lx, ly = x - X0, y - Y0
-    window = (lx > 40) & (lx < 290) & (ly > 30) & (ly < 280)
+    window = (lx >= x0) & (lx < x1) & (ly >= y0) & (ly < y1)
     part = classify_ground(x[window], y[window], z[window], parameters=p)
-    lx, ly, reach = lx[window], ly[window], reach[window]
-    inside = (lx - reach > 40) & (lx + reach < 290) & (ly - reach > 30) & (ly + reach < 280)
-    assert inside.sum() > 1000
+    lx, ly, reach = lx[window], ly[window], result.reach[window]
+    # a side of the window on the survey's edge holds everything beyond it
+    lo_x = -np.inf if x0 <= (x - X0).min() else x0
+    lo_y = -np.inf if y0 <= (y - Y0).min() else y0
+    inside = (lx - reach >= lo_x) & (lx + reach < x1) & (ly - reach >= lo_y) & (ly + reach < y1)
+    assert inside.sum() > 300
     np.testing.assert_array_equal(part.ground[inside], result.ground[window][inside])
     np.testing.assert_array_equal(part.low_outlier[inside], result.low_outlier[window][inside])
+
+
+def test_order_does_not_matter(scene):
+    """Shuffled input gives every point the same class (ties go by coordinates)."""
+    x, y, z, label, truth, result = scene
+    perm = np.random.default_rng(3).permutation(x.shape[0])
+    again = classify_ground(x[perm], y[perm], z[perm])
+    np.testing.assert_array_equal(again.ground, result.ground[perm])
+    np.testing.assert_array_equal(again.reach, result.reach[perm])
 
 
 def test_inputs_checked():

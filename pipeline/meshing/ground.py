@@ -1,0 +1,218 @@
+"""The ground stage: the ground points of a survey classified block of
+tiles by block (:func:`meshcore.classify_ground`), the same at any tiling.
+
+When a run classifies the ground (``classify_ground``, or a survey whose
+points of the default classes make no surface), routing sends every point but
+noise to each tile's ``ground/`` spill folder (:data:`GROUND_SPILL`) with its
+return number and number of returns.  The tiles are grouped in blocks
+(:func:`ground_blocks`), and one task per block (:func:`classify_block`):
+
+1. loads, from a range of tiles around the block, the points each tile's
+   window owns: every point of that range once;
+2. classifies them;
+3. checks its certificate: each point routed to a tile of the block has a
+   reach (:attr:`meshcore.GroundResult.reach`), the half-side of the square
+   that holds every point its class depends on.  When a square leaves the
+   range of tiles loaded (a side on the grid's edge holds everything beyond
+   it), the task loads the tiles it reaches and classifies again.  The reach
+   is bounded (:meth:`meshcore.GroundParameters.max_reach`), so this ends,
+   and every point gets the class the whole survey gives it;
+4. writes each tile's ground points as its spill files (one per ground spill
+   file, of the same name), which the mesh stage reads as any run's.  A
+   point and its exact copies get one class, the loaded cloud's.
+
+A tile is done when each of its ground spill files has its counterpart: a run
+stopped in this stage goes on with the blocks not done.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..tiling.grid import TileGrid, tile_dir
+from ..tiling.routing import GROUND_SPILL, grow_hull, points_in_box
+from ..tiling.scratch import Scratch
+
+__all__ = ["GROUND_COLUMNS", "GroundJob", "GroundSummary", "classify_block", "ground_blocks", "tile_done",
+           "ground_provenance"]
+
+GROUND_COLUMNS = ("return_number", "number_of_returns")
+"""The attributes the ground spill files carry after x, y and z."""
+
+METHOD = "smrf-tin"
+"""The method's name in the provenance: meshcore's variant of SMRF (Pingel et al. 2013) with a ground TIN."""
+
+
+@dataclass(frozen=True)
+class GroundJob:
+    """The ground classification of a block of tiles (small and picklable).
+
+    Tiles are grouped into blocks (:func:`ground_blocks`) because a decision
+    reads far (about a hundred metres with the default parameters): a block
+    loads that margin once for all its tiles."""
+
+    rows: tuple[int, int]
+    """First and last row of the block's tiles."""
+    cols: tuple[int, int]
+    scratch: Scratch
+    grid: TileGrid
+    buffer: float
+    unit: float
+    """Metres in one unit of the coordinates (heights already in that unit)."""
+    parameters: dict[str, float] = field(default_factory=dict)
+    """:class:`meshcore.GroundParameters` fields other than the defaults."""
+
+    def tiles(self) -> list[tuple[int, int]]:
+        return [(r, c) for r in range(self.rows[0], self.rows[1] + 1) for c in range(self.cols[0], self.cols[1] + 1)]
+
+
+def ground_blocks(grid: TileGrid, tile_points: dict[tuple[int, int], int], margin: float,
+                  budget: int = 6_000_000) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Blocks of ``k`` x ``k`` tiles, ``k`` such that a block is about four
+    times the ``margin`` a decision reads across (the margin loaded around
+    it then costs about as much again as the block), but holds about
+    ``budget`` points at most (``tile_points``: points routed to each tile)."""
+    k = max(1, round(4.0 * margin / grid.tile_size))
+    mean = max(1.0, sum(tile_points.values()) / max(1, len(tile_points)))
+    k = max(1, min(k, int(math.sqrt(budget / mean))))
+    return [((r, min(r + k, grid.n_rows) - 1), (c, min(c + k, grid.n_cols) - 1))
+            for r in range(0, grid.n_rows, k) for c in range(0, grid.n_cols, k)]
+
+
+@dataclass(frozen=True)
+class GroundSummary:
+    """What a tile's classification found, over the points its window owns."""
+
+    row: int
+    col: int
+    ground: int = 0
+    not_ground: int = 0
+    """Points classified as not ground (the low outliers among them)."""
+    low_outliers: int = 0
+    tiles_read: int = 0
+    """The tiles whose points the certificate needed (the tile's own included)."""
+    rounds: int = 0
+    seconds: float = 0.0
+    hull: NDArray[np.float64] = field(default_factory=lambda: np.empty((0, 3)), compare=False)
+    """Points on the convex hull of the ground points the window owns."""
+
+    def to_record(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in ("row", "col", "ground", "not_ground", "low_outliers", "tiles_read",
+                                              "rounds", "seconds")}
+
+
+def ground_provenance(parameters: dict[str, float] | None = None) -> dict[str, Any]:
+    """The store's record of the ground stage: its method and every parameter."""
+    from meshcore import GroundParameters
+
+    return {"method": METHOD, "parameters": GroundParameters.from_dict(parameters or {}).to_dict(),
+            "units": "metres (lengths), rise over run (slope)"}
+
+
+def _spill_files(scratch: Scratch, row: int, col: int) -> list[str]:
+    folder = f"{tile_dir(row, col)}/{GROUND_SPILL}"
+    return sorted(name for name in scratch.names(folder) if name.endswith(".npy"))
+
+
+def tile_done(scratch: Scratch, row: int, col: int) -> bool:
+    """Whether every ground spill file of the tile has its ground points written."""
+    own = set(scratch.names(tile_dir(row, col)))
+    return all(name in own for name in _spill_files(scratch, row, col))
+
+
+def _load(scratch: Scratch, row: int, col: int) -> tuple[list[str], list[NDArray[np.float64]]]:
+    names = _spill_files(scratch, row, col)
+    folder = f"{tile_dir(row, col)}/{GROUND_SPILL}"
+    width = 3 + len(GROUND_COLUMNS)
+    arrays = [a.reshape(-1, width) for a in scratch.load_many([f"{folder}/{n}" for n in names])]
+    return names, arrays
+
+
+def _tile_range(grid: TileGrid, points: NDArray[np.float64], reach: NDArray[np.float64]) -> tuple[int, int, int, int]:
+    """Rows and columns (inclusive) of the tiles the squares of half-side ``reach`` around ``points`` meet."""
+    x, y = points[:, 0], points[:, 1]
+    return (int(grid.bins(y - reach, 1).min()), int(grid.bins(y + reach, 1).max()),
+            int(grid.bins(x - reach, 0).min()), int(grid.bins(x + reach, 0).max()))
+
+
+def _owned(scratch: Scratch, grid: TileGrid, row: int, col: int) -> NDArray[np.float64]:
+    """The ground spill points the tile's window owns (each point of the survey in one tile only)."""
+    _, parts = _load(scratch, row, col)
+    pts = np.concatenate(parts) if parts else np.empty((0, 3 + len(GROUND_COLUMNS)))
+    if pts.shape[0] == 0:
+        return pts
+    rows, cols = grid.owner(pts[:, 0], pts[:, 1])
+    return pts[(rows == row) & (cols == col)]
+
+
+def _as_keys(rows: NDArray[np.float64]) -> NDArray:
+    """Each row as one opaque value (its bytes), to find a point among others."""
+    rows = np.ascontiguousarray(rows)
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+
+
+def classify_block(job: GroundJob) -> list[GroundSummary]:
+    """Classify the points routed to a block of tiles; write each tile's ground points as its spill files."""
+    from meshcore import GroundParameters, classify_ground
+
+    t0 = time.perf_counter()
+    grid, scratch = job.grid, job.scratch
+    parameters = GroundParameters.from_dict(job.parameters)
+    x_lo, y_lo, _, _ = grid.box(job.rows[0], job.cols[0])
+    _, _, x_hi, y_hi = grid.box(job.rows[1], job.cols[1])
+    # the points to certify: those routed to a tile of the block (its windows and buffer), and a hair more
+    slack = job.buffer + 1e-9 * max(abs(x_lo), abs(x_hi), abs(y_lo), abs(y_hi), 1.0)
+    held = (x_lo - slack, y_lo - slack, x_hi + slack, y_hi + slack)
+    corners = np.array([[held[0], held[1]], [held[2], held[3]]])
+    # the outer tiles also hold the points beyond the grid (a stale header): every one of theirs
+    held = (-math.inf if job.cols[0] == 0 else held[0], -math.inf if job.rows[0] == 0 else held[1],
+            math.inf if job.cols[1] == grid.n_cols - 1 else held[2], math.inf if job.rows[1] == grid.n_rows - 1 else held[3])
+    block = _tile_range(grid, corners, np.full(2, parameters.margin(job.unit) + 2 * parameters.cell / job.unit))
+    loaded: dict[tuple[int, int], NDArray[np.float64]] = {}
+    rounds = 0
+    while True:
+        rounds += 1
+        r0, r1, c0, c1 = block
+        for key in ((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)):
+            if key not in loaded:
+                loaded[key] = _owned(scratch, grid, *key)
+        cloud = np.concatenate([loaded[k] for k in sorted(loaded)])
+        result = classify_ground(
+            cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
+            return_number=cloud[:, 3], number_of_returns=cloud[:, 4],
+        )
+        mine = points_in_box(cloud, held)
+        needed = _tile_range(grid, cloud[mine], result.reach[mine]) if mine.any() else block
+        grown = (min(needed[0], r0), max(needed[1], r1), min(needed[2], c0), max(needed[3], c1))
+        if grown == block:
+            break
+        block = grown
+    # each tile's spill files, point by point: a point and its exact copies get one class
+    keys = _as_keys(cloud)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    summaries = []
+    owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
+    for row, col in job.tiles():
+        names, parts = _load(scratch, row, col)
+        files = {}
+        for name, part in zip(names, parts):
+            at = order[np.searchsorted(sorted_keys, _as_keys(part))]
+            files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
+        scratch.save_many(files)
+        own = (owner_rows == row) & (owner_cols == col)
+        ground = own & result.ground
+        kept = cloud[ground]
+        summaries.append(GroundSummary(
+            row, col, ground=int(np.count_nonzero(ground)), not_ground=int(np.count_nonzero(own & ~result.ground)),
+            low_outliers=int(np.count_nonzero(own & result.low_outlier)),
+            tiles_read=(block[1] - block[0] + 1) * (block[3] - block[2] + 1), rounds=rounds,
+            seconds=time.perf_counter() - t0, hull=grow_hull(np.empty((0, 3)), kept[:, 0], kept[:, 1], kept[:, 2]),
+        ))
+    return summaries

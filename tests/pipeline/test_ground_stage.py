@@ -1,0 +1,160 @@
+"""The ground stage: an unclassified survey's ground classified in the run,
+the same at any tiling, counted point by point, and recorded in the store.
+
+The scene is meshcore's synthetic one (buildings up to 60 m across, trees,
+shrubs, a cliff, a 40-degree valley side, a bridge deck and low outliers),
+written as a LAS file whose every point is of class 1.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+import xarray as xr
+from pyproj import CRS
+
+from pipeline.cli import main
+from pipeline.config import RunConfig
+from pipeline.runs.runner import run
+from pipeline.store import zarr_store as store
+
+from ..meshcore.test_ground import GROUND, OUTLIER, X0, Y0, _scene, _terrain
+from .store_checks import face_set
+
+SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The scene as one LAS file of class 1 (with a first class-2 point or two
+    would make it classified): path, x, y, z, label."""
+    rng = np.random.default_rng(7)
+    x, y, z, label, _ = _scene(rng, density=1.5)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([X0, Y0, 0.0])
+    header.add_crs(CRS.from_epsg(2154))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    las.classification = np.ones(x.size, dtype=np.uint8)
+    las.return_number = np.ones(x.size, dtype=np.uint8)
+    las.number_of_returns = np.ones(x.size, dtype=np.uint8)
+    path = tmp_path_factory.mktemp("ground") / "scene.laz"
+    las.write(path)
+    return path, x, y, z, label
+
+
+def _run(path: Path, out: Path, **kw):
+    config = RunConfig(inputs=(str(path),), output=str(out), resolution=kw.pop("resolution", 2.0), workers=2, **kw)
+    return run(config, progress=False)
+
+
+def test_an_unclassified_survey_gets_a_terrain_model_of_its_ground(tmp_path, survey):
+    path, x, y, z, label = survey
+    report = _run(path, tmp_path / "o.zarr", layers=("elevation", "ground_density"))
+    assert any("the ground was classified" in n for n in report.notes), report.notes
+    # every point is in the output or counted with its reason
+    assert report.points_kept + report.not_ground + report.filtered_class == report.points_read == x.size
+    assert report.low_outliers >= 0.8 * np.count_nonzero(label == OUTLIER)
+    ds = xr.open_zarr(tmp_path / "o.zarr")
+    gx, gy = np.meshgrid(ds["x"].values - X0, ds["y"].values - Y0)
+    dem = ds["elevation"].values
+    truth = _terrain(gx, gy)
+    inside = np.isfinite(dem) & (gx > 5) & (gx < 295) & (gy > 5) & (gy < 245)  # off the survey's edges
+    error = np.abs(dem - truth)[inside]
+    # the buildings, trees and deck are gone: the DTM lies on the ground, not on roofs 4-14 m up
+    assert np.sqrt(np.mean(error**2)) < 0.5, np.sqrt(np.mean(error**2))
+    assert np.quantile(error, 0.99) < 2.5
+    # ground_density counts the classified ground: none on the 60 x 40 m flat roof, some elsewhere
+    density = ds["ground_density"].values
+    roof = (gx > 25) & (gx < 75) & (gy > 145) & (gy < 175)
+    assert density[roof].max() == 0 and density[inside].mean() > 0.3
+    prov = store.read_attrs(tmp_path / "o.zarr")["provenance"]
+    assert prov["ground_classification"]["method"] == "smrf-tin"
+    assert set(prov["ground_classification"]["parameters"]) >= {"cell", "max_window", "slope", "threshold"}
+
+
+@pytest.mark.parametrize("tile_size,buffer", [(40.0, 0.0), (60.0, 6.0), (100.0, 20.0)])
+def test_the_ground_is_the_same_at_any_tiling(tmp_path, survey, tile_size, buffer):
+    path = survey[0]
+    common = dict(classify_ground=True, layers=("elevation", "ground_density"))
+    tiled = _run(path, tmp_path / "tiled.zarr", tile_size=tile_size, buffer=buffer, **common)
+    whole = _run(path, tmp_path / "whole.zarr", tile_size=400.0, **common)
+    assert tiled.tiles > 4 and whole.tiles == 1
+    assert (tiled.points_kept, tiled.not_ground, tiled.low_outliers) == (whole.points_kept, whole.not_ground,
+                                                                          whole.low_outliers)
+    a, b = xr.open_zarr(tmp_path / "tiled.zarr"), xr.open_zarr(tmp_path / "whole.zarr")
+    for name in ("x", "y", "elevation", "ground_density"):
+        assert np.array_equal(a[name].values, b[name].values, equal_nan=True), name
+    node_a, _, faces_a = store.read_mesh(tmp_path / "tiled.zarr")
+    node_b, _, faces_b = store.read_mesh(tmp_path / "whole.zarr")
+    assert face_set(np.asarray(node_a), faces_a) == face_set(np.asarray(node_b), faces_b)
+
+
+def test_classify_ground_ignores_the_files_classes(tmp_path, survey):
+    path, x, y, z, label = survey
+    las = laspy.read(path)
+    las.classification = np.where(label == GROUND, 6, 2).astype(np.uint8)  # a wrong classification
+    wrong = tmp_path / "wrong.laz"
+    las.write(wrong)
+    own = _run(wrong, tmp_path / "own.zarr")  # the files' class 2: roofs and trees
+    classified = _run(wrong, tmp_path / "classified.zarr", classify_ground=True)
+    assert own.points_kept == np.count_nonzero(label != GROUND)
+    assert classified.points_kept + classified.not_ground == x.size
+    assert abs(classified.points_kept - np.count_nonzero(label == GROUND)) < 0.1 * np.count_nonzero(label == GROUND)
+
+
+def test_the_command_line_flag(tmp_path, survey, capsys):
+    path = survey[0]
+    assert main(["run", str(path), "-o", str(tmp_path / "c.zarr"), "--resolution", "2", "--classify-ground",
+                 "--tile-size", "100", "--quiet"]) == 0
+    prov = store.read_attrs(tmp_path / "c.zarr")["provenance"]
+    assert prov["parameters"]["classify_ground"] is True and "ground_classification" in prov
+
+
+def test_a_run_stopped_in_the_ground_stage_resumes_to_the_same_store(tmp_path, survey, monkeypatch):
+    from pipeline.meshing import ground
+    from pipeline.runs import runner
+
+    path = survey[0]
+    real = ground.classify_block
+    calls = []
+
+    def stopped(job):
+        calls.append(job)
+        if len(calls) == 2:
+            raise RuntimeError("power cut")
+        return real(job)
+
+    monkeypatch.setattr(runner, "classify_block", stopped)
+    # blocks of one tile (the default blocks are some 450 m across: the survey would be one)
+    monkeypatch.setattr(runner, "ground_blocks", lambda grid, points, margin: ground.ground_blocks(grid, points, 10.0))
+    config = RunConfig(inputs=(str(path),), output=str(tmp_path / "r.zarr"), resolution=2.0, tile_size=40.0,
+                       classify_ground=True, workers=1)
+    with pytest.raises(Exception, match="power cut"):
+        run(config, progress=False)
+    monkeypatch.setattr(runner, "classify_block", real)
+    resumed = run(config, progress=False)
+    whole = _run(path, tmp_path / "w.zarr", classify_ground=True, tile_size=400.0)
+    assert (resumed.points_kept, resumed.not_ground) == (whole.points_kept, whole.not_ground)
+    a, b = (xr.open_zarr(tmp_path / name)["elevation"].values for name in ("r.zarr", "w.zarr"))
+    np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="needs ../shared/data")
+def test_a_shared_sample_without_its_classes_is_the_same_tiled_and_untiled(tmp_path):
+    las = laspy.read(SHARED / "startinpy_small_extrabytes.laz")
+    truth = np.asarray(las.classification) == 2
+    las.classification = np.ones(len(las.points), dtype=np.uint8)
+    path = tmp_path / "plain.laz"
+    las.write(path)
+    tiled = _run(path, tmp_path / "t.zarr", resolution=0.5, tile_size=10.0)
+    whole = _run(path, tmp_path / "w.zarr", resolution=0.5)
+    assert tiled.tiles >= 16
+    a, b = (xr.open_zarr(tmp_path / name)["elevation"].values for name in ("t.zarr", "w.zarr"))
+    np.testing.assert_array_equal(a, b)
+    # near the survey's own ground: as many points, within a sixth
+    assert abs(whole.points_kept - truth.sum()) < truth.sum() / 6
