@@ -74,6 +74,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_preview(sub)
     _add_export(sub)
     _add_info(sub)
+    _add_classify(sub)
     return parser
 
 
@@ -224,6 +225,21 @@ def _add_info(sub) -> None:
     info = sub.add_parser("info", help="describe LAS/LAZ files (version, format, counts, classes, bounds, CRS)")
     info.add_argument("inputs", nargs="+", metavar="FILE", help="LAS/LAZ files, folders or glob patterns")
     info.add_argument("--json", action="store_true", help="print JSON")
+
+
+def _add_classify(sub) -> None:
+    """``terrain classify``: the ground stage's classes written back into LAZ copies of the inputs."""
+    cls = sub.add_parser("classify", help="classify the ground of LAS/LAZ files and write them as LAZ "
+                         "(class 2 ground, class 1 for former ground; nothing else changed)")
+    cls.add_argument("inputs", nargs="+", metavar="INPUT", help="LAS/LAZ files, folders or glob patterns")
+    cls.add_argument("-o", "--output", required=True, help="folder to write NAME.laz into, one per input")
+    cls.add_argument("--tile-size", type=float, help="tile edge in CRS units (default: from the point density)")
+    cls.add_argument("--buffer", type=float, help="overlap around each tile in CRS units")
+    cls.add_argument("--in-crs", help="CRS of inputs whose record is missing or broken")
+    cls.add_argument("--workers", type=_positive_int, help="local worker threads")
+    cls.add_argument("--scheduler", help="address of a Dask scheduler")
+    cls.add_argument("--overwrite", action="store_true", help="replace files already in the output folder")
+    cls.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def _run_config(args: argparse.Namespace):
@@ -479,6 +495,16 @@ def _command(args: argparse.Namespace) -> int:
             LOGGER.info(f"wrote {item.path} ({item.layer}{more})")
         item_path = write_stac_item(args.store, {e.layer: [e.path, *(e.parts if e.is_mosaic else ())] for e in written})
         LOGGER.info(f"wrote {item_path} (STAC item)")
+        return EXIT_OK
+    if args.command == "classify":
+        from .runs.classify import classify
+
+        done = classify(args.inputs, args.output, tile_size=args.tile_size, buffer=args.buffer, workers=args.workers,
+                        scheduler=args.scheduler, in_crs=args.in_crs, overwrite=args.overwrite,
+                        progress=_progress(args))
+        for note in done.notes:
+            LOGGER.info(_said(args, note))
+        LOGGER.info(done.table())
         return EXIT_OK
     if args.command == "info":
         from .tools.info import info_json, info_report

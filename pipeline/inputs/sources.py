@@ -872,17 +872,21 @@ def _kept_chunks(path: Location, header: laspy.LasHeader, chunks: Iterator[tuple
     if not _usable_scaling(path, scales, offsets, int(header.point_count)):
         return  # no points to decode
     decoders = [_decoder(s, o) for s, o in zip(scales, offsets)]
+    start = 0  # the chunk's first point's position in the file (a windowed COPC file: in the nodes' order)
     for chunk, unread in chunks:
         if unread:
             yield PointChunk(x=np.empty(0), y=np.empty(0), z=np.empty(0), read=unread, filtered_class=0,
                              filtered_withheld=0, outside_window=unread)
+            start += unread
             continue
         yield _kept(path, header, chunk, decoders, keep_class, point_filter.keep_withheld, point_filter.returns,
-                    attributes)
+                    attributes, start)
+        start += len(chunk)
 
 
 def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, keep_class: np.ndarray | None,
-          keep_withheld: bool, returns: Returns = Returns.ALL, attributes: tuple[str, ...] = ()) -> PointChunk:
+          keep_withheld: bool, returns: Returns = Returns.ALL, attributes: tuple[str, ...] = (),
+          start: int = 0) -> PointChunk:
     """The points of one chunk of records that the filter keeps, decoded, and the counts of the others."""
     n = len(chunk)
     keep = np.ones(n, dtype=bool)
@@ -910,7 +914,8 @@ def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, k
                 f"(scales {[float(v) for v in header.scales]}, offsets {[float(v) for v in header.offsets]})"
             )
         xyz.append(values)
-    kept_attributes = {name: np.asarray(getattr(chunk, name))[keep].astype(np.float64) for name in attributes}
+    kept_attributes = {name: (np.flatnonzero(keep) + float(start)) if name == "point_index"
+                       else np.asarray(getattr(chunk, name))[keep].astype(np.float64) for name in attributes}
     return PointChunk(x=xyz[0], y=xyz[1], z=xyz[2], read=n, filtered_class=filtered_class,
                       filtered_withheld=filtered_withheld, filtered_returns=filtered_returns,
                       attributes=kept_attributes)

@@ -39,11 +39,15 @@ from ..tiling.grid import TileGrid, tile_dir
 from ..tiling.routing import GROUND_SPILL, grow_hull, points_in_box
 from ..tiling.scratch import Scratch
 
-__all__ = ["GROUND_COLUMNS", "GroundJob", "GroundSummary", "classify_block", "ground_blocks", "tile_done",
+__all__ = ["GROUND_COLUMNS", "CLASSIFIED", "GroundJob", "GroundSummary", "classify_block", "ground_blocks", "tile_done",
            "ground_provenance"]
 
 GROUND_COLUMNS = ("return_number", "number_of_returns")
 """The attributes the ground spill files carry after x, y and z."""
+
+CLASSIFIED = "classified"
+"""The folder, in each tile's work folder, of the positions in their files of
+the ground points its window owns, one file per input (``SSSSSS.npy``)."""
 
 METHOD = "smrf-tin"
 """The method's name in the provenance: meshcore's variant of SMRF (Pingel et al. 2013) with a ground TIN."""
@@ -67,6 +71,10 @@ class GroundJob:
     """Metres in one unit of the coordinates (heights already in that unit)."""
     parameters: dict[str, float] = field(default_factory=dict)
     """:class:`meshcore.GroundParameters` fields other than the defaults."""
+    columns: tuple[str, ...] = GROUND_COLUMNS
+    """The spill files' columns after x, y, z: :data:`GROUND_COLUMNS`, and ``point_index`` for
+    ``terrain classify``, which then gets each tile's ground points by file and position
+    (:data:`CLASSIFIED`)."""
 
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.rows[0], self.rows[1] + 1) for c in range(self.cols[0], self.cols[1] + 1)]
@@ -126,10 +134,9 @@ def tile_done(scratch: Scratch, row: int, col: int) -> bool:
     return all(name in own for name in _spill_files(scratch, row, col))
 
 
-def _load(scratch: Scratch, row: int, col: int) -> tuple[list[str], list[NDArray[np.float64]]]:
+def _load(scratch: Scratch, row: int, col: int, width: int) -> tuple[list[str], list[NDArray[np.float64]]]:
     names = _spill_files(scratch, row, col)
     folder = f"{tile_dir(row, col)}/{GROUND_SPILL}"
-    width = 3 + len(GROUND_COLUMNS)
     arrays = [a.reshape(-1, width) for a in scratch.load_many([f"{folder}/{n}" for n in names])]
     return names, arrays
 
@@ -141,10 +148,10 @@ def _tile_range(grid: TileGrid, points: NDArray[np.float64], reach: NDArray[np.f
             int(grid.bins(x - reach, 0).min()), int(grid.bins(x + reach, 0).max()))
 
 
-def _owned(scratch: Scratch, grid: TileGrid, row: int, col: int) -> NDArray[np.float64]:
+def _owned(scratch: Scratch, grid: TileGrid, row: int, col: int, width: int) -> NDArray[np.float64]:
     """The ground spill points the tile's window owns (each point of the survey in one tile only)."""
-    _, parts = _load(scratch, row, col)
-    pts = np.concatenate(parts) if parts else np.empty((0, 3 + len(GROUND_COLUMNS)))
+    _, parts = _load(scratch, row, col, width)
+    pts = np.concatenate(parts) if parts else np.empty((0, width))
     if pts.shape[0] == 0:
         return pts
     rows, cols = grid.owner(pts[:, 0], pts[:, 1])
@@ -164,6 +171,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
     t0 = time.perf_counter()
     grid, scratch = job.grid, job.scratch
     parameters = GroundParameters.from_dict(job.parameters)
+    width = 3 + len(job.columns)
     x_lo, y_lo, _, _ = grid.box(job.rows[0], job.cols[0])
     _, _, x_hi, y_hi = grid.box(job.rows[1], job.cols[1])
     # the points to certify: those routed to a tile of the block (its windows and buffer), and a hair more
@@ -181,7 +189,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
         r0, r1, c0, c1 = block
         for key in ((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)):
             if key not in loaded:
-                loaded[key] = _owned(scratch, grid, *key)
+                loaded[key] = _owned(scratch, grid, *key, width)
         cloud = np.concatenate([loaded[k] for k in sorted(loaded)])
         result = classify_ground(
             cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
@@ -200,11 +208,19 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
     summaries = []
     owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
     for row, col in job.tiles():
-        names, parts = _load(scratch, row, col)
+        names, parts = _load(scratch, row, col, width)
         files = {}
+        positions: dict[str, list[NDArray]] = {}
         for name, part in zip(names, parts):
             at = order[np.searchsorted(sorted_keys, _as_keys(part))]
             files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
+            if "point_index" in job.columns:
+                rows_, cols_ = grid.owner(part[:, 0], part[:, 1])
+                mine = result.ground[at] & (rows_ == row) & (cols_ == col)
+                index = part[mine, 3 + job.columns.index("point_index")].astype(np.int64)
+                positions.setdefault(name.split("_", 1)[0], []).append(index)
+        files.update({f"{tile_dir(row, col)}/{CLASSIFIED}/{source}.npy": np.concatenate(found)
+                      for source, found in positions.items()})
         scratch.save_many(files)
         own = (owner_rows == row) & (owner_cols == col)
         ground = own & result.ground

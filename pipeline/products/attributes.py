@@ -54,6 +54,8 @@ class Attribute(StrEnum):
     RETURN_NUMBER = "return_number"
     NUMBER_OF_RETURNS = "number_of_returns"
     INTENSITY = "intensity"
+    POINT_INDEX = "point_index"
+    """Not a dimension: the point's position in its file (what ``terrain classify`` writes back by)."""
 
 
 #: the attributes a return filter reads

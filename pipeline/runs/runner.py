@@ -159,6 +159,8 @@ class _RouteJob:
     """The run's products: the DTM's classes and returns, and the points and attributes the products read."""
     classify: bool = False
     """The DTM's points go to the ground stage's spill files, with their returns (:mod:`pipeline.meshing.ground`)."""
+    ground_columns: tuple[str, ...] = GROUND_COLUMNS
+    """Their columns after x, y, z (``terrain classify`` adds each point's position in its file)."""
 
 
 def route_source(job: _RouteJob) -> RouteResult:
@@ -189,7 +191,7 @@ def _route(job: _RouteJob) -> RouteResult:
     reproject = Reprojector(job.source_wkt, job.target_wkt, job.z_factor)
     reading, attributes = settings.reading()
     if job.classify:  # the ground stage seeds its surface with last returns
-        attributes = tuple(dict.fromkeys((*attributes, *GROUND_COLUMNS)))
+        attributes = tuple(dict.fromkeys((*attributes, *job.ground_columns)))
     point_filter = PointFilter(reading.classes, job.keep_withheld, reading.returns)
     counts = dict.fromkeys(("read", "filtered_class", "filtered_withheld", "outside_bbox", "kept", "beyond_grid",
                             "filtered_returns", "products_only"), 0)
@@ -223,7 +225,7 @@ def _route(job: _RouteJob) -> RouteResult:
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
             b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
         if job.classify:
-            spill.add_rows(as_columns(x, y, z, extra, GROUND_COLUMNS))
+            spill.add_rows(as_columns(x, y, z, extra, job.ground_columns))
         else:
             spill.add(x, y, z)
         hull = grow_hull(hull, x, y, z)
@@ -512,7 +514,8 @@ class Routed:
     """The ground stage classifies the ground (``classify_ground``, or the fallback)."""
 
 
-def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport) -> Routed:
+def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunReport,
+                 ground_columns: tuple[str, ...] = GROUND_COLUMNS) -> Routed:
     """Route every input not yet routed into the tiles' spill files (a COPC
     file in the output CRS only gives its hull), count the points by fate,
     and compute the global hull; the tiles near a part of it that moved are
@@ -532,6 +535,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
         _RouteJob(
             i, str(p), scratch, grid, plan.buffer, crs.source_wkts[i], crs.target_wkt, crs.z_factor(i),
             classes, config.keep_withheld, config.bbox, config.skip_bad_files, plan.products(classes), classify,
+            ground_columns,
         )
         for i, p in enumerate(paths)
         if results[i] is None and i not in windowed
@@ -591,7 +595,8 @@ def _settled_hull(plan: RunPlan, work: WorkDir, candidates: np.ndarray, windows:
     return hull
 
 
-def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport) -> np.ndarray:
+def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport,
+                  columns: tuple[str, ...] = GROUND_COLUMNS) -> np.ndarray:
     """Classify the ground of every block of tiles not done (:mod:`pipeline.meshing.ground`), count the
     points it left out, and return the global hull of the ground points."""
     from meshcore import GroundParameters
@@ -606,7 +611,7 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
     def done(r: int, c: int) -> bool:
         return ground_tile_done(scratch, r, c) and work.recorded("ground", tile_key(r, c)) is not None
 
-    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit)
+    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, columns=columns)
             for rows, cols in ground_blocks(grid, points, GroundParameters().margin(unit))]
     jobs = [job for job in jobs if not all(done(r, c) for r, c in job.tiles())]
 

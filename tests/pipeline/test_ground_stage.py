@@ -14,6 +14,7 @@ import laspy
 import numpy as np
 import pytest
 import xarray as xr
+from laspy.vlrs.vlrlist import VLRList
 from pyproj import CRS
 
 from pipeline.cli import main
@@ -158,3 +159,69 @@ def test_a_shared_sample_without_its_classes_is_the_same_tiled_and_untiled(tmp_p
     np.testing.assert_array_equal(a, b)
     # near the survey's own ground: as many points, within a sixth
     assert abs(whole.points_kept - truth.sum()) < truth.sum() / 6
+
+
+def _with_extras(path: Path, out: Path, classes: np.ndarray) -> Path:
+    """The survey as LAS 1.4 with an extra-bytes dimension, a VLR of its own, an EVLR, and ``classes``."""
+    las = laspy.read(path)
+    las.add_extra_dim(laspy.ExtraBytesParams(name="deviation", type=np.float32, description="residual"))
+    las.deviation = np.linspace(-1, 1, len(las.points)).astype(np.float32)
+    las.intensity = np.arange(len(las.points)) % 65536
+    las.classification = classes
+    las.header.vlrs.append(laspy.VLR(user_id="terrain_test", record_id=7, description="kept as is",
+                                     record_data=b"\x01\x02\x03 payload"))
+    las.evlrs = VLRList([laspy.VLR(user_id="terrain_test", record_id=8, description="an evlr", record_data=b"z" * 100)])
+    las.write(out)
+    return out
+
+
+def test_terrain_classify_changes_only_the_classes(tmp_path, survey):
+    path, x, y, z, label = survey
+    rng = np.random.default_rng(1)
+    classes = rng.choice(np.array([1, 2, 5, 6, 7], dtype=np.uint8), size=x.size)  # a wrong classification
+    source = _with_extras(path, tmp_path / "in.las", classes)
+    assert main(["classify", str(source), "-o", str(tmp_path / "out"), "--quiet"]) == 0
+    a, b = laspy.read(source), laspy.read(tmp_path / "out" / "in.laz")
+    assert len(a.points) == len(b.points)
+    for dim in a.point_format.dimension_names:
+        if dim != "classification":
+            np.testing.assert_array_equal(np.asarray(a[dim]), np.asarray(b[dim]), err_msg=dim)
+    assert [(v.user_id, v.record_id, v.record_data_bytes()) for v in a.header.vlrs] == \
+        [(v.user_id, v.record_id, v.record_data_bytes()) for v in b.header.vlrs]
+    assert [(v.user_id, v.record_id, v.record_data_bytes()) for v in a.evlrs] == \
+        [(v.user_id, v.record_id, v.record_data_bytes()) for v in b.evlrs]
+    before, after = np.asarray(a.classification), np.asarray(b.classification)
+    ground = after == 2
+    assert not ground[before == 7].any()  # noise is never classified
+    changed = before != after
+    # only two moves: to ground, or from ground to 1
+    assert set(np.unique(after[changed]).tolist()) <= {1, 2}
+    assert (after[changed & ~ground] == 1).all() and (before[changed & ~ground] == 2).all()
+    # the same ground as the run's stage, point for point
+    run_report = _run(source, tmp_path / "r.zarr", classify_ground=True)
+    assert run_report.points_kept == int(ground.sum())
+    # and mostly the scene's ground (labels known)
+    assert np.mean(ground[(label == GROUND) & (before != 7)]) > 0.9 and np.mean(ground[(label != GROUND) & (before != 7)]) < 0.1
+
+
+def test_terrain_classify_is_the_same_at_any_tiling(tmp_path, survey):
+    path = survey[0]
+    assert main(["classify", str(path), "-o", str(tmp_path / "a"), "--quiet"]) == 0
+    assert main(["classify", str(path), "-o", str(tmp_path / "b"), "--tile-size", "40", "--buffer", "3",
+                 "--quiet"]) == 0
+    a, b = laspy.read(tmp_path / "a" / "scene.laz"), laspy.read(tmp_path / "b" / "scene.laz")
+    np.testing.assert_array_equal(np.asarray(a.classification), np.asarray(b.classification))
+
+
+def test_terrain_classify_refuses_to_overwrite_or_to_write_over_its_input(tmp_path, survey, capsys):
+    path = survey[0]
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "scene.laz").write_bytes(b"keep me")
+    assert main(["classify", str(path), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "scene.laz exists; give --overwrite to replace it" in err, err
+    assert (tmp_path / "out" / "scene.laz").read_bytes() == b"keep me"
+    assert main(["classify", str(path), "-o", str(path.parent)]) == 2
+    assert "the output folder is the input's own" in capsys.readouterr().err
+    assert main(["classify", str(path), "-o", str(tmp_path / "out"), "--overwrite", "--quiet"]) == 0
+    assert len(laspy.read(tmp_path / "out" / "scene.laz").points) == len(laspy.read(path).points)

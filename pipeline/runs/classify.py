@@ -1,0 +1,247 @@
+"""``terrain classify``: the ground stage's classes written back into the
+inputs, as LAZ files beside them in another folder.
+
+The inputs go through a run's route and ground stages (the same stage as
+``terrain run --classify-ground``, so the same ground at any tile size), with
+each point's position in its file carried along.  Then each file is streamed
+again and written as LAZ with only its classification changed: class 2 on the
+ground, class 1 on points the file had as ground that are not; every other
+point keeps its class (noise and withheld points are never classified).
+Every other dimension, the VLRs and the EVLRs are copied as they are.  A
+file is written under a temporary name and renamed when whole.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import RunConfig
+from ..errors import OutputWriteError, UsageError
+from ..meshing.ground import CLASSIFIED, GROUND_COLUMNS
+from ..tiling.checkpoint import WorkDir
+from ..tiling.grid import tile_dir
+from .cluster import close, connect
+from .plan import plan_run
+
+__all__ = ["ClassifyReport", "classify"]
+
+_CHUNK = 2_000_000
+
+
+@dataclass
+class ClassifyReport:
+    """What ``terrain classify`` did, file by file."""
+
+    files: list[dict[str, Any]] = field(default_factory=list)
+    """Per input: its path, the file written, and its points by what happened to their class."""
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def table(self) -> str:
+        rows = []
+        for f in self.files:
+            rows.append(f"{f['output']}: {f['ground']:,} ground, {f['no_longer_ground']:,} no longer ground "
+                        f"(now 1), {f['unchanged']:,} unchanged, of {f['points']:,}")
+        rows.append(f"time: {self.seconds:.2f} s")
+        return "\n".join(rows)
+
+
+def _targets(paths: list[str], output_dir: Path, overwrite: bool) -> list[Path]:
+    names = [Path(str(p).rstrip("/")).name for p in paths]
+    stems = [n[: -len(".copc.laz")] if n.lower().endswith(".copc.laz") else os.path.splitext(n)[0] for n in names]
+    seen: dict[str, str] = {}
+    for stem, path in zip(stems, paths):
+        if stem in seen:
+            raise UsageError(f"{path} and {seen[stem]} would both be written as {output_dir / (stem + '.laz')}")
+        seen[stem] = str(path)
+    targets = [output_dir / f"{stem}.laz" for stem in stems]
+    for target, path in zip(targets, paths):
+        if Path(path).resolve() == target.resolve():
+            raise UsageError(f"{path}: the output folder is the input's own; give another -o folder")
+        if target.exists() and not overwrite:
+            raise UsageError(f"{target} exists; give overwrite=True to replace it")
+    return targets
+
+
+def classify(
+    inputs: tuple[str, ...] | list[str],
+    output_dir: str | os.PathLike[str],
+    *,
+    tile_size: float | None = None,
+    buffer: float | None = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    in_crs: str | None = None,
+    overwrite: bool = False,
+    progress: bool | None = None,
+) -> ClassifyReport:
+    """Classify the ground of ``inputs`` and write each as LAZ into ``output_dir``.
+
+    Files in one CRS are classified together (a survey cut into files gets
+    the ground of the whole survey); files of another CRS apart, in theirs.
+
+    Raises
+    ------
+    UsageError
+        For an output that exists (without ``overwrite``), two inputs of one
+        name, or the output folder being an input's own.
+    InputFileError
+        For a file that cannot be read.
+    """
+    from ..inputs.sources import discover_inputs, read_info
+
+    t0 = time.perf_counter()
+    out = Path(output_dir)
+    paths = [str(p) for p in discover_inputs(list(inputs))]
+    _targets(paths, out, overwrite)  # every clash said before any work
+    out.mkdir(parents=True, exist_ok=True)
+    groups: dict[str | None, list[str]] = {}
+    for path in paths:
+        groups.setdefault(read_info(path).crs_wkt, []).append(path)
+    report = ClassifyReport()
+    for group in groups.values():
+        _classify_group(group, out, report, tile_size=tile_size, buffer=buffer, workers=workers,
+                        scheduler=scheduler, in_crs=in_crs, overwrite=overwrite, progress=progress)
+    report.seconds = time.perf_counter() - t0
+    return report
+
+
+def _classify_group(paths: list[str], out: Path, report: ClassifyReport, *, tile_size, buffer, workers, scheduler,
+                    in_crs, overwrite, progress) -> None:
+    """Classify files of one CRS together (:func:`classify`)."""
+    from . import resume
+    from .runner import RunReport, _ground_stage, _route_stage
+
+    # the run's plan over the files as they are: no reprojection, cells of one unit only size the tiles
+    config = RunConfig(inputs=tuple(paths), output=str(out / ".terrain-classify.zarr"), resolution=1.0,
+                       tile_size=tile_size, buffer=buffer, workers=workers, scheduler=scheduler, in_crs=in_crs,
+                       classify_ground=True)
+    plan = plan_run(config)
+    targets = _targets([str(p) for p in plan.paths], out, overwrite)
+    show = sys.stderr.isatty() if progress is None else progress
+    report.notes.extend(plan.notes)
+    work = WorkDir(tempfile.mkdtemp(prefix=".terrain-classify-", dir=out))
+    resume._start_work(work)
+    client, cluster = connect(config)
+    try:
+        run_report = RunReport()
+        columns = (*GROUND_COLUMNS, "point_index")
+        routed = _route_stage(plan, work, client, show, run_report, ground_columns=columns)
+        _ground_stage(plan, work, client, routed, show, run_report, columns=columns)
+        report.notes.extend(run_report.notes)
+        for index, (path, target) in enumerate(zip(plan.paths, targets)):
+            ground = _ground_positions(work, plan.grid, index)
+            report.files.append(_write(str(path), target, ground))
+    finally:
+        close(client, cluster)
+        work.remove()
+
+
+def _ground_positions(work: WorkDir, grid, index: int) -> np.ndarray:
+    """The positions in input ``index`` of its ground points, from every tile."""
+    keys = [f"{tile_dir(r, c)}/{CLASSIFIED}/{index:06d}.npy" for r, c in grid.tiles()]
+    names = {f"{tile_dir(r, c)}/{CLASSIFIED}": set(work.scratch.names(f"{tile_dir(r, c)}/{CLASSIFIED}"))
+             for r, c in grid.tiles()}
+    found = [k for k in keys if k.rsplit("/", 1)[1] in names[k.rsplit("/", 1)[0]]]
+    arrays = work.scratch.load_many(found)
+    return np.concatenate(arrays).astype(np.int64) if arrays else np.empty(0, dtype=np.int64)
+
+
+def _vlr_table(head: bytes) -> list[tuple[bytes, int, int, int]]:
+    """``(user_id, record_id, data offset, data length)`` of each VLR in a LAS header's bytes."""
+    header_size = int.from_bytes(head[94:96], "little")
+    count = int.from_bytes(head[100:104], "little")
+    out, at = [], header_size
+    for _ in range(count):
+        if at + 54 > len(head):
+            break
+        user_id = head[at + 2:at + 18]
+        record_id = int.from_bytes(head[at + 18:at + 20], "little")
+        length = int.from_bytes(head[at + 20:at + 22], "little")
+        out.append((user_id, record_id, at + 54, length))
+        at += 54 + length
+    return out
+
+
+def _restore_vlrs(source: str, written: Path) -> None:
+    """Put back, byte for byte, the source's VLR payloads that the LAS writer
+    rebuilt (it recomputes the extra bytes' description, for one): each VLR of
+    the written file takes the bytes of the source's VLR of the same id and
+    length.  The written file's LAZ VLR is its own."""
+    from ..urls import is_url, open_input
+
+    with (open_input(source) if is_url(source) else open(source, "rb")) as stream:
+        head = stream.read(375)
+        stream.seek(0)
+        head = stream.read(int.from_bytes(head[96:100], "little"))  # to the point data: every VLR
+    theirs: dict[tuple[bytes, int], list[bytes]] = {}
+    for user_id, record_id, at, length in _vlr_table(head):
+        theirs.setdefault((user_id, record_id), []).append(head[at:at + length])
+    with open(written, "r+b") as f:
+        mine = f.read(375)
+        f.seek(0)
+        mine = f.read(int.from_bytes(mine[96:100], "little"))
+        for user_id, record_id, at, length in _vlr_table(mine):
+            found = theirs.get((user_id, record_id))
+            if found and len(found[0]) == length and found[0] != mine[at:at + length]:
+                f.seek(at)
+                f.write(found[0])
+            if found:
+                found.pop(0)
+
+
+def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
+    """Stream ``path`` into ``target`` (LAZ) with the classes of ``ground`` (positions) set."""
+    import laspy
+    from laspy.vlrs.vlrlist import VLRList
+
+    from ..urls import is_url, open_input
+
+    partial = target.with_name(f".{target.name}.partial")
+    counts = {"points": 0, "ground": 0, "no_longer_ground": 0}
+    ground = np.unique(ground)
+    source = open_input(path) if is_url(path) else os.fspath(path)
+    try:
+        with laspy.open(source) as reader:
+            header = reader.header
+            copc = [v for v in header.vlrs if v.user_id == "copc"]
+            for v in copc:  # a COPC file's octree is not this file's: it is written as plain LAZ
+                header.vlrs.remove(v)
+            with laspy.open(partial, mode="w", header=header, do_compress=True) as writer:
+                start = 0
+                for points in reader.chunk_iterator(_CHUNK):
+                    n = len(points)
+                    lo, hi = np.searchsorted(ground, [start, start + n])
+                    is_ground = np.zeros(n, dtype=bool)
+                    is_ground[ground[lo:hi] - start] = True
+                    cls = np.asarray(points.classification).copy()
+                    lost = (cls == 2) & ~is_ground
+                    cls[is_ground] = 2
+                    cls[lost] = 1
+                    points.classification = cls
+                    writer.write_points(points)
+                    counts["points"] += n
+                    counts["ground"] += int(is_ground.sum())
+                    counts["no_longer_ground"] += int(lost.sum())
+                    start += n
+                evlrs = [e for e in (reader.evlrs or []) if not (copc and e.user_id == "copc")]
+                if evlrs:
+                    writer.write_evlrs(VLRList(evlrs))
+        _restore_vlrs(path, partial)
+        os.replace(partial, target)
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise OutputWriteError(f"{target}: cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    counts["unchanged"] = counts["points"] - counts["ground"] - counts["no_longer_ground"]
+    return {"path": path, "output": str(target), **counts}
