@@ -164,11 +164,47 @@ def run_whitebox(las, keep, unit):
 PEERS = {"csf": run_csf, "whitebox": run_whitebox}
 
 
+def pipeline_table(paths: list[Path], repeat: int, cache: Path | None) -> None:
+    """``terrain run`` on the files' own classes against ``--classify-ground``
+    on the same file (every class but noise), interleaved, medians of
+    ``repeat``; and the ratio to CSF's time on the same points."""
+    from pipeline.config import RunConfig
+    from pipeline.runs.runner import run
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in paths:
+            times: dict[str, list[float]] = {"own": [], "classify": []}
+            for k in range(repeat + 1):  # the first round warms the kernels and the file cache
+                for mode in ("own", "classify"):
+                    config = RunConfig(inputs=(str(path),), output=f"{tmp}/{mode}.zarr", resolution=1.0,
+                                       classify_ground=mode == "classify", overwrite=True)
+                    t0 = time.perf_counter()
+                    run(config, progress=False)
+                    if k:
+                        times[mode].append(time.perf_counter() - t0)
+            own, mine = (float(np.median(times[m])) for m in ("own", "classify"))
+            csf = ""
+            cached = cache / f"{path.stem}.csf.npz" if cache else None
+            if cached is not None and cached.exists():
+                csf = f"{float(np.load(cached)['seconds']) / mine:.1f}x"
+            rows.append([path.stem, f"{own:.2f}", f"{mine:.2f}", f"{mine / own:.2f}x", csf])
+    header = ["sample", "own classes s", "--classify-ground s", "ratio", "CSF time / ours"]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    print(f"\nterrain run, 1-unit cells: the files' classes against --classify-ground (medians of {repeat}, interleaved)")
+    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
+    print("  ".join("-" * w for w in widths))
+    for r in rows:
+        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", nargs="*")
     parser.add_argument("--peers", nargs="*", default=list(PEERS), choices=list(PEERS))
     parser.add_argument("--cache", type=Path, help="folder keeping the peers' flags between runs")
+    parser.add_argument("--pipeline", type=int, metavar="REPEAT", default=0,
+                        help="also time whole runs, own classes against --classify-ground (medians of REPEAT)")
     args = parser.parse_args(argv)
 
     classify_ground(*np.random.default_rng(0).uniform(0, 50, (3, 500)))  # compile outside the timings
@@ -208,6 +244,8 @@ def main(argv: list[str] | None = None) -> None:
     print("  ".join("-" * w for w in widths))
     for r in rows:
         print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+    if args.pipeline:
+        pipeline_table(samples(args.samples), args.pipeline, args.cache)
 
 
 if __name__ == "__main__":
