@@ -23,9 +23,13 @@ every run.
 
 from __future__ import annotations
 
+import llvmlite.ir as llvmir
+import numba
 import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
+from ._jit import _compiler, empty, full, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import lex_before, orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
@@ -37,6 +41,48 @@ FLIP_TOLERANCE = 1e-9
 
 _S1 = 1
 _S3 = 3
+_FOUR_THIRDS = 4.0 / 3.0
+
+_njit_inline = _compiler(helper=True, inline="always")
+"""For the helpers the rounds call per edge: inlined where called (a call
+passes every array as a structure: 15% of the time of the loop over every
+edge went there)."""
+
+
+@intrinsic
+def _prefetch_intrinsic(typingctx, array, index):
+    """Ask the processor to load the cache line of ``array[index]`` (a hint:
+    no effect on any value, nor a fault on any index)."""
+    if not isinstance(array, types.Array) or not isinstance(index, types.Integer):
+        return None
+    signature = types.void(array, types.intp)
+
+    def codegen(context, builder, sig, args):
+        arr = context.make_array(sig.args[0])(context, builder, args[0])
+        where = cgutils.get_item_pointer(context, builder, sig.args[0], arr, [args[1]], wraparound=False)
+        byte = llvmir.IntType(8).as_pointer()
+        word = llvmir.IntType(32)
+        hint = builder.module.declare_intrinsic(
+            "llvm.prefetch", [byte], llvmir.FunctionType(llvmir.VoidType(), [byte, word, word, word]))
+        # a read, kept in every cache level, of data
+        builder.call(hint, [builder.bitcast(where, byte), word(0), word(3), word(1)])
+        return context.get_dummy_value()
+
+    return signature, codegen
+
+
+def _no_prefetch(array, index) -> None:
+    pass
+
+
+#: the rounds visit the candidates and winners in the triangles' order, but
+#: each one's other triangle, neighbours and corners lie anywhere in memory:
+#: they are asked for a few iterations ahead (a third of the rounds' time
+#: went to waiting for them)
+_prefetch = _no_prefetch if numba.config.DISABLE_JIT else _prefetch_intrinsic
+
+_AHEAD = 8
+"""How many candidates or winners ahead the rounds ask for the memory they will read."""
 
 _NO_SOURCE = -1
 _OPEN_EDGE = -2
@@ -55,6 +101,39 @@ def triangle_score(measure: int, ax: float, ay: float, bx: float, by: float, cx:
     if measure == _S1:
         return s1_kernel(ax, ay, bx, by, cx, cy)
     return s3_cubed_kernel(ax, ay, bx, by, cx, cy)
+
+
+@njit_helper
+def _s1_below(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, limit: float) -> bool:
+    """True when :func:`s1_kernel` of the triangle is surely below ``limit``
+    (``limit >= 1e-3``), decided on raw coordinates without square roots or
+    divisions; False means "compute it".
+
+    S1 is at most 2/sqrt(3) times the sine of the smallest angle (the score of
+    an angle is its sine, or below it past 90 degrees), the angle between the
+    two longest sides: sin^2 = cross^2 * shortest^2 / (product of the squared
+    sides).  That sine's rounding error, here and in the kernel, is a few
+    units of 1e-16 whatever the shape: a cross product's error is relative to
+    the product of the two sides it is computed from, at most that of the two
+    longest.  The estimate must be below the limit by 1e-7 relative to count.
+    Out-of-range magnitudes (products outside 1e-250..1e250) say False.
+    """
+    if limit < 1e-3:
+        return False
+    ux = bx - ax
+    uy = by - ay
+    vx = cx - ax
+    vy = cy - ay
+    wx = cx - bx
+    wy = cy - by
+    lu = ux * ux + uy * uy
+    lv = vx * vx + vy * vy
+    lw = wx * wx + wy * wy
+    sides = lu * lv * lw
+    if not 1e-250 < sides < 1e250:
+        return False
+    cross = ux * vy - uy * vx
+    return _FOUR_THIRDS * cross * cross * smaller(lu, smaller(lv, lw)) < limit * limit * (1.0 - 1e-7) * sides
 
 
 @njit_helper
@@ -94,7 +173,7 @@ def edge_before(x, y, tri, e: int, g: int) -> bool:
     return lex_before(x[b], y[b], x[d], y[d])
 
 
-@njit_helper
+@_njit_inline
 def _improvement(measure: int, tolerance: float, x, y, tri, he, q, e: int) -> float:
     """How much flipping the diagonal ``e`` raises the smaller score of its two
     triangles, or -1 when it may not flip."""
@@ -109,13 +188,17 @@ def _improvement(measure: int, tolerance: float, x, y, tri, he, q, e: int) -> fl
     # each corner's coordinates read once (scores and the convexity test share them)
     xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
     limit = current * (1.0 + tolerance)
-    # most edges stay: a quick estimate of S3 settles them without divisions
+    # most edges stay: a quick estimate of the score settles them without divisions
     if measure == _S3 and s3_cubed_below(xa, ya, xd, yd, xc, yc, limit):
+        return -1.0
+    if measure == _S1 and _s1_below(xa, ya, xd, yd, xc, yc, limit):
         return -1.0
     qa = triangle_score(measure, xa, ya, xd, yd, xc, yc)
     if qa <= limit:
         return -1.0
     if measure == _S3 and s3_cubed_below(xb, yb, xc, yc, xd, yd, limit):
+        return -1.0
+    if measure == _S1 and _s1_below(xb, yb, xc, yc, xd, yd, limit):
         return -1.0
     qb = triangle_score(measure, xb, yb, xc, yc, xd, yd)
     if qb <= limit:
@@ -131,7 +214,7 @@ def _beats(x, y, tri, imp, g: int, e: int) -> bool:
     return imp[g] > imp[e] or (imp[g] == imp[e] and edge_before(x, y, tri, g, e))
 
 
-@njit_helper
+@_njit_inline
 def _wins(x, y, tri, he, imp, e: int) -> bool:
     """Whether the candidate ``e`` beats every other edge of its two triangles."""
     f = np.int64(he[e])
@@ -243,34 +326,59 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
     mesh's, as explained in :func:`flip_edges`; ``source`` says for each
     flagged slot where its doubt came from: the slot of a triangle flagged at
     the start, or :data:`_OPEN_EDGE`.
+
+    Only the candidates (edges of positive improvement) are visited each
+    round, and a flip rescores the edges of its two new triangles right away,
+    while they are in cache, but for an edge whose other triangle a later
+    winner of the round flips: that one rescores it.  The edges rescored in a
+    round join the candidates in the order they were first reached, so the
+    rounds visit them (and spread the doubt) in the same order whatever the
+    rescoring's timing.
     """
     nt = tri.shape[0] // 3
     m = tri.shape[0]
     track = taint.shape[0] == nt and nt > 0
     windowed = window.shape[0] == 4
-    q = triangle_scores(measure, x, y, tri)
-    imp = full(m, -1.0)  # per half-edge; an edge's two halves hold the same value
+    slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
+    # each triangle's corners read once, for its score and whether it meets the window
+    q = empty(nt)
+    zone = zeros(nt, dtype=np.uint8)
+    if windowed:
+        w_x_lo = window[0] - ox
+        w_y_lo = window[1] - oy
+        w_x_hi = window[2] - ox
+        w_y_hi = window[3] - oy
+    else:
+        w_x_lo = w_y_lo = w_x_hi = w_y_hi = 0.0
+    for t in range(nt):
+        a = tri[3 * t]
+        b = tri[3 * t + 1]
+        c = tri[3 * t + 2]
+        ax, ay, bx, by, cx, cy = x[a], y[a], x[b], y[b], x[c], y[c]
+        q[t] = triangle_score(measure, ax, ay, bx, by, cx, cy)
+        if windowed and _meets_box(ax, ay, bx, by, cx, cy, w_x_lo, w_y_lo, w_x_hi, w_y_hi, slack):
+            zone[t] = 1
+    # per half-edge; an edge's two halves hold the same value, which is -1 (no flip) or positive
+    imp = full(m, -1.0)
     cand = empty(m // 2 + 1, dtype=np.int32)
     nc = 0
     for e in range(m):
         f = he[e]
         if f > e and active[e // 3] and active[f // 3]:
             v = _improvement(measure, tolerance, x, y, tri, he, q, e)
-            imp[e] = v
-            imp[f] = v
             if v > 0.0:
+                imp[e] = v
+                imp[f] = v
                 cand[nc] = e
                 nc += 1
-    zone = zeros(nt, dtype=np.uint8)
-    slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
-    if windowed:
-        for t in range(nt):
-            if _meets_window(x, y, tri, t, ox, oy, window, slack):
-                zone[t] = 1
-    stamp = zeros(m, dtype=np.int32)  # the round an edge was last rescored or won
-    touched = zeros(nt, dtype=np.int32)  # the round a triangle was last flipped
+    # per triangle: k once round k flipped it; before, -(4 k + j) when its edge j is a winner of round k
+    touched = zeros(nt, dtype=np.int32)
     marked = zeros(nt if track else 0, dtype=np.int32)  # the round a triangle was tainted
     winners = empty(nt // 2 + 1, dtype=np.int32)
+    # the half-edges rescored in a round, in the order first reached: the next round's candidates after
+    # those of this round that stayed
+    reached = empty(m // 2 + 1, dtype=np.int32)
+    nr = 0
     frontier = empty(nt if track else 0, dtype=np.int32)
     nf = 0
     fresh = empty(nt if track else 0, dtype=np.int32)
@@ -285,16 +393,42 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
     k = 0
     while True:
         k += 1
-        if nc == 0 and not (track and k <= assume and (nf > 0 or k == 1)):
-            break
+        # the candidates: those of the last round whose triangles it did not flip (it left the others in
+        # the list), then those its flips rescored to a positive improvement; whether each wins
         nw = 0
-        for i in range(nc):
-            e = cand[i]
+        kept = 0
+        for i in range(nc + nr):
+            if i + 2 * _AHEAD < nc:
+                e = cand[i + 2 * _AHEAD]
+                _prefetch(he, e)
+                _prefetch(imp, e)
+            if i + _AHEAD < nc:
+                f = he[cand[i + _AHEAD]]
+                _prefetch(imp, f)
+                _prefetch(touched, f // 3)
+            if i < nc:
+                e = cand[i]
+                f = he[e]
+                if k > 1 and (touched[e // 3] == k - 1 or (f >= 0 and touched[f // 3] == k - 1)):
+                    continue
+            else:
+                g = reached[i - nc]
+                if imp[g] <= 0.0:
+                    continue
+                h = he[g]
+                e = g if g < h else h
+            cand[kept] = e
+            kept += 1
             if _wins(x, y, tri, he, imp, e):
+                f = he[e]
                 winners[nw] = e
                 nw += 1
-                stamp[e] = -k
-                stamp[he[e]] = -k
+                touched[e // 3] = -(4 * k + e % 3)
+                touched[f // 3] = -(4 * k + f % 3)
+        nc = kept
+        nr = 0
+        if nc == 0 and not (track and k <= assume and (nf > 0 or k == 1)):
+            break
         if track:
             nn = 0
             if k <= assume:
@@ -325,7 +459,7 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         f = he[e]
                         if f < 0 or taint[f // 3] or marked[f // 3] == k or imp[e] <= 0.0:
                             continue
-                        if stamp[e] != -k and _known_beaten(x, y, tri, he, imp, taint, open_edge, e):
+                        if touched[t] != -(4 * k + j) and _known_beaten(x, y, tri, he, imp, taint, open_edge, e):
                             continue
                         marked[f // 3] = k
                         source[f // 3] = source[t]
@@ -356,6 +490,51 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
             continue
         rounds = k
         for i in range(nw):
+            # what the flip and the rescoring read, asked for ahead: the winner's triangles, then its other
+            # triangle's, the neighbours and the corners
+            if i + 2 * _AHEAD < nw:
+                e = winners[i + 2 * _AHEAD]
+                _prefetch(he, e)
+                _prefetch(tri, e)
+            if i + _AHEAD < nw:
+                e = np.int64(winners[i + _AHEAD])
+                f = np.int64(he[e])
+                _prefetch(tri, f)
+                _prefetch(he, f)
+                _prefetch(q, f // 3)
+                _prefetch(q, e // 3)
+                _prefetch(touched, f // 3)
+                for g in (e, _next(e), _prev(e)):
+                    _prefetch(x, tri[g])
+                    _prefetch(y, tri[g])
+                for g in (_next(e), _prev(e)):
+                    h = he[g]
+                    if h >= 0:
+                        _prefetch(tri, h)
+                        _prefetch(he, h)
+                        _prefetch(q, h // 3)
+                        _prefetch(touched, h // 3)
+                        _prefetch(imp, h)
+            if i + _AHEAD // 2 < nw:
+                e = np.int64(winners[i + _AHEAD // 2])
+                f = np.int64(he[e])
+                d = tri[_prev(f)]
+                _prefetch(x, d)
+                _prefetch(y, d)
+                for g in (_next(f), _prev(f)):
+                    h = he[g]
+                    if h >= 0:
+                        _prefetch(tri, h)
+                        _prefetch(he, h)
+                        _prefetch(q, h // 3)
+                        _prefetch(touched, h // 3)
+                        _prefetch(imp, h)
+                for g in (_next(e), _prev(e)):
+                    h = he[g]
+                    if h >= 0:
+                        d = tri[_prev(h)]
+                        _prefetch(x, d)
+                        _prefetch(y, d)
             e = np.int64(winners[i])
             f = np.int64(he[e])
             t1 = e // 3
@@ -379,36 +558,33 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         near = True
                 if near:
                     last_window = k
-        # the next round's candidates: those whose triangles stayed, and the rescored edges of the flipped ones
-        kept = 0
-        for i in range(nc):
-            e = cand[i]
-            f = he[e]
-            if touched[e // 3] == k or (f >= 0 and touched[f // 3] == k):
-                continue
-            cand[kept] = e
-            kept += 1
-        nc = kept
-        for i in range(nw):
-            e = np.int64(winners[i])
-            # after the flip, e's slot and its old twin's hold the two new triangles; the new diagonal is next(e)
-            for t in (e // 3, np.int64(he[_next(e)]) // 3):
+            # the new diagonal (next(e), its twin next(f)) would flip back to the two triangles it replaced,
+            # which score below the new ones: it is no candidate
+            ne = _next(e)
+            nf2 = _next(f)
+            imp[ne] = -1.0
+            imp[nf2] = -1.0
+            # the other edges of the new triangles: rescored now when their far triangle is final for the
+            # round; when a later winner of the round flips it, by that one (the edge is reached here first)
+            for t in (t1, t2):
                 for j in range(3):
                     g = 3 * t + j
+                    if g == ne or g == nf2:
+                        continue
                     h = he[g]
                     if h < 0 or not (active[g // 3] and active[h // 3]):
                         imp[g] = -1.0
                         continue
-                    c = g if g < h else h
-                    if stamp[c] == k:
-                        continue
-                    stamp[c] = k
-                    v = _improvement(measure, tolerance, x, y, tri, he, q, c)
-                    imp[c] = v
-                    imp[he[c]] = v
-                    if v > 0.0:
-                        cand[nc] = c
-                        nc += 1
+                    far = touched[h // 3]
+                    if far != k:  # else an earlier winner flipped the far triangle, reached the edge and left it
+                        reached[nr] = g
+                        nr += 1
+                        if -4 * k - 2 <= far <= -4 * k:
+                            continue
+                    cg = g if g < h else h
+                    v = _improvement(measure, tolerance, x, y, tri, he, q, cg)
+                    imp[g] = v
+                    imp[h] = v
     return flips, rounds, last_window, zone
 
 
