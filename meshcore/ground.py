@@ -13,14 +13,16 @@ Mitchell 2013, the filter PDAL runs by default) with three changes:
 2. **Openings of the lowest surface, each from that surface.**  The lowest
    point of every ``cell`` (a grid aligned on multiples of ``cell``, so it is
    the same grid in any tile) makes a surface with holes where cells are
-   empty; it is opened (a minimum then a maximum over a square window of
-   radius ``r`` cells, ignoring the holes) for ``r = 1 ... R`` with
-   ``R = ceil(max_window / cell)``.  A cell whose opening drops by more than
-   ``slope * r * cell`` from radius ``r - 1`` to ``r`` holds an object
+   empty; it is opened (a minimum of the data over a square window of
+   radius ``r`` cells, then a maximum of that over the cells within
+   :data:`GAP_CELLS` of the data: an object on the edge of a void, a tree
+   at the rim of a clearing without returns, opens like any other) for
+   ``r = 1 ... R`` with ``R = ceil(max_window / cell)``.  A
+   cell whose opening drops by more than ``slope * r * cell`` (at most
+   ``object_height``) from radius ``r - 1`` to ``r`` holds an object
    (Pingel's test).  Each opening is computed from the lowest surface
-   itself, not from the previous opening: for square windows the two are the
-   same (openings by nested squares form a granulometry), and it bounds what
-   a cell's flag depends on.
+   itself, not from the previous one, which bounds what a cell's flag
+   depends on.
 3. **A TIN of the ground cells instead of an inpainted grid.**  The lowest
    points of the cells not flagged (the seeds) are triangulated (Delaunay,
    :func:`meshcore.delaunay.delaunay`), and the triangles of circumradius
@@ -47,7 +49,8 @@ coordinates, so a point's class depends only on the points near it:
 * a low-outlier decision on the block of 3 x 3 ``outlier_cell`` cells around
   the point's own;
 * a cell's object flag on the lowest points of the cells within ``2 R`` of
-  it (an opening of radius ``R`` reads ``2 R`` cells each way), each of
+  it (an opening of radius ``R`` reads ``2 R`` cells each way, and whether
+  a cell's erosion is read, :data:`GAP_CELLS` beyond it), each of
   which depends on the outliers as above: so a seed depends on the points
   within :meth:`GroundParameters.margin` of it (a square);
 * a point's class on the seeds of the live triangles containing it, fixed by
@@ -106,8 +109,12 @@ class GroundParameters:
         metres, on flat ground.
     scalar : float
         Added to ``threshold`` per unit of the TIN's slope, metres.  Pingel's
-        1.25 is for the gradient of a smoothed grid; a TIN facet's slope is
-        steeper wherever one seed is off, so less of it is taken.
+        1.25 is for the gradient of a smoothed grid; a TIN through the
+        ground's own lowest points follows a slope without that allowance,
+        and a facet's slope is steepest where one seed is off, so little of
+        it is taken.  The defaults of ``threshold``, ``scalar`` and
+        ``object_height`` were chosen by ``bench/bench_ground.py`` over five
+        surveys (town, fields, forest, steep ground; metres and feet).
     object_height : float
         A drop of the opening larger than this from one radius to the next
         marks an object whatever the radius, metres (Pingel's threshold
@@ -128,9 +135,9 @@ class GroundParameters:
     cell: float = 1.0
     max_window: float = 50.0
     slope: float = 0.15
-    threshold: float = 0.5
-    scalar: float = 0.5
-    object_height: float = 2.0
+    threshold: float = 0.25
+    scalar: float = 0.1
+    object_height: float = 4.0
     outlier_depth: float = 1.0
     outlier_cell: float = 5.0
     max_radius: float = 50.0
@@ -142,7 +149,8 @@ class GroundParameters:
         low-outlier test the block of 3 x 3 ``outlier_cell`` cells around a
         point's own."""
         radii = max(1, math.ceil(self.max_window / self.cell))
-        return ((2 * radii + 1) * self.cell + 2 * self.outlier_cell) / unit
+        reads = max(2 * radii, radii + GAP_CELLS)  # an erosion, or whether a cell is read, within radii
+        return ((reads + 1) * self.cell + 2 * self.outlier_cell) / unit
 
     def max_reach(self, unit: float = 1.0) -> float:
         """The largest :attr:`GroundResult.reach` of any point, in the coordinates' units."""
@@ -320,9 +328,14 @@ def _square_min(grid, r, out) -> None:
 
 
 @njit
-def _opening(surface, r, scratch, out) -> None:
+def _opening(surface, read, r, scratch, out) -> None:
     """Opening of ``surface`` (NaN: no data) by the square of radius ``r``
-    cells, with the holes ignored; NaN where ``surface`` has none."""
+    cells, with the holes ignored: the erosion is the minimum of the data
+    within ``r``, and the dilation the maximum of the erosion at the cells
+    ``read`` within ``r`` (the cells with data and the gaps between them:
+    an erosion read inside a void would be the lone value of an object on
+    the void's edge, which would then never open); NaN where ``surface``
+    has none."""
     ny, nx = surface.shape
     for i in range(ny):
         for j in range(nx):
@@ -331,16 +344,32 @@ def _opening(surface, r, scratch, out) -> None:
     _square_min(scratch, r, out)  # erosion: +inf where no data lies within r
     for i in range(ny):
         for j in range(nx):
-            v = out[i, j]
-            scratch[i, j] = np.inf if v == np.inf else -v  # a maximum as the minimum of negatives; holes ignored
+            # a maximum as the minimum of negatives, over the cells read
+            scratch[i, j] = -out[i, j] if read[i, j] else np.inf
     _square_min(scratch, r, out)
     for i in range(ny):
         for j in range(nx):
             out[i, j] = np.nan if np.isnan(surface[i, j]) else -out[i, j]
 
 
+GAP_CELLS = 8
+"""How far from the nearest data (cells, in rows or columns) an empty cell's
+erosion is still read by the dilations: the gaps between returns, and the
+survey's rim, but not the inside of a void.  Measured on the shared samples
+and the synthetic scene of the tests: 1 leaves a strip of ground between a
+channel and the survey's edge for an object; the whole void (the unbounded
+plane's opening) leaves a tree on a void's edge as ground."""
+
+
+def _near_data(surface: np.ndarray, k: int) -> np.ndarray:
+    """Cells with data, and the empty cells within ``k`` cells of one: those whose erosion a dilation reads."""
+    low = np.empty_like(surface)
+    _square_min(np.where(np.isnan(surface), np.inf, surface), k, low)
+    return np.isfinite(low)
+
+
 @njit
-def _object_kernel(surface, radii, slope_cell, cap, objects) -> None:
+def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
     """Pingel's progressive test: ``objects`` where the opening of radius
     ``r`` lies more than ``slope_cell * r`` below the opening of radius ``r - 1``."""
     ny, nx = surface.shape
@@ -348,7 +377,7 @@ def _object_kernel(surface, radii, slope_cell, cap, objects) -> None:
     current = np.empty_like(surface)
     scratch = np.empty_like(surface)
     for r in range(1, radii + 1):
-        _opening(surface, r, scratch, current)
+        _opening(surface, read, r, scratch, current)
         limit = min(slope_cell * r, cap)
         for i in range(ny):
             for j in range(nx):
@@ -659,12 +688,11 @@ def classify_ground(
     surface[cell[lowest]] = z[lowest]
     surface = surface.reshape(ny, nx)
     radii = max(1, math.ceil(p.max_window / p.cell))
-    # the openings of the unbounded plane: an erosion is finite up to radii cells beyond the data, and a
-    # dilation reads it there, so the grid is padded by radii cells (else the data's extent would matter)
-    padded = np.pad(surface, radii, constant_values=np.nan)
+    pad = min(radii, GAP_CELLS)  # the cells beyond the data that a dilation reads
+    padded = np.pad(surface, pad, constant_values=np.nan)
     objects = np.zeros(padded.shape, dtype=np.bool_)
-    _object_kernel(padded, radii, p.slope * size, p.object_height / unit, objects)
-    objects = objects[radii:-radii, radii:-radii]
+    _object_kernel(padded, _near_data(padded, GAP_CELLS), radii, p.slope * size, p.object_height / unit, objects)
+    objects = objects[pad:-pad, pad:-pad]
     seeds = lowest[~objects.ravel()[cell[lowest]]]
 
     # 3. the ground TIN

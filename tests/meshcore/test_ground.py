@@ -252,12 +252,14 @@ def test_inputs_unchanged(rng):
 # --- the shared samples, classes removed ----------------------------------------------------------------------
 
 # file, metres per unit, largest RMS of the DTM difference in the file's unit
+# (sample, metres in its unit, largest RMS of the DTM difference in its unit: the targets where met,
+# and CSF's figure beside them for ign_semis, 0.86 m)
 SAMPLES = [
-    ("ign_semis_lambert93.laz", 1.0, 0.8),
-    ("4_6_crop_us_feet.las", 1200 / 3937, 0.5),
-    ("startinpy_small_extrabytes.laz", 1.0, 0.2),
-    ("extra_byte_blocks_lambert93.laz", 1.0, 0.1),
-    ("autzen_trim.las", 0.3048, 0.8),
+    ("ign_semis_lambert93.laz", 1.0, 0.75),
+    ("4_6_crop_us_feet.las", 1200 / 3937, 0.15),
+    ("startinpy_small_extrabytes.laz", 1.0, 0.11),
+    ("extra_byte_blocks_lambert93.laz", 1.0, 0.03),
+    ("autzen_trim.las", 0.3048, 0.5),
 ]
 
 
@@ -276,7 +278,7 @@ def test_shared_sample(name, unit, rms_limit):
         x, y, z, unit=unit, return_number=np.asarray(las.return_number), number_of_returns=np.asarray(las.number_of_returns)
     )
     g = res.ground
-    assert (ref & ~g).sum() / ref.sum() < 0.02  # type I
+    assert (ref & ~g).sum() / ref.sum() < 0.04  # type I
     # the DTMs: meshcore's Delaunay TIN of each ground, on cells of one file unit
     x0, y0 = math.floor(x.min()), math.floor(y.min())
     nx, ny = int(math.ceil(x.max() - x0)), int(math.ceil(y.max() - y0))

@@ -65,6 +65,7 @@ def test_an_unclassified_survey_gets_a_terrain_model_of_its_ground(tmp_path, sur
     dem = ds["elevation"].values
     truth = _terrain(gx, gy)
     inside = np.isfinite(dem) & (gx > 5) & (gx < 295) & (gy > 5) & (gy < 245)  # off the survey's edges
+    inside &= ~((np.abs(gx - 150) < 3) & (gy < 122))  # and off the cliff, where any TIN cuts the corner
     error = np.abs(dem - truth)[inside]
     # the buildings, trees and deck are gone: the DTM lies on the ground, not on roofs 4-14 m up
     assert np.sqrt(np.mean(error**2)) < 0.5, np.sqrt(np.mean(error**2))
