@@ -327,31 +327,6 @@ def _square_min(grid, r, out) -> None:
         _line_min(tmp, ny, nx, col, r, padded, g, h, o)
 
 
-@njit
-def _opening(surface, read, r, scratch, out) -> None:
-    """Opening of ``surface`` (NaN: no data) by the square of radius ``r``
-    cells, with the holes ignored: the erosion is the minimum of the data
-    within ``r``, and the dilation the maximum of the erosion at the cells
-    ``read`` within ``r`` (the cells with data and the gaps between them:
-    an erosion read inside a void would be the lone value of an object on
-    the void's edge, which would then never open); NaN where ``surface``
-    has none."""
-    ny, nx = surface.shape
-    for i in range(ny):
-        for j in range(nx):
-            v = surface[i, j]
-            scratch[i, j] = np.inf if np.isnan(v) else v
-    _square_min(scratch, r, out)  # erosion: +inf where no data lies within r
-    for i in range(ny):
-        for j in range(nx):
-            # a maximum as the minimum of negatives, over the cells read
-            scratch[i, j] = -out[i, j] if read[i, j] else np.inf
-    _square_min(scratch, r, out)
-    for i in range(ny):
-        for j in range(nx):
-            out[i, j] = np.nan if np.isnan(surface[i, j]) else -out[i, j]
-
-
 GAP_CELLS = 8
 """How far from the nearest data (cells, in rows or columns) an empty cell's
 erosion is still read by the dilations: the gaps between returns, and the
@@ -369,20 +344,65 @@ def _near_data(surface: np.ndarray, k: int) -> np.ndarray:
 
 
 @njit
+def _min3(grid, tmp, out) -> None:
+    """Minimum of ``grid`` over the 3 x 3 cells around each (the grid's outside infinite)."""
+    ny, nx = grid.shape
+    for i in range(ny):
+        for j in range(nx):
+            v = grid[i, j]
+            if j > 0 and grid[i, j - 1] < v:
+                v = grid[i, j - 1]
+            if j + 1 < nx and grid[i, j + 1] < v:
+                v = grid[i, j + 1]
+            tmp[i, j] = v
+    for i in range(ny):
+        for j in range(nx):
+            v = tmp[i, j]
+            if i > 0 and tmp[i - 1, j] < v:
+                v = tmp[i - 1, j]
+            if i + 1 < ny and tmp[i + 1, j] < v:
+                v = tmp[i + 1, j]
+            out[i, j] = v
+
+
+@njit
 def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
     """Pingel's progressive test: ``objects`` where the opening of radius
-    ``r`` lies more than ``slope_cell * r`` below the opening of radius ``r - 1``."""
+    ``r`` lies more than ``slope_cell * r`` (at most ``cap``) below the
+    opening of radius ``r - 1``.
+
+    The opening of radius ``r`` is the maximum, over the cells ``read``
+    within ``r``, of the erosion of radius ``r``: the minimum of the data
+    within ``r`` (holes infinite), which is the 3 x 3 minimum of the erosion
+    of radius ``r - 1`` (squares add up), so each radius costs one small
+    erosion and one dilation."""
     ny, nx = surface.shape
+    eroded = np.empty_like(surface)
+    for i in range(ny):
+        for j in range(nx):
+            v = surface[i, j]
+            eroded[i, j] = np.inf if np.isnan(v) else v
     previous = surface.copy()
     current = np.empty_like(surface)
     scratch = np.empty_like(surface)
+    tmp = np.empty_like(surface)
     for r in range(1, radii + 1):
-        _opening(surface, read, r, scratch, current)
+        _min3(eroded, tmp, scratch)
+        eroded, scratch = scratch, eroded
+        for i in range(ny):
+            for j in range(nx):
+                # a maximum as the minimum of negatives, over the cells read
+                scratch[i, j] = -eroded[i, j] if read[i, j] else np.inf
+        _square_min(scratch, r, current)
         limit = min(slope_cell * r, cap)
         for i in range(ny):
             for j in range(nx):
-                if previous[i, j] - current[i, j] > limit:
-                    objects[i, j] = True
+                v = surface[i, j]
+                if not np.isnan(v):
+                    c = -current[i, j]
+                    if previous[i, j] - c > limit:
+                        objects[i, j] = True
+                    current[i, j] = c
         previous, current = current, previous
 
 

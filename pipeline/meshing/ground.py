@@ -82,11 +82,12 @@ class GroundJob:
 
 def ground_blocks(grid: TileGrid, tile_points: dict[tuple[int, int], int], margin: float,
                   budget: int = 6_000_000) -> list[tuple[tuple[int, int], tuple[int, int]]]:
-    """Blocks of ``k`` x ``k`` tiles, ``k`` such that a block is about four
-    times the ``margin`` a decision reads across (the margin loaded around
-    it then costs about as much again as the block), but holds about
-    ``budget`` points at most (``tile_points``: points routed to each tile)."""
-    k = max(1, round(4.0 * margin / grid.tile_size))
+    """Blocks of ``k`` x ``k`` tiles, ``k`` such that a block is at least
+    eight times the ``margin`` a decision reads across (the margin loaded
+    around it then costs at most about half as much again as the block), but
+    holds about ``budget`` points at most (``tile_points``: points routed to
+    each tile).  A survey smaller than that is one block."""
+    k = max(1, math.ceil(8.0 * margin / grid.tile_size))
     mean = max(1.0, sum(tile_points.values()) / max(1, len(tile_points)))
     k = max(1, min(k, int(math.sqrt(budget / mean))))
     return [((r, min(r + k, grid.n_rows) - 1), (c, min(c + k, grid.n_cols) - 1))

@@ -132,7 +132,7 @@ def test_a_run_stopped_in_the_ground_stage_resumes_to_the_same_store(tmp_path, s
         return real(job)
 
     monkeypatch.setattr(runner, "classify_block", stopped)
-    # blocks of one tile (the default blocks are some 450 m across: the survey would be one)
+    # blocks of one tile (the default blocks are some 900 m across: the survey would be one)
     monkeypatch.setattr(runner, "ground_blocks", lambda grid, points, margin: ground.ground_blocks(grid, points, 10.0))
     config = RunConfig(inputs=(str(path),), output=str(tmp_path / "r.zarr"), resolution=2.0, tile_size=40.0,
                        classify_ground=True, workers=1)
