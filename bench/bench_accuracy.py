@@ -103,7 +103,7 @@ def exact_nodes_error(fit: np.ndarray, test: np.ndarray) -> float:
     z = np.full(mesh.vertices.shape[0], np.nan)
     z[mesh.input_to_vertex] = fit[:, 2]
     variogram = meshcore.fit_variogram(fit[:, :2], fit[:, 2])
-    plan = meshcore.smooth_plan(mesh, variogram)
+    plan = meshcore.tiles.smooth_plan(mesh, variogram)
     refined = plan.refinement.mesh
     added = refined.vertices[z.size:]
     z_all = np.concatenate([z, lidr_surface(added[:, 0], added[:, 1])])

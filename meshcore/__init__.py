@@ -14,118 +14,68 @@ patches through every point, the paper's section 4).  No I/O.
 
 from __future__ import annotations
 
-from ._jit import kernel
-from ._order import block_order, lexicographic_order
-from .build import KERNEL_STAGES, build_mesh, load_kernels
-from .certificate import KnownRegion, WindowCertificate
+from .build import build_mesh
 from .errors import InvalidInputError, InvalidMeshError, MeshError
 from .ground import GroundParameters, GroundResult, classify_ground
 from .interpolate import gradient, interpolate
-from .mesh import Mesh, with_vertices
-from .natural import NaturalCoordinates, natural_coordinates, natural_values
+from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
-from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .predicates import incircle, orient2d
 from .quadrature import FaceQuadrature, face_quadrature, l2_errors
 from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
-from .rasterize import rasterize, sampled_faces
-from .refine import Refinement, cut_face_rows, refine_long_faces, with_cut_faces
-from .smooth import (
-    DEFAULT_NEIGHBOURS,
-    AddedPoints,
-    Neighbourhoods,
-    SmoothPlan,
-    SmoothSurface,
-    Variogram,
-    VoidFill,
-    fit_variogram,
-    smooth_neighbourhoods,
-    smooth_nodes,
-    smooth_plan,
-    smooth_surface,
-)
+from .rasterize import rasterize
+from .refine import Refinement, refine_long_faces
+from .smooth import SmoothSurface, Variogram, fit_variogram, smooth_nodes, smooth_surface
 from .validate import convex_hull, validate
 
 __version__ = "0.1.0"
 
 
-def kernels_compiled() -> bool:
-    """Whether this machine's kernel cache holds meshcore's mesh kernels, as
-    compiled from these sources (by any job since the install or upgrade).
-
-    When not, the first :func:`build_mesh` compiles them: about 13 s, which a
-    caller may spend in other processes while it does other work (two of
-    them, one per stage of :func:`load_kernels`, take half of that).
-    """
-    from ._jit import compiled_on_disk
-    from .build import _faces_kernel
-    from .delaunay import _sweep_kernel
-
-    # the first and the last of build_mesh's kernels: its two stages (see load_kernels)
-    return compiled_on_disk(_sweep_kernel) and compiled_on_disk(_faces_kernel)
+from . import kernels, tiles  # noqa: E402  (the kernel helpers for callers' own, and the tile protocol)
 
 __all__ = [
+    # meshes
     "Mesh",
-    "classify_ground",
-    "GroundParameters",
-    "GroundResult",
-    "with_vertices",
     "build_mesh",
-    "KnownRegion",
-    "WindowCertificate",
-    "load_kernels",
-    "KERNEL_STAGES",
-    "lexicographic_order",
-    "block_order",
-    "kernel",
-    "kernels_compiled",
-    "interpolate",
-    "gradient",
-    "rasterize",
-    "sampled_faces",
-    "smooth_nodes",
-    "smooth_plan",
-    "smooth_surface",
-    "SmoothPlan",
-    "SmoothSurface",
-    "AddedPoints",
-    "refine_long_faces",
-    "Refinement",
-    "with_cut_faces",
-    "cut_face_rows",
-    "fit_variogram",
-    "smooth_neighbourhoods",
-    "Neighbourhoods",
-    "VoidFill",
-    "NaturalCoordinates",
-    "natural_coordinates",
-    "natural_values",
-    "Variogram",
-    "Surface",
-    "NODES_PER_FACE",
-    "linear_nodes",
-    "node_deviations",
-    "nodes_from_deviations",
-    "DEFAULT_NEIGHBOURS",
     "validate",
     "convex_hull",
+    "quality_summary",
+    "QualitySummary",
+    "MeasureSummary",
     "s1",
     "s2",
     "s3",
     "s4",
-    "quality_summary",
-    "face_quadrature",
-    "l2_errors",
-    "FaceQuadrature",
-    "QualitySummary",
-    "MeasureSummary",
-    "orient2d",
-    "incircle",
     "TriangleMeasure",
     "QuadMeasure",
     "MergeMethod",
+    "Surface",
     "parse_option",
+    "orient2d",
+    "incircle",
+    # surfaces over them
+    "interpolate",
+    "gradient",
+    "rasterize",
+    "refine_long_faces",
+    "Refinement",
+    "smooth_nodes",
+    "smooth_surface",
+    "SmoothSurface",
+    "fit_variogram",
+    "Variogram",
+    "face_quadrature",
+    "FaceQuadrature",
+    "l2_errors",
+    # ground of unclassified clouds
+    "classify_ground",
+    "GroundParameters",
+    "GroundResult",
+    # errors
     "MeshError",
     "InvalidInputError",
     "InvalidMeshError",
 ]
+"""The user API.  The tile protocol (certificates, orders, per-tile pieces of
+the smooth surface, compile plumbing) is :mod:`meshcore.tiles`; kernels of a
+caller's own are written with :mod:`meshcore.kernels`."""

@@ -23,26 +23,26 @@ def load_mesh_kernels(triangle_measure: str, quad_measure: str | None, merge: st
     """The mesh kernels of :func:`~pipeline.meshing.tiles.load_kernels`: a tile's mesh (and its smooth
     nodes), or those of ``parts`` of it, each compiled without the others:
     ``"triangulation"`` and ``"faces"`` (the two stages of
-    :func:`meshcore.load_kernels`; with the order of a piece's vertices) and
+    :func:`meshcore.tiles.load_kernels`; with the order of a piece's vertices) and
     ``"smooth"`` (the nodes and their long faces, on a mesh made here; only
     with ``surface="smooth"``).  The variogram's fit is left to the caller,
     which runs it before the tiles."""
     if "triangulation" in parts:
-        meshcore.load_kernels("triangulation")
+        meshcore.tiles.load_kernels("triangulation")
     if "faces" in parts:
-        mesh = meshcore.load_kernels("faces", triangle_measure, quad_measure, merge)
-        meshcore.lexicographic_order(mesh.vertices)
+        mesh = meshcore.tiles.load_kernels("faces", triangle_measure, quad_measure, merge)
+        meshcore.tiles.lexicographic_order(mesh.vertices)
     if "smooth" in parts and surface == "smooth":
         mesh = sample_grid_mesh(8)
         z = mesh.vertices[:, 0] * 0.1 + np.sin(mesh.vertices[:, 1])
-        meshcore.block_order(np.column_stack([mesh.vertices, z]), 1.0, (0.0, 0.0, 8.0, 8.0))
+        meshcore.tiles.block_order(np.column_stack([mesh.vertices, z]), 1.0, (0.0, 0.0, 8.0, 8.0))
         # not fitted: the run fits its variogram itself, before its tiles.  Its
         # edges are 20 spacings long, split as long faces are: those kernels too
         variogram = meshcore.Variogram(nugget=0.01, sill=1.0, range=3.0, model="matern52", spacing=0.05)
         meshcore.smooth_surface(mesh, z, variogram)
         # and a plan for the faces a grid samples, grown by points its disks need, as a tile's is
-        plan = meshcore.smooth_plan(mesh, variogram, faces=meshcore.sampled_faces(mesh, 0.0, 0.0, 2.0, 4, 4))
-        meshcore.smooth_plan(meshcore.with_vertices(mesh, [[3.5, -0.5]]), variogram, previous=plan)
+        plan = meshcore.tiles.smooth_plan(mesh, variogram, faces=meshcore.tiles.sampled_faces(mesh, 0.0, 0.0, 2.0, 4, 4))
+        meshcore.tiles.smooth_plan(meshcore.tiles.with_vertices(mesh, [[3.5, -0.5]]), variogram, previous=plan)
 
 
 def sample_grid_mesh(n: int) -> meshcore.Mesh:

@@ -50,7 +50,7 @@ def _merged(points: NDArray[np.float64], policy: str) -> NDArray[np.float64]:
     """One point per distinct x, y, with the z the run keeps (``policy``, as its tiles merge them)."""
     if points.shape[0] == 0:
         return np.empty((0, 3))
-    order = meshcore.lexicographic_order(points[:, :2])  # np.unique(axis=0)'s order, several times faster
+    order = meshcore.tiles.lexicographic_order(points[:, :2])  # np.unique(axis=0)'s order, several times faster
     xy = np.take(points[:, :2], order, axis=0)  # rows gathered by np.take: several times faster than points[order, :2]
     new = np.empty(order.size, dtype=bool)
     new[0] = True
@@ -107,7 +107,7 @@ def run_variogram(
     parts = [p for p in parts if p.shape[0]]
     sample = _merged(np.concatenate(parts), policy) if parts else np.empty((0, 3))
     try:
-        variogram = meshcore.fit_variogram(sample[:, :2], sample[:, 2], neighbours=meshcore.DEFAULT_NEIGHBOURS)
+        variogram = meshcore.fit_variogram(sample[:, :2], sample[:, 2], neighbours=meshcore.tiles.DEFAULT_NEIGHBOURS)
         how = "leave-one-out kriging errors on a sample"
     except meshcore.InvalidInputError:
         # too few points to fit: any model gives the few faces there are
@@ -118,7 +118,7 @@ def run_variogram(
         "variogram": variogram.to_dict(),
         "model": variogram.model,
         "fitted": how,
-        "neighbours": meshcore.DEFAULT_NEIGHBOURS,
+        "neighbours": meshcore.tiles.DEFAULT_NEIGHBOURS,
         "sample_points": int(sample.shape[0]),
         "sample": how_drawn,
     }

@@ -15,11 +15,11 @@ one more disk the tile must hold, loaded like an escaping circle, so
 neighbouring tiles split their shared long edges alike and krig the nodes of
 their shared edges from the same points, with the same values.  Only the
 faces that hold a centre of the run's grid get nodes
-(:func:`meshcore.sampled_faces`): the DEM samples the surface nowhere else,
+(:func:`meshcore.tiles.sampled_faces`): the DEM samples the surface nowhere else,
 and the mesh written carries no patch.  On a survey denser than its grid
 that is a fraction of the faces (one in twelve for 8 points a square metre
 at 1 m).  The piece saves those faces' nodes (``noded``: their rows), and
-for the faces cut (:func:`meshcore.smooth_plan`) their triangles, nodes and
+for the faces cut (:func:`meshcore.tiles.smooth_plan`) their triangles, nodes and
 added points beside: the mesh written is the combined mesh, the DEM is drawn
 from the smooth surface over the faces with nodes.
 
@@ -245,7 +245,7 @@ def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box
     return [(i, _uncovered(tuple(boxes[i].tolist()), held)) for i in rows.tolist()]
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _outside_boxes(boxes: NDArray[np.float64], held: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Whether each box ``(x0, y0, x1, y1)`` has a part outside every one of
     the closed boxes ``held``: :func:`_uncovered` is not empty."""
@@ -452,7 +452,7 @@ def _along_hull(hull: NDArray[np.float64] | None, axis: int, side: float, depth:
     return (min(lo, float(a[meets].min(initial=lo)) - depth), max(hi, float(b[meets].max(initial=hi)) + depth))
 
 
-class _HeldRegion(meshcore.KnownRegion):
+class _HeldRegion(meshcore.tiles.KnownRegion):
     """What a tile holds, for meshcore's certificate: the box it holds whole,
     the global hull, and its other held boxes (a circle is vouched for when its
     part inside the hull lies in them)."""
@@ -500,7 +500,7 @@ def _inside_hull(circles: NDArray[np.float64], hull: NDArray[np.float64]) -> NDA
     return out
 
 
-#: the side of :func:`meshcore.block_order`'s cells, in point spacings, for the smooth surface
+#: the side of :func:`meshcore.tiles.block_order`'s cells, in point spacings, for the smooth surface
 #: (measured on 125k random points: 4 spacings 0.04 s faster a tile than 2 or 32, and than the random order)
 _BLOCK_SPACINGS = 4.0
 
@@ -614,7 +614,7 @@ class _Certifying:
         if self.smooth:
             # near in the plane, near in memory: the smooth surface's kernels read every vertex's neighbours
             # (random file orders made them 10-20% slower); the mesh is the same in any order
-            points = np.take(points, meshcore.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, self.held[0]), axis=0)
+            points = np.take(points, meshcore.tiles.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, self.held[0]), axis=0)
         mesh = meshcore.build_mesh(
             points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=self.window,
             known=_HeldRegion(self.held, self.hull_xy, job.extent), assume_rounds=job.assume_rounds,
@@ -628,7 +628,7 @@ class _Certifying:
     def _hold_as_vertices(self) -> None:
         """``mesh`` and ``meshed`` with the points loaded since the build as vertices that no face uses."""
         since = self.points[self.meshed.shape[0]:]
-        self.mesh, self.meshed = meshcore.with_vertices(self.mesh, since[:, :2]), np.concatenate([self.meshed, since])
+        self.mesh, self.meshed = meshcore.tiles.with_vertices(self.mesh, since[:, :2]), np.concatenate([self.meshed, since])
 
     def _hold(self, boxes: list) -> NDArray[np.float64]:
         """Load the points of ``boxes`` not held yet; the boxes count as held."""
@@ -700,8 +700,8 @@ class _Certifying:
         """The smooth surface's plan over the certified faces that hold a centre of the grid."""
         g = self.job.grid
         self._hold_as_vertices()
-        self.sampled = meshcore.sampled_faces(self.mesh, g.x0, g.y0, g.resolution, g.nx, g.ny)
-        self.plan = meshcore.smooth_plan(self.mesh, self.job.variogram, faces=self.sampled)
+        self.sampled = meshcore.tiles.sampled_faces(self.mesh, g.x0, g.y0, g.resolution, g.nx, g.ny)
+        self.plan = meshcore.tiles.smooth_plan(self.mesh, self.job.variogram, faces=self.sampled)
 
     def load_open(self, requests: list, circles: list, gap: bool) -> None:
         """Load the points of ``requests`` for the open ``circles`` (or the
@@ -717,7 +717,7 @@ class _Certifying:
             # the faces' circles are held, and the points lie outside what was
             # held: vertices, kriged from where a disk holds them
             self._hold_as_vertices()
-            self.plan = meshcore.smooth_plan(self.mesh, self.job.variogram, previous=self.plan)
+            self.plan = meshcore.tiles.smooth_plan(self.mesh, self.job.variogram, previous=self.plan)
         elif gap or _any_in_circles(extra, np.array(circles).reshape(-1, 3)):
             # a loaded point lies in a circle, or may close the gap: build again
             self.rebuild()
@@ -782,7 +782,7 @@ def _piece_tables(job: TileJob, mesh: meshcore.Mesh, meshed: NDArray[np.float64]
     n = xy.shape[0]
     owned_order = np.flatnonzero(owned)
     # rows of (n, k) arrays are gathered with np.take: ten times faster than xy[index]
-    owned_order = owned_order[meshcore.lexicographic_order(np.take(xy, owned_order, axis=0))]
+    owned_order = owned_order[meshcore.tiles.lexicographic_order(np.take(xy, owned_order, axis=0))]
     # one slot past the vertices stands for the -1 of a triangle's 4th corner
     used_mask = np.zeros(n + 1, dtype=bool)
     used_mask[mesh.faces.ravel()] = True
@@ -882,7 +882,7 @@ def _reaching_out(vertices, faces, box) -> NDArray[np.bool_]:
     return _corner_outside(~points_in_box(vertices, box), faces)
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _corner_outside(outside, faces):
     """Whether any corner of each face (-1: no fourth corner) is ``outside``: one pass over the faces."""
     out = empty(faces.shape[0], dtype=np.bool_)
@@ -939,10 +939,10 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     """
     n_f, n_v = faces.shape[0], z.shape[0]
     noded = np.flatnonzero(sampled)
-    rows = meshcore.cut_face_rows(surface.parent, n_f)
+    rows = meshcore.tiles.cut_face_rows(surface.parent, n_f)
     # a face kept has the same corners and values in both meshes: the same deviations
     wanted = np.concatenate([noded, rows])
-    deviations = meshcore.node_deviations(np.take(surface.mesh.faces, wanted, axis=0), surface.z,
+    deviations = meshcore.tiles.node_deviations(np.take(surface.mesh.faces, wanted, axis=0), surface.z,
                                           np.take(surface.nodes, wanted, axis=0))
     corners = surface.mesh.faces[rows, :3].astype(np.int64)
     old = corners < n_v
@@ -1069,19 +1069,19 @@ def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dic
         face_offset += p["faces"].shape[0]
         added_offset += a.shape[0]
     deviations = (np.concatenate([p["nodes"] for p in parts]) if parts
-                  else np.empty((0, meshcore.NODES_PER_FACE), dtype=np.float32))
+                  else np.empty((0, meshcore.tiles.NODES_PER_FACE), dtype=np.float32))
     if not parent:  # nothing cut: the mesh's own faces
-        return meshcore.SmoothSurface(mesh, z, meshcore.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
+        return meshcore.SmoothSurface(mesh, z, meshcore.tiles.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
     cut_parent = np.concatenate(parent)
     triangles = np.concatenate(tris)
     cut_faces = np.column_stack([triangles, np.full(triangles.shape[0], -1, dtype=np.int64)])
-    faces, parents = meshcore.with_cut_faces(mesh.faces, cut_faces, cut_parent)
-    rows, _ = meshcore.with_cut_faces(deviations, np.concatenate(cut_nodes), cut_parent)
+    faces, parents = meshcore.tiles.with_cut_faces(mesh.faces, cut_faces, cut_parent)
+    rows, _ = meshcore.tiles.with_cut_faces(deviations, np.concatenate(cut_nodes), cut_parent)
     added_xyz = np.concatenate(added)
     vertices = np.concatenate([mesh.vertices, added_xyz[:, :2]])
     z_all = np.concatenate([z, added_xyz[:, 2]])
     refined = meshcore.Mesh(vertices, faces, np.arange(vertices.shape[0]))
-    return meshcore.SmoothSurface(refined, z_all, meshcore.nodes_from_deviations(faces, z_all, rows), parents)
+    return meshcore.SmoothSurface(refined, z_all, meshcore.tiles.nodes_from_deviations(faces, z_all, rows), parents)
 
 
 def dem_tile(job: TileJob) -> dict[str, NDArray]:
@@ -1123,9 +1123,9 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
     if surface != "smooth" or "face_kind" in layers:  # the linear surface's kernel: the DEM's, or the face kinds'
         meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge)
     if surface == "smooth":  # the run's variogram is fitted (its sample merged) before the tiles
-        meshcore.lexicographic_order(vertices)
+        meshcore.tiles.lexicographic_order(vertices)
         grid = sample_grid_mesh(8).vertices
-        meshcore.fit_variogram(grid, grid[:, 0] * 0.1 + np.sin(grid[:, 1]), neighbours=meshcore.DEFAULT_NEIGHBOURS)
+        meshcore.fit_variogram(grid, grid[:, 0] * 0.1 + np.sin(grid[:, 1]), neighbours=meshcore.tiles.DEFAULT_NEIGHBOURS)
     # a piece's table of vertices (x, y, z) and its faces, as mesh_tile saves them
     table = np.column_stack([vertices, z])
     _reaching_out(table, faces.astype(np.int32), (0.0, 0.0, 4.0, 4.0))
@@ -1134,8 +1134,8 @@ def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str
     if surface != "smooth":
         warm_up(tuple(layers))  # the products' own kernels (the slope's gradient)
     if surface == "smooth":
-        nodes = meshcore.linear_nodes(mesh.faces, z)
-        nodes = meshcore.nodes_from_deviations(mesh.faces, z, meshcore.node_deviations(mesh.faces, z, nodes))
+        nodes = meshcore.tiles.linear_nodes(mesh.faces, z)
+        nodes = meshcore.tiles.nodes_from_deviations(mesh.faces, z, meshcore.tiles.node_deviations(mesh.faces, z, nodes))
         smooth = meshcore.SmoothSurface(mesh, z, nodes, np.arange(faces.shape[0]))
         meshcore.rasterize(mesh, z, 0.0, 0.0, 1.0, 8, 8, max_edge=max_edge, surface=smooth)
         meshcore.gradient(mesh, z, vertices[:3, 0], vertices[:3, 1], surface=smooth)

@@ -4,7 +4,7 @@ numba compiles a kernel in the thread that first calls it, holding the GIL,
 so a run on this process's threads compiles its kernels one after another:
 about 20 s of kernels for the demo's first run (its later runs take 7 s).
 When the kernel cache holds no mesh kernels compiled from these sources
-(:func:`meshcore.kernels_compiled`: the first run after an install or an
+(:func:`meshcore.tiles.kernels_compiled`: the first run after an install or an
 upgrade), :func:`compile_aside` starts a process for each part of them
 (:data:`~pipeline.meshing.kernels.MESH_KERNEL_PARTS`: the Delaunay sweep's,
 the kernels after it, the smooth surface's; 6-8 s each on one core)
@@ -70,7 +70,7 @@ def compile_aside(job: TileJob | RunConfig) -> KernelCompile:
     """Start compiling the mesh kernels of ``job``'s measures in other
     processes, one per part, unless the kernel cache holds them already or
     such processes are still at it (then those are returned)."""
-    if meshcore.kernels_compiled():
+    if meshcore.tiles.kernels_compiled():
         return KernelCompile()
     measures = {"triangle_measure": job.triangle_measure, "quad_measure": job.quad_measure, "merge": job.merge,
                 "surface": job.surface}

@@ -75,7 +75,7 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
     save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _sorted_rows(table: NDArray[np.float64], x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
     """Row of each point ``(x[i], y[i])`` in ``table`` (n, 2 or more: x, y, ...),
     sorted by x then y (a tile's owned vertices), or -1 where it is not there."""
@@ -138,7 +138,7 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
     return block.what, block.start, block.stop
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _renumber(node_ids: NDArray[np.integer], faces: NDArray[np.integer], out: NDArray[np.integer]) -> None:
     """``out[i, k] = node_ids[faces[i, k]]``: a piece's face corners as global
     node ids; a missing 4th corner (-1) takes the slot past the vertices (-1)."""

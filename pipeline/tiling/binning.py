@@ -11,7 +11,7 @@ from meshcore.kernels import empty, larger, smaller
 __all__ = ["bins", "bin_of"]
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def bin_of(v: float, origin: float, inv_size: float, below: NDArray[np.float64], above: NDArray[np.float64]) -> int:
     """:meth:`TileGrid.bins` of one value: bin ``k`` is ``[below[k], above[k])``
     (the inner edges with -inf and +inf at the ends); no branch."""
@@ -21,7 +21,7 @@ def bin_of(v: float, origin: float, inv_size: float, below: NDArray[np.float64],
     return k
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def bins(values, origin, inv_size, below, above):
     out = empty(values.shape, dtype=np.intp)
     for i in range(values.shape[0]):

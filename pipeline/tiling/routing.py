@@ -207,7 +207,7 @@ def _read_only(rows: NDArray[np.float64]) -> NDArray[np.float64]:
     return view
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
     """Every point (a row: x, y, then its other columns) copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and
@@ -405,7 +405,7 @@ def points_in_box(
     return _in_box(view, float(box[0]), float(box[1]), float(box[2]), float(box[3]))
 
 
-@meshcore.kernel
+@meshcore.kernels.kernel
 def _in_box(points, x_min, y_min, x_max, y_max):
     """:func:`points_in_box` in one pass (numpy's takes seven over strided columns)."""
     out = empty(points.shape[0], dtype=np.bool_)

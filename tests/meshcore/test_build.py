@@ -397,7 +397,7 @@ def test_meets_box_is_exact_up_to_its_slack(rng):
 
 
 def test_lexicographic_order_sorts_by_x_then_y(rng):
-    from meshcore import lexicographic_order
+    from meshcore.tiles import lexicographic_order
 
     # survey-like coordinates on a 1 cm lattice: long runs of equal x, and
     # runs longer than the insertion-sorted ones
@@ -418,7 +418,7 @@ def test_lexicographic_order_sorts_by_x_then_y(rng):
     ],
 )
 def test_lexicographic_order_is_numpys_order_for_any_coordinates(make, rng):
-    from meshcore import lexicographic_order
+    from meshcore.tiles import lexicographic_order
 
     pts = make(rng)
     order = lexicographic_order(pts)
@@ -484,13 +484,13 @@ def test_the_faces_stage_compiles_on_a_grid_it_makes_as_build_mesh_would():
     """load_kernels("faces") runs build_mesh's stages after the sweep on a
     grid's triangulation: a valid windowed mesh, the same as build_mesh
     gives for the grid's points with the same window."""
-    mesh = meshcore.load_kernels("faces", "s3", "s4", "greedy")
+    mesh = meshcore.tiles.load_kernels("faces", "s3", "s4", "greedy")
     meshcore.validate(mesh)
     assert mesh.window == (1.0, 1.0, 6.0, 6.0) and mesh.faces.shape[0] > 0
     built = meshcore.build_mesh(mesh.vertices, "s3", "s4", "greedy", window=(1.0, 1.0, 6.0, 6.0),
                                 known=(-1.0, -1.0, 9.0, 9.0))
     corners = {tuple(sorted(map(tuple, mesh.vertices[f[f >= 0]]))) for f in mesh.faces}
     assert corners == {tuple(sorted(map(tuple, built.vertices[f[f >= 0]]))) for f in built.faces}
-    assert meshcore.load_kernels("triangulation") is None
+    assert meshcore.tiles.load_kernels("triangulation") is None
     with pytest.raises(meshcore.InvalidInputError, match="stage"):
-        meshcore.load_kernels("flips")
+        meshcore.tiles.load_kernels("flips")

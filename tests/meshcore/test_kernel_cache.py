@@ -100,7 +100,7 @@ def test_the_first_kernel_call_does_not_import_scipy_linalg():
 _TYPED = '''
 from typing import NamedTuple
 import numpy as np
-from meshcore import kernel
+from meshcore.kernels import kernel
 
 
 class {name}(NamedTuple):

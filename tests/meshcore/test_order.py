@@ -1,11 +1,12 @@
-"""meshcore.block_order: points near in the plane, near in the order."""
+"""meshcore.tiles.block_order: points near in the plane, near in the order."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from meshcore import InvalidInputError, block_order
+from meshcore import InvalidInputError
+from meshcore.tiles import block_order
 
 
 def test_a_stable_permutation_cell_by_cell_in_blocks():

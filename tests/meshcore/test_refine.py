@@ -280,7 +280,7 @@ def test_a_plan_grown_by_points_in_its_disks_is_the_plan_of_the_grown_mesh(rng):
     wanted = within(outside, plan.disks) & ~within(outside, mesh.window_escapes)
     assert wanted.sum() > 20
     added = np.concatenate([outside[wanted], outside[wanted][:3], xy[inside][:2]])  # and points already there
-    grown = meshcore.with_vertices(mesh, added)
+    grown = meshcore.tiles.with_vertices(mesh, added)
     assert grown.vertices.shape[0] == mesh.vertices.shape[0] + wanted.sum()
     np.testing.assert_array_equal(grown.vertices[grown.input_to_vertex[-5:]], added[-5:])
 
@@ -332,7 +332,7 @@ def test_a_plan_for_the_sampled_faces_gives_their_nodes_bit_for_bit(rng):
     assert whole_plan.refinement.ends.shape[0] > 0  # faces across the void are cut
     whole = smooth_surface(mesh, zz, variogram, plan=whole_plan)
     x0, y0, res, n = OFFSET[0] - 0.35, OFFSET[1] - 0.35, 2.0, 51
-    taken = meshcore.sampled_faces(mesh, x0, y0, res, n, n)
+    taken = meshcore.tiles.sampled_faces(mesh, x0, y0, res, n, n)
     assert 0.1 < taken.mean() < 0.6
     plan = smooth_plan(mesh, variogram, faces=taken)
     assert plan.nodes.positions.shape[0] < 0.7 * whole_plan.nodes.positions.shape[0]

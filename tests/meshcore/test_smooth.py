@@ -398,11 +398,11 @@ def test_linear_nodes_are_the_plane_and_agree_on_both_sides_of_every_edge(rng):
     xy = rng.random((400, 2)) * 100.0 + OFFSET
     mesh = meshcore.build_mesh(xy, "s3", "s4")
     v = mesh.vertices - OFFSET
-    plane = meshcore.linear_nodes(mesh.faces, 3.0 * v[:, 0] - 2.0 * v[:, 1] + 7.0)
+    plane = meshcore.tiles.linear_nodes(mesh.faces, 3.0 * v[:, 0] - 2.0 * v[:, 1] + 7.0)
     expected = _nodes_of(mesh, lambda x, y: 3.0 * (x - OFFSET[0]) - 2.0 * (y - OFFSET[1]) + 7.0)
     assert_array_equal(np.isnan(plane), np.isnan(expected))
     assert_allclose(plane, expected, rtol=0, atol=1e-8)  # the positions round at 6e5
-    rough = meshcore.linear_nodes(mesh.faces, rng.normal(0.0, 100.0, v.shape[0]))
+    rough = meshcore.tiles.linear_nodes(mesh.faces, rng.normal(0.0, 100.0, v.shape[0]))
     _, take, _, _ = _layout(mesh.vertices, mesh.faces)
     node = take.ravel()
     value = rough.ravel()
@@ -416,16 +416,16 @@ def test_node_deviations_are_single_precision_and_restore_the_same_bits_on_both_
     xy = rng.random((400, 2)) * 100.0 + OFFSET
     mesh = meshcore.build_mesh(xy, "s3", "s4")
     z = rng.normal(300.0, 20.0, mesh.vertices.shape[0])
-    linear = meshcore.linear_nodes(mesh.faces, z)
+    linear = meshcore.tiles.linear_nodes(mesh.faces, z)
     nodes = linear + rng.normal(0.0, 0.5, linear.shape)  # NaN where a face has no such node
-    packed = meshcore.node_deviations(mesh.faces, z, nodes)
+    packed = meshcore.tiles.node_deviations(mesh.faces, z, nodes)
     assert packed.dtype == np.float32
     assert np.array_equal(packed, (nodes - linear).astype(np.float32), equal_nan=True)
-    restored = meshcore.nodes_from_deviations(mesh.faces, z, packed)
+    restored = meshcore.tiles.nodes_from_deviations(mesh.faces, z, packed)
     assert np.array_equal(restored, linear + packed, equal_nan=True)
     assert_allclose(restored, nodes, rtol=0, atol=1e-6)
     with pytest.raises(meshcore.InvalidInputError, match="shape"):
-        meshcore.node_deviations(mesh.faces, z, nodes[:, :9])
+        meshcore.tiles.node_deviations(mesh.faces, z, nodes[:, :9])
 
 
 def test_systems_solved_side_by_side_give_each_system_alone_bit_for_bit(rng):

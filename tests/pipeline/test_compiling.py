@@ -30,7 +30,7 @@ def started(monkeypatch):
         processes[-1].args_given = args
         return processes[-1]
 
-    monkeypatch.setattr(compiling.meshcore, "kernels_compiled", lambda: False)
+    monkeypatch.setattr(compiling.meshcore.tiles, "kernels_compiled", lambda: False)
     monkeypatch.setattr(compiling.subprocess, "Popen", recording)
     return processes
 
@@ -51,7 +51,7 @@ def test_a_smooth_run_compiles_the_smooth_kernels_in_a_third(started):
 
 
 def test_compiled_kernels_start_no_process(monkeypatch):
-    monkeypatch.setattr(compiling.meshcore, "kernels_compiled", lambda: True)
+    monkeypatch.setattr(compiling.meshcore.tiles, "kernels_compiled", lambda: True)
     assert compiling.compile_aside(_MEASURES).processes == []
 
 
@@ -92,7 +92,7 @@ rng = np.random.default_rng(4)
 xy = np.round(rng.random((3000, 2)) * 100.0 + [651000.0, 6862000.0], 2)
 mesh = meshcore.build_mesh(xy, "s3", "s4", "greedy", window=(651020.0, 6862020.0, 651080.0, 6862080.0),
                            known=(651000.0, 6862000.0, 651100.0, 6862100.0))
-meshcore.lexicographic_order(np.take(mesh.vertices, np.arange(10), axis=0))
+meshcore.tiles.lexicographic_order(np.take(mesh.vertices, np.arange(10), axis=0))
 print(sorted(set(compiled)))
 """
 

@@ -40,7 +40,7 @@ def test_tiled_smooth_dem_is_the_untiled_one_bit_for_bit(tmp_path, seed, share, 
     assert prov[0]["parameters"]["surface"] == "smooth"
     # the survey's voids and hull give faces long enough to be cut: their added points are seamless too
     variogram = meshcore.Variogram.from_dict(prov[0]["smooth_surface"]["variogram"])
-    plan = meshcore.smooth_plan(meshcore.build_mesh(xy - xy.min(axis=0)), variogram)
+    plan = meshcore.tiles.smooth_plan(meshcore.build_mesh(xy - xy.min(axis=0)), variogram)
     assert plan.refinement.ends.shape[0] > 10
     # and nodes in the voids take natural neighbours, read across the tiles' seams alike
     assert np.count_nonzero(np.diff(plan.nodes.fill.coordinates.first)) > 10
@@ -81,7 +81,7 @@ def _assert_tiles_krig_from_the_whole_surveys_nearest_points(monkeypatch, run_it
     plans = []
     surface = meshcore.smooth_surface
 
-    def spy(mesh, z, variogram=None, neighbours=meshcore.DEFAULT_NEIGHBOURS, plan=None):
+    def spy(mesh, z, variogram=None, neighbours=meshcore.tiles.DEFAULT_NEIGHBOURS, plan=None):
         if plan is not None:
             plans.append(plan)
         return surface(mesh, z, variogram, neighbours, plan=plan)
