@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 import meshcore
 
-from ..tiling.checkpoint import WorkDir
+from ..tiling.checkpoint import Ledger, WorkDir
 from .tiles import _edge_sides, vertex_z
 from ..tiling.grid import TileGrid
 from ..tiling.routing import load_tile_points
@@ -70,7 +70,7 @@ def run_variogram(
     and its provenance entry; ``points``: how many the run kept; ``hull``:
     the survey's convex hull (counter-clockwise), which bounds the cells a
     larger survey's sample is drawn from."""
-    recorded = work.recorded("surface", "variogram")
+    recorded = work.recorded(Ledger.SURFACE, "variogram")
     if recorded is not None:
         variogram = meshcore.Variogram.from_dict(recorded["variogram"])
         if variogram.spacing is not None:  # else recorded before node cells: fitted again
@@ -122,7 +122,7 @@ def run_variogram(
         "sample_points": int(sample.shape[0]),
         "sample": how_drawn,
     }
-    work.record("surface", "variogram", entry)
+    work.record(Ledger.SURFACE, "variogram", entry)
     return variogram, entry
 
 

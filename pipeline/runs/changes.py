@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..tiling.checkpoint import WorkDir
+from ..tiling.checkpoint import Ledger, WorkDir, source_key
 from ..meshing.tiles import held_box, hull_near, reached_tiles
 from ..tiling.grid import TileGrid, intersect_boxes, tile_key
 from ..tiling.routing import drop_source_spill, source_spill
@@ -46,7 +46,7 @@ def changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[s
     keep: dict[int, int] = {}  # old index -> new index
     for k, item in enumerate(now):
         j = old_index.get(item["path"])
-        routed = None if j is None else work.recorded("route", f"{j:06d}")
+        routed = None if j is None else work.recorded(Ledger.ROUTE, source_key(j))
         if j is not None and routed is not None and same_input(before[j], item, routed):
             keep[j] = k
             continue
@@ -55,7 +55,7 @@ def changed_inputs(work: WorkDir, before: list[dict[str, Any]], now: list[dict[s
     for j, old in enumerate(before):
         if j in keep:
             continue
-        rec = work.recorded("route", f"{j:06d}")
+        rec = work.recorded(Ledger.ROUTE, source_key(j))
         box = (rec or {}).get("bounds") or old.get("bounds")
         if box:
             regions.append(tuple(box))
@@ -81,7 +81,7 @@ def forget_changed_inputs(work: WorkDir, n_before: int, keep: dict[int, int]) ->
 
 def drop_source(work: WorkDir, index: int) -> None:
     drop_source_spill(work.scratch, index)
-    work.forget_record("route", f"{index:06d}")
+    work.forget_record(Ledger.ROUTE, source_key(index))
 
 
 def rename_source(work: WorkDir, old: int | str, new: str) -> None:
@@ -89,7 +89,7 @@ def rename_source(work: WorkDir, old: int | str, new: str) -> None:
     for key in source_spill(work.scratch, old):
         folder, name = key.rsplit("/", 1)
         work.scratch.rename(key, f"{folder}/{new}{name[len(old):]}")
-    work.rename_record("route", old, new)
+    work.rename_record(Ledger.ROUTE, old, new)
 
 
 def tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> set[tuple[int, int]]:
@@ -97,7 +97,7 @@ def tiles_depending_on(work: WorkDir, grid: TileGrid, regions: list[tuple]) -> s
     without a record count too: they are computed anyway)."""
     out = set()
     for r, c in grid.tiles():
-        rec = work.recorded("mesh", tile_key(r, c))
+        rec = work.recorded(Ledger.MESH, tile_key(r, c))
         if rec is None:
             out.add((r, c))
             continue
@@ -115,7 +115,7 @@ def tiles_whose_hull_moved(work: WorkDir, grid: TileGrid, buffer: float, hull: n
         return set()
     out = set()
     for r, c in grid.tiles():
-        if work.recorded("mesh", tile_key(r, c)) is None:
+        if work.recorded(Ledger.MESH, tile_key(r, c)) is None:
             continue
         box = held_box(grid, r, c, buffer)  # where the tile took hull points from
         a, b = hull_near(before, box), hull_near(hull, box)
@@ -131,13 +131,13 @@ def forget_tiles(work: WorkDir, output: str, grid: TileGrid, tiles: set[tuple[in
 
     dem = set()
     for r, c in tiles:
-        rec = work.recorded("mesh", tile_key(r, c))
+        rec = work.recorded(Ledger.MESH, tile_key(r, c))
         reach = None if rec is None or rec.get("reach") is None else tuple(rec["reach"])
-        work.forget_record("mesh", tile_key(r, c))
+        work.forget_record(Ledger.MESH, tile_key(r, c))
         dem.update(reached_tiles(grid, None, r, c))
         dem.update(reached_tiles(grid, reach, r, c))  # where its old faces reached
     store.reset_tiles_done(output, sorted(dem))
-    work.forget("write")
+    work.forget(Ledger.WRITE)
 
 
 def reroute_near_growth(work: WorkDir, before: TileGrid, inputs: list[dict[str, Any]], buffer: float) -> None:
@@ -148,5 +148,5 @@ def reroute_near_growth(work: WorkDir, before: TileGrid, inputs: list[dict[str, 
     east = before.x0 + before.n_cols * before.tile_size - buffer
     for k, item in enumerate(inputs):
         box = item.get("bounds")
-        if box and (box[3] >= north or box[2] >= east) and work.recorded("route", f"{k:06d}") is not None:
+        if box and (box[3] >= north or box[2] >= east) and work.recorded(Ledger.ROUTE, source_key(k)) is not None:
             drop_source(work, k)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .changes import changed_inputs, forget_changed_inputs, forget_tiles, reroute_near_growth, tiles_depending_on
-from ..tiling.checkpoint import WorkDir
+from ..tiling.checkpoint import Ledger, WorkDir, source_key
 from ..config import RunConfig
 from ..errors import PipelineError, UsageError
 from .plan import RunPlan, frame_change, frame_grew, frame_moved
@@ -130,7 +130,7 @@ def work_reusable(work: WorkDir) -> bool:
     Another version meshes, krigs and numbers its tiles in its own way: its
     pieces beside this version's would not make one conforming mesh (nor
     give the smooth surface's shared edges the same nodes)."""
-    record = work.recorded("software", "sources")  # None in a folder without records
+    record = work.recorded(Ledger.SOFTWARE, "sources")  # None in a folder without records
     return record is not None and record.get("digest") == sources_digest()
 
 
@@ -156,7 +156,7 @@ def class_fallback(work: WorkDir) -> ClassFallback | None:
 
     An update of such a survey's inputs starts over (:func:`prepare`): new
     inputs may hold ground."""
-    recorded = work.recorded("survey", "classes")
+    recorded = work.recorded(Ledger.SURVEY, "classes")
     if recorded is None:
         return None
     return ClassFallback(tuple(recorded["classes"]), int(recorded["default_points"]))
@@ -174,7 +174,7 @@ def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
     store forgets any tile it marked written.
     """
     _start_over(work, output)
-    work.record("survey", "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
+    work.record(Ledger.SURVEY, "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
 
 
 def _start_over(work: WorkDir, output: str) -> None:
@@ -189,7 +189,7 @@ def _start_over(work: WorkDir, output: str) -> None:
 def _start_work(work: WorkDir) -> None:
     """An empty work folder, stamped with the sources that will fill it."""
     work.reset()
-    work.record("software", "sources", {"digest": sources_digest()})
+    work.record(Ledger.SOFTWARE, "sources", {"digest": sources_digest()})
 
 
 def prepare(plan: RunPlan, resume: Resume, work: WorkDir, incremental: bool, notes: list[str],
@@ -259,18 +259,18 @@ def forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra:
     ``piece_extra``: arrays a meshed piece must also hold (the smooth surface's nodes)."""
     lost = 0
     for i in range(n_inputs):
-        rec = work.recorded("route", f"{i:06d}")
+        rec = work.recorded(Ledger.ROUTE, source_key(i))
         if rec is not None and not spill_intact(work.scratch, i, rec.get("parts", [])):
-            work.forget_record("route", f"{i:06d}")  # routed again: its spill files are rewritten
+            work.forget_record(Ledger.ROUTE, source_key(i))  # routed again: its spill files are rewritten
             lost += 1
     for r, c in grid.tiles():
         key = tile_key(r, c)
-        if work.recorded("mesh", key) is not None and not piece_intact(work.scratch, r, c, piece_extra):
-            work.forget_record("mesh", key)
-            work.forget_record("write", f"ids_{key}")
+        if work.recorded(Ledger.MESH, key) is not None and not piece_intact(work.scratch, r, c, piece_extra):
+            work.forget_record(Ledger.MESH, key)
+            work.forget_record(Ledger.WRITE, f"ids_{key}")
             lost += 1
-        elif work.recorded("write", f"ids_{key}") is not None and not piece_intact(work.scratch, r, c, ("node_ids",)):
-            work.forget_record("write", f"ids_{key}")
+        elif work.recorded(Ledger.WRITE, f"ids_{key}") is not None and not piece_intact(work.scratch, r, c, ("node_ids",)):
+            work.forget_record(Ledger.WRITE, f"ids_{key}")
             lost += 1
     return lost
 

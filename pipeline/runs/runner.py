@@ -39,7 +39,7 @@ from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
 from ..products.points import as_columns
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
-from ..tiling.checkpoint import WorkDir, output_lock, work_dir_for
+from ..tiling.checkpoint import Ledger, WorkDir, output_lock, source_key, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
 from ..store.assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
 from ..meshing.surface import run_variogram
@@ -525,7 +525,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     fallback = resume.class_fallback(work)
     classify = config.classify_ground or fallback is not None
     classes = resume.ALL_BUT_NOISE if classify else config.classes
-    records = (work.recorded("route", f"{i:06d}", "hull") for i in range(len(paths)))
+    records = (work.recorded(Ledger.ROUTE, source_key(i), "hull") for i in range(len(paths)))
     results = [None if rec is None else RouteResult.from_record(rec) for rec in records]
     # a file an earlier run of this work folder routed keeps its spill files
     windows = () if classify else tuple(w for w in _window_sources(config, classes, paths, infos, crs)
@@ -542,7 +542,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     ]
 
     def routed(index: int, result: RouteResult) -> None:
-        work.record("route", f"{index:06d}", result.to_record(), hull=result.hull)
+        work.record(Ledger.ROUTE, source_key(index), result.to_record(), hull=result.hull)
         results[index] = result
 
     map_tasks(client, route_source, jobs, Progress("read", len(jobs), show), lambda r: r.read,
@@ -609,7 +609,7 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
             points[(r, col)] = points.get((r, col), 0) + n
 
     def done(r: int, c: int) -> bool:
-        return ground_tile_done(scratch, r, c) and work.recorded("ground", tile_key(r, c)) is not None
+        return ground_tile_done(scratch, r, c) and work.recorded(Ledger.GROUND, tile_key(r, c)) is not None
 
     jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, columns=columns)
             for rows, cols in ground_blocks(grid, points, GroundParameters().margin(unit))]
@@ -617,13 +617,13 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
 
     def classified(job: GroundJob, summaries: list[GroundSummary]) -> None:
         for s in summaries:
-            work.record("ground", tile_key(s.row, s.col), s.to_record(), hull=s.hull)
+            work.record(Ledger.GROUND, tile_key(s.row, s.col), s.to_record(), hull=s.hull)
 
     map_tasks(client, classify_block, jobs, Progress("ground", len(jobs), show),
               lambda summaries: sum(s.ground + s.not_ground for s in summaries), classified)
     hulls = []
     for r, c in grid.tiles():
-        rec = work.recorded("ground", tile_key(r, c), "hull")
+        rec = work.recorded(Ledger.GROUND, tile_key(r, c), "hull")
         if rec is None:
             continue
         report.not_ground += int(rec["not_ground"])
@@ -673,7 +673,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     ]
     summaries: dict[tuple[int, int], TileSummary] = {}
     for job in tile_jobs:
-        rec = work.recorded("mesh", _tile_key(job))
+        rec = work.recorded(Ledger.MESH, _tile_key(job))
         if rec is not None:
             rec["held"] = tuple(tuple(box) for box in rec.get("held", ()))
             rec["reach"] = None if rec.get("reach") is None else tuple(rec["reach"])
@@ -688,7 +688,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     pending.sort(key=lambda job: -work_of.get((job.row, job.col), 0))
 
     def meshed(job: TileJob, summary: TileSummary) -> None:
-        work.record("mesh", _tile_key(job), asdict(summary))
+        work.record(Ledger.MESH, _tile_key(job), asdict(summary))
         summaries[(job.row, job.col)] = summary
 
     map_tasks(client, mesh_tile, pending, Progress("mesh", len(pending), show), lambda s: s.points_owned, meshed)
@@ -804,7 +804,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
             ) from None
         return int(np.count_nonzero(np.isfinite(layers["elevation"])))
 
-    unnumbered = [job for job in tile_jobs if work.recorded("write", f"ids_{_tile_key(job)}") is None]
+    unnumbered = [job for job in tile_jobs if work.recorded(Ledger.WRITE, f"ids_{_tile_key(job)}") is None]
     number = partial(global_node_ids, node_offsets=node_offsets)
 
     def dem_or_number(task: tuple[str, TileJob]) -> int:
@@ -816,7 +816,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     def done(task: tuple[str, TileJob], result: int) -> None:
         nonlocal valued
         if task[0] == "number":
-            work.record("write", f"ids_{_tile_key(task[1])}", {})
+            work.record(Ledger.WRITE, f"ids_{_tile_key(task[1])}", {})
         else:
             valued += result
 
@@ -935,24 +935,24 @@ def _write_mesh(
 
     order = tuple(grid.tiles())
     sizes = {"nodes": int(node_offsets[-1]), "faces": int(face_offsets[-1])}
-    if work.recorded("write", "created") == sizes:
+    if work.recorded(Ledger.WRITE, "created") == sizes:
         writer = store.MeshWriter.attach(config.output)
     else:
         writer = store.MeshWriter(config.output, sizes["nodes"], sizes["faces"], config.zarr_format)
-        work.record("write", "created", sizes)
+        work.record(Ledger.WRITE, "created", sizes)
     step = 4 * store.MESH_CHUNK
     blocks = []
     for what, offsets in (("nodes", node_offsets), ("faces", face_offsets)):
         for start in range(0, int(offsets[-1]), step):
             stop = min(start + step, int(offsets[-1]))
-            if work.recorded("write", f"{what}_{start}") is not None:
+            if work.recorded(Ledger.WRITE, f"{what}_{start}") is not None:
                 writer.record(what, start, stop)
                 continue
             blocks.append(MeshBlock(config.output, work.scratch, order, tuple(int(v) for v in offsets), what, start, stop))
 
     def written(block: MeshBlock, result: tuple[str, int, int]) -> None:
         writer.record(*result)
-        work.record("write", f"{block.what}_{block.start}", {"stop": block.stop})
+        work.record(Ledger.WRITE, f"{block.what}_{block.start}", {"stop": block.stop})
 
     map_tasks(client, write_mesh_block, blocks, Progress("write", len(blocks), show), lambda _: 0, written)
     writer.set_tiles(

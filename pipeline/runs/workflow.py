@@ -125,7 +125,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     from ..store import zarr_store as store
     from .changes import same_input
     from .resume import work_reusable
-    from ..tiling.checkpoint import WorkDir, work_dir_for
+    from ..tiling.checkpoint import Ledger, WorkDir, source_key, work_dir_for
     from ..inputs.sources import discover_inputs
 
     cfg = workflow.config
@@ -157,7 +157,7 @@ def workflow_status(workflow: Workflow) -> dict[str, Any]:
     for p in current:
         if p in before:
             item = {"path": p, "size": urls.size(p), **urls.version(p)}
-            routed = work.recorded("route", f"{index[p]:06d}") if work.exists() else None
+            routed = work.recorded(Ledger.ROUTE, source_key(index[p])) if work.exists() else None
             if not same_input(before[p], item, routed):  # as the run decides: a touched file is the same
                 changed.append(p)
     status.update(new_files=new, changed_files=changed, removed_files=gone)

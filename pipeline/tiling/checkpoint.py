@@ -20,6 +20,7 @@ import os
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +104,34 @@ def output_lock(output: str) -> Iterator[None]:
         handle.close()
 
 
+class Ledger(StrEnum):
+    """The kinds of record in a work folder's ledger (``records/KIND/KEY.json``,
+    arrays beside it): what each stage leaves when a unit of its work is done."""
+
+    SOFTWARE = "software"
+    """``sources``: the digest of the sources that wrote the folder (another version starts over)."""
+    SURVEY = "survey"
+    """``classes``: a survey-wide fallback of classes (:func:`pipeline.runs.resume.keep_all_but_noise`)."""
+    ROUTE = "route"
+    """One per input (:func:`source_key`): its counts, spill files and hull
+    (:class:`~pipeline.tiling.routing.RouteResult`)."""
+    SURFACE = "surface"
+    """``variogram``: the smooth surface's variogram."""
+    GROUND = "ground"
+    """One per tile (:func:`~pipeline.tiling.grid.tile_key`): the ground stage's counts and the hull of its
+    ground (:class:`~pipeline.meshing.ground.GroundSummary`)."""
+    MESH = "mesh"
+    """One per tile: its piece's summary (:class:`~pipeline.meshing.tiles.TileSummary`)."""
+    WRITE = "write"
+    """The store's mesh: ``created`` (the arrays' sizes), ``ids_TILE`` (a tile's global node ids), and
+    ``WHAT_START`` (a block of whole chunks written)."""
+
+
+def source_key(index: int) -> str:
+    """An input's key in the ledger: its number in the job's inputs, six digits."""
+    return f"{index:06d}"
+
+
 class WorkDir:
     """The work folder of one job and its records of finished work."""
 
@@ -125,13 +154,13 @@ class WorkDir:
     def remove(self) -> None:
         self.scratch.remove_tree()
 
-    def record(self, stage: str, key: str, payload: dict[str, Any], **arrays: np.ndarray) -> None:
+    def record(self, stage: Ledger, key: str, payload: dict[str, Any], **arrays: np.ndarray) -> None:
         """Record a finished unit of work (with small arrays); the payload is
         written last, so a record is whole or absent."""
         self.scratch.save_many({f"records/{stage}/{key}.{name}.npy": value for name, value in arrays.items()})
         self.scratch.write_text(f"records/{stage}/{key}.json", json.dumps(payload))
 
-    def recorded(self, stage: str, key: str, *arrays: str) -> dict[str, Any] | None:
+    def recorded(self, stage: Ledger, key: str, *arrays: str) -> dict[str, Any] | None:
         """The payload of a finished unit (arrays under their names), or None."""
         try:
             payload = json.loads(self.scratch.read_text(f"records/{stage}/{key}.json"))
@@ -141,14 +170,14 @@ class WorkDir:
         payload.update(zip(arrays, loaded))
         return payload
 
-    def _files_of(self, stage: str, key: str) -> list[str]:
+    def _files_of(self, stage: Ledger, key: str) -> list[str]:
         return [n for n in self.scratch.names(f"records/{stage}") if n.startswith(f"{key}.")]
 
-    def forget_record(self, stage: str, key: str) -> None:
+    def forget_record(self, stage: Ledger, key: str) -> None:
         """Drop one record and its arrays (that unit of work will be redone)."""
         self.scratch.remove(f"records/{stage}/{name}" for name in self._files_of(stage, key))
 
-    def rename_record(self, stage: str, old: str, new: str) -> None:
+    def rename_record(self, stage: Ledger, old: str, new: str) -> None:
         """Move a record (and its arrays) to another key."""
         for name in self._files_of(stage, old):
             self.scratch.rename(f"records/{stage}/{name}", f"records/{stage}/{new}{name[len(old):]}")
