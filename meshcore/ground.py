@@ -409,18 +409,21 @@ def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
 # --- the ground TIN -----------------------------------------------------------------------------------------
 
 
+@njit_helper
+def _sides(tri, ax, ay, t: int) -> tuple[float, float, float, float]:
+    """Triangle ``t``'s second and third corners less its first: ``bx, by, cx, cy``."""
+    a = tri[3 * t]
+    b = tri[3 * t + 1]
+    c = tri[3 * t + 2]
+    return ax[b] - ax[a], ay[b] - ay[a], ax[c] - ax[a], ay[c] - ay[a]
+
+
 @njit
 def _triangle_radii(tri, ax, ay, radius) -> None:
     """Circumradius of every triangle, from the absolute coordinates ``ax, ay``
     (the same arithmetic in any tile, so the same value)."""
     for t in range(tri.shape[0] // 3):
-        a = tri[3 * t]
-        b = tri[3 * t + 1]
-        c = tri[3 * t + 2]
-        bx = ax[b] - ax[a]
-        by = ay[b] - ay[a]
-        cx = ax[c] - ax[a]
-        cy = ay[c] - ay[a]
+        bx, by, cx, cy = _sides(tri, ax, ay, t)
         det = bx * cy - by * cx
         if det == 0.0:
             radius[t] = np.inf
@@ -438,10 +441,7 @@ def _plane_test(tri, ax, ay, vz, t, px, py, pz, threshold, scalar) -> bool:
     a = tri[3 * t]
     b = tri[3 * t + 1]
     c = tri[3 * t + 2]
-    bx = ax[b] - ax[a]
-    by = ay[b] - ay[a]
-    cx = ax[c] - ax[a]
-    cy = ay[c] - ay[a]
+    bx, by, cx, cy = _sides(tri, ax, ay, t)
     bz = vz[b] - vz[a]
     cz = vz[c] - vz[a]
     det = bx * cy - by * cx
