@@ -159,10 +159,38 @@ def _owned(scratch: Scratch, grid: TileGrid, row: int, col: int, width: int) -> 
     return pts[(rows == row) & (cols == col)]
 
 
-def _as_keys(rows: NDArray[np.float64]) -> NDArray:
-    """Each row as one opaque value (its bytes), to find a point among others."""
-    rows = np.ascontiguousarray(rows)
-    return rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+def _hashes(rows: NDArray[np.float64]) -> NDArray[np.uint64]:
+    """A 64-bit hash of each row's bytes (FNV-1a over its 8-byte words)."""
+    words = np.ascontiguousarray(rows, dtype=np.float64).view(np.uint64).reshape(rows.shape[0], -1)
+    h = np.full(rows.shape[0], 0xCBF29CE484222325, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        for k in range(words.shape[1]):
+            h ^= words[:, k]
+            h *= np.uint64(0x100000001B3)
+    return h
+
+
+class _RowIndex:
+    """Finds rows among the rows of ``cloud`` (each row sought is one of them):
+    by hash, every match checked, and rows whose hash another row shares
+    found byte for byte."""
+
+    def __init__(self, cloud: NDArray[np.float64]) -> None:
+        self.cloud = cloud
+        hashes = _hashes(cloud)
+        self.order = np.argsort(hashes, kind="stable")
+        self.sorted = hashes[self.order]
+
+    def find(self, rows: NDArray[np.float64]) -> NDArray[np.int64]:
+        hashes = _hashes(rows)
+        at = self.order[np.minimum(np.searchsorted(self.sorted, hashes), self.sorted.shape[0] - 1)]
+        wrong = np.flatnonzero(~(self.cloud[at] == rows).all(axis=1))
+        for i in wrong.tolist():  # a collision of hashes: the equal rows among those of that hash
+            lo, hi = np.searchsorted(self.sorted, hashes[i : i + 1], side="left")[0], \
+                np.searchsorted(self.sorted, hashes[i : i + 1], side="right")[0]
+            candidates = self.order[lo:hi]
+            at[i] = candidates[(self.cloud[candidates] == rows[i]).all(axis=1)][0]
+        return at
 
 
 def classify_block(job: GroundJob) -> list[GroundSummary]:
@@ -203,9 +231,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
             break
         block = grown
     # each tile's spill files, point by point: a point and its exact copies get one class
-    keys = _as_keys(cloud)
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
+    lookup = _RowIndex(cloud)
     summaries = []
     owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
     for row, col in job.tiles():
@@ -213,7 +239,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
         files = {}
         positions: dict[str, list[NDArray]] = {}
         for name, part in zip(names, parts):
-            at = order[np.searchsorted(sorted_keys, _as_keys(part))]
+            at = lookup.find(part)
             files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
             if "point_index" in job.columns:
                 rows_, cols_ = grid.owner(part[:, 0], part[:, 1])
