@@ -9,7 +9,7 @@ from ._jit import empty, full, larger, njit, njit_borrowing, njit_helper, smalle
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_taint, open_hull_edges
+from .certificate import KnownRegion, WindowCertificate, circles_leaving, open_hull_edges
 from .flip import _centroid, _meets_box, flip_edges
 from .merge import greedy_order, merge_candidates, merge_triangles
 from .mesh import Mesh
@@ -291,6 +291,7 @@ def _combined_mesh(
     escapes = None
     taint = None
     source = None
+    doubted = None
     open_edges = None
     active = np.ones(nt, dtype=np.uint8)
     window = None if bounds is None else np.array(bounds, dtype=np.float64)
@@ -303,8 +304,10 @@ def _combined_mesh(
         escapes = leaving[1][_meeting_window(
             triangulation.x, triangulation.y, triangulation.triangles, leaving[0], window, float(o[0]), float(o[1])
         )]
-        taint, circle_of = initial_taint(triangulation, region, leaving)
-        source = np.where(taint != 0, np.arange(nt), -1).astype(np.int64)
+        taint, doubted = _initial_doubt(region, leaving, nt)
+        # each doubted triangle is where its doubt came from
+        source = np.full(nt, -1, dtype=np.int64)
+        source[doubted[0]] = doubted[0]
         open_edges = open_hull_edges(triangulation, region)
     flipped = None
     if tm is not TriangleMeasure.DELAUNAY:
@@ -327,7 +330,7 @@ def _combined_mesh(
     else:
         owned, start = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]),
                                     triangulation.triangles, triangulation.halfedges, partner, window)
-        certificate = _certificate(triangulation, taint, source, circle_of, start, candidates, flipped, mm, rounds)
+        certificate = _certificate(triangulation, taint, source, doubted, start, candidates, flipped, mm, rounds)
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     faces = _faces_kernel(
         triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, owned,
@@ -347,11 +350,27 @@ def _combined_mesh(
     )
 
 
-def _certificate(triangulation: Triangulation, taint, source, circle_of, start, candidates, flipped,
+def _initial_doubt(known: KnownRegion, leaving, nt: int):
+    """:func:`meshcore.certificate.initial_taint` with its circles as the
+    rows of the triangles it flags (ascending) and their circles, rather
+    than a row of NaN for every other triangle (the certificate looks up the
+    few its doubt reached)."""
+    taint = np.zeros(nt, dtype=np.uint8)
+    rows, circles = leaving
+    if rows.size == 0:
+        return taint, (rows, circles)
+    vouched = np.asarray(known.covers(circles), dtype=bool)
+    rows, circles = rows[~vouched], circles[~vouched]
+    taint[rows] = 1
+    return taint, (rows, circles)
+
+
+def _certificate(triangulation: Triangulation, taint, source, doubted, start, candidates, flipped,
                  mm: MergeMethod, rounds: int) -> WindowCertificate:
     """Whether a window piece's faces are the global mesh's, given that the
     global mesh makes no flip near the window after round ``rounds``
-    (``start``: the triangles of the faces the window owns)."""
+    (``start``: the triangles of the faces the window owns; ``doubted``: the
+    triangles doubted at the start, ascending, and their circles)."""
     greedy = candidates is not None and mm is MergeMethod.GREEDY
     no_edges = np.empty(0, dtype=np.int32)
     reached = _doubt_reached(
@@ -364,7 +383,7 @@ def _certificate(triangulation: Triangulation, taint, source, circle_of, start, 
     return WindowCertificate(
         certified=reached.size == 0, last_flip_round=last, assumed_rounds=int(rounds),
         rounds=0 if flipped is None else flipped.rounds,
-        blocking=circle_of[causes[causes >= 0]], open_edges=bool(np.any(causes == -2)),
+        blocking=doubted[1][np.searchsorted(doubted[0], causes[causes >= 0])], open_edges=bool(np.any(causes == -2)),
     )
 
 
