@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, larger, njit, njit_borrowing, njit_helper, smaller, zeros
+from ._jit import empty, full, larger, njit, njit_borrowing, njit_helper, smaller, zeros
 from ._order import geometric_order
 from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_taint, open_hull_edges
+from .certificate import KnownRegion, WindowCertificate, circles_leaving, open_hull_edges
 from .flip import _centroid, _meets_box, flip_edges
-from .merge import greedy_order, merge_candidates, merge_dependencies, merge_triangles
+from .merge import greedy_order, merge_candidates, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import cross_rounded, lex_before
@@ -37,35 +37,46 @@ def as_points(xy: ArrayLike, name: str = "xy") -> NDArray[np.float64]:
     return arr
 
 
+@njit_helper
+def _inner_window(x, y, ox, oy, x_lo, y_lo, x_hi, y_hi) -> tuple[float, float, float, float]:
+    """The window shrunk, in the local frame, by more than the rounding of a
+    centroid and of the shift: a triangle whose corners lie inside it has its
+    centroid in the window (see :func:`_in_window`)."""
+    largest = 0.0
+    for i in range(x.shape[0]):
+        largest = larger(largest, larger(abs(x[i]), abs(y[i])))
+    margin = 1e-12 * (largest + abs(ox) + abs(oy) + 1.0)
+    return x_lo - ox + margin, y_lo - oy + margin, x_hi - ox - margin, y_hi - oy - margin
+
+
+@njit_helper
+def _in_window(x, y, ox, oy, tri, t, inner, x_lo, y_lo, x_hi, y_hi) -> bool:
+    """Whether triangle ``t``'s centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``
+    (``inner``: :func:`_inner_window` of them)."""
+    i = tri[3 * t]
+    j = tri[3 * t + 1]
+    k = tri[3 * t + 2]
+    ax, ay, bx, by, cx, cy = x[i], y[i], x[j], y[j], x[k], y[k]
+    # a triangle well inside the window (its corners farther from the edges
+    # than the rounding of the centroid and of the shift) is in it; the
+    # others take the exact test
+    if (
+        smaller(ax, smaller(bx, cx)) > inner[0] and larger(ax, larger(bx, cx)) < inner[2]
+        and smaller(ay, smaller(by, cy)) > inner[1] and larger(ay, larger(by, cy)) < inner[3]
+    ):
+        return True
+    gx, gy = _centroid(ax, ay, bx, by, cx, cy, ox, oy)
+    return x_lo <= gx < x_hi and y_lo <= gy < y_hi
+
+
 @njit
 def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
     """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
     nt = tri.shape[0] // 3
     active = zeros(nt, dtype=np.uint8)
-    # a triangle well inside the window (its corners farther from the edges
-    # than the rounding of the centroid and of the shift) is in it; the
-    # others take the exact test
-    largest = 0.0
-    for i in range(x.shape[0]):
-        largest = larger(largest, larger(abs(x[i]), abs(y[i])))
-    margin = 1e-12 * (largest + abs(ox) + abs(oy) + 1.0)
-    in_x_lo = x_lo - ox + margin
-    in_x_hi = x_hi - ox - margin
-    in_y_lo = y_lo - oy + margin
-    in_y_hi = y_hi - oy - margin
+    inner = _inner_window(x, y, ox, oy, x_lo, y_lo, x_hi, y_hi)
     for t in range(nt):
-        i = tri[3 * t]
-        j = tri[3 * t + 1]
-        k = tri[3 * t + 2]
-        ax, ay, bx, by, cx, cy = x[i], y[i], x[j], y[j], x[k], y[k]
-        if (
-            smaller(ax, smaller(bx, cx)) > in_x_lo and larger(ax, larger(bx, cx)) < in_x_hi
-            and smaller(ay, smaller(by, cy)) > in_y_lo and larger(ay, larger(by, cy)) < in_y_hi
-        ):
-            active[t] = 1
-            continue
-        gx, gy = _centroid(ax, ay, bx, by, cx, cy, ox, oy)
-        if x_lo <= gx < x_hi and y_lo <= gy < y_hi:
+        if _in_window(x, y, ox, oy, tri, t, inner, x_lo, y_lo, x_hi, y_hi):
             active[t] = 1
     return active
 
@@ -280,6 +291,7 @@ def _combined_mesh(
     escapes = None
     taint = None
     source = None
+    doubted = None
     open_edges = None
     active = np.ones(nt, dtype=np.uint8)
     window = None if bounds is None else np.array(bounds, dtype=np.float64)
@@ -292,8 +304,10 @@ def _combined_mesh(
         escapes = leaving[1][_meeting_window(
             triangulation.x, triangulation.y, triangulation.triangles, leaving[0], window, float(o[0]), float(o[1])
         )]
-        taint, circle_of = initial_taint(triangulation, region, leaving)
-        source = np.where(taint != 0, np.arange(nt), -1).astype(np.int64)
+        taint, doubted = _initial_doubt(region, leaving, nt)
+        # each doubted triangle is where its doubt came from
+        source = np.full(nt, -1, dtype=np.int64)
+        source[doubted[0]] = doubted[0]
         open_edges = open_hull_edges(triangulation, region)
     flipped = None
     if tm is not TriangleMeasure.DELAUNAY:
@@ -314,10 +328,9 @@ def _combined_mesh(
     if bounds is None:
         owned = active
     else:
-        owned = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]), triangulation.triangles,
-                             triangulation.halfedges, partner, window)
-        certificate = _certificate(triangulation, taint, source, circle_of, owned, partner, candidates, flipped, mm,
-                                   rounds)
+        owned, start = _owned_faces(triangulation.x, triangulation.y, float(o[0]), float(o[1]),
+                                    triangulation.triangles, triangulation.halfedges, partner, window)
+        certificate = _certificate(triangulation, taint, source, doubted, start, candidates, flipped, mm, rounds)
     vertex_of_sorted, vertex_input, input_to_vertex = _vertex_numbering(triangulation.order, triangulation.rep)
     faces = _faces_kernel(
         triangulation.triangles, triangulation.halfedges, partner, vertex_of_sorted, owned,
@@ -337,67 +350,64 @@ def _combined_mesh(
     )
 
 
-def _certificate(triangulation: Triangulation, taint, source, circle_of, owned, partner, candidates, flipped,
+def _initial_doubt(known: KnownRegion, leaving, nt: int):
+    """:func:`meshcore.certificate.initial_taint` with its circles as the
+    rows of the triangles it flags (ascending) and their circles, rather
+    than a row of NaN for every other triangle (the certificate looks up the
+    few its doubt reached)."""
+    taint = np.zeros(nt, dtype=np.uint8)
+    rows, circles = leaving
+    if rows.size == 0:
+        return taint, (rows, circles)
+    vouched = np.asarray(known.covers(circles), dtype=bool)
+    rows, circles = rows[~vouched], circles[~vouched]
+    taint[rows] = 1
+    return taint, (rows, circles)
+
+
+def _certificate(triangulation: Triangulation, taint, source, doubted, start, candidates, flipped,
                  mm: MergeMethod, rounds: int) -> WindowCertificate:
     """Whether a window piece's faces are the global mesh's, given that the
-    global mesh makes no flip near the window after round ``rounds``."""
-    start = owned.copy()
-    _mark_partners(partner, triangulation.halfedges, start)
-    need = start.copy()
-    if candidates is not None:
-        # whether an edge of a face is a candidate at all reads the triangle beyond it
-        _grow_ring(triangulation.halfedges, need)
-        if mm is MergeMethod.GREEDY:
-            need |= merge_dependencies(triangulation, candidates[0], candidates[1], start, order=candidates[2])
-    if flipped is not None:
-        need |= flipped.zone
-    reached = np.flatnonzero(need & taint)
+    global mesh makes no flip near the window after round ``rounds``
+    (``start``: the triangles of the faces the window owns; ``doubted``: the
+    triangles doubted at the start, ascending, and their circles)."""
+    greedy = candidates is not None and mm is MergeMethod.GREEDY
+    no_edges = np.empty(0, dtype=np.int32)
+    reached = _doubt_reached(
+        triangulation.halfedges, taint, start, np.zeros(0, dtype=np.uint8) if flipped is None else flipped.zone,
+        candidates is not None, candidates[0] if greedy else no_edges,
+        candidates[2] if greedy else np.empty(0, dtype=np.int64),
+    )
     causes = np.unique(source[reached])
     last = 0 if flipped is None else flipped.last_window_round
     return WindowCertificate(
         certified=reached.size == 0, last_flip_round=last, assumed_rounds=int(rounds),
         rounds=0 if flipped is None else flipped.rounds,
-        blocking=circle_of[causes[causes >= 0]], open_edges=bool(np.any(causes == -2)),
+        blocking=doubted[1][np.searchsorted(doubted[0], causes[causes >= 0])], open_edges=bool(np.any(causes == -2)),
     )
 
 
 @njit
-def _mark_partners(partner, he, flags) -> None:
-    """Flag the partner of every flagged triangle that is half of a quadrangle."""
-    for t in range(partner.shape[0]):
-        if flags[t] and partner[t] >= 0:
-            flags[he[partner[t]] // 3] = 1
-
-
-@njit
-def _grow_ring(he, flags) -> None:
-    """Flag every triangle sharing an edge with a flagged one."""
-    nt = he.shape[0] // 3
-    ring = zeros(nt, dtype=np.uint8)
-    for t in range(nt):
-        if flags[t]:
-            for j in range(3):
-                h = he[3 * t + j]
-                if h >= 0:
-                    ring[h // 3] = 1
-    for t in range(nt):
-        if ring[t]:
-            flags[t] = 1
-
-
-@njit
-def _owned_faces(x, y, ox, oy, tri, he, partner, window) -> np.ndarray:
+def _owned_faces(x, y, ox, oy, tri, he, partner, window):
     """1 for the triangles that start a face the window owns: a lone triangle
     whose centroid lies in it, or the first triangle of a quadrangle whose
-    deleted diagonal's midpoint does (input frame, the same bits in every run)."""
+    deleted diagonal's midpoint does (input frame, the same bits in every run);
+    and 1 for every triangle of those faces (a quadrangle's two).
+
+    A triangle of a quadrangle takes only the midpoint's test: the centroid's
+    would be overwritten (two thirds of the triangles of a merged mesh)."""
     nt = tri.shape[0] // 3
-    # the centroid rule, settled without the centroid for the triangles well inside the window
-    owned = _window_mask(x, y, ox, oy, tri, window[0], window[1], window[2], window[3])
+    owned = zeros(nt, dtype=np.uint8)
+    start = zeros(nt, dtype=np.uint8)
+    x_lo, y_lo, x_hi, y_hi = window[0], window[1], window[2], window[3]
+    inner = _inner_window(x, y, ox, oy, x_lo, y_lo, x_hi, y_hi)
     for t in range(nt):
         e = partner[t]
         if e == -1:
+            if _in_window(x, y, ox, oy, tri, t, inner, x_lo, y_lo, x_hi, y_hi):
+                owned[t] = 1
+                start[t] = 1
             continue
-        owned[t] = 0
         f = he[e]
         if t > f // 3:
             continue
@@ -405,9 +415,98 @@ def _owned_faces(x, y, ox, oy, tri, he, partner, window) -> np.ndarray:
         b = tri[f]
         mx = ((x[a] + ox) + (x[b] + ox)) / 2.0
         my = ((y[a] + oy) + (y[b] + oy)) / 2.0
-        if window[0] <= mx < window[2] and window[1] <= my < window[3]:
+        if x_lo <= mx < x_hi and y_lo <= my < y_hi:
             owned[t] = 1
-    return owned
+            start[t] = 1
+            start[f // 3] = 1
+    return owned, start
+
+
+@njit
+def _doubt_reached(he, taint, start, zone, ring: bool, edges, order) -> np.ndarray:
+    """The tainted triangles (ascending) that the faces of the triangles ``start``
+    flags depend on: ``start`` itself, with ``ring`` the triangles beside it
+    (whether an edge is a merge candidate reads the triangle beyond it), the
+    flips' ``zone`` (empty: none), and the triangles the greedy merge's choice
+    for ``start`` reads (``edges`` in the greedy ``order``, empty: none), as
+    :func:`meshcore.merge.merge_dependencies` finds them.
+
+    Only the tainted triangles are asked for, and only the chains through the
+    triangles outside ``start`` are followed: a candidate with both triangles
+    in ``start`` reads nothing outside ``start`` and the ring beside it, and a
+    chain reaches a candidate outside through a triangle outside, whose
+    candidates in ``start`` are where the chains start anyway.
+    """
+    nt = he.shape[0] // 3
+    n = edges.shape[0]
+    hit = zeros(nt, dtype=np.uint8)
+    if n > 0:
+        # per half-edge: the rank of its candidate when no triangle of it is in start and it was not
+        # reached yet, else -1
+        rank_of = empty(n, dtype=np.int64)
+        for k in range(n):
+            rank_of[order[k]] = k
+        rank = full(he.shape[0], -1, dtype=np.int32)
+        stack_e = empty(n, dtype=np.int64)
+        stack_k = empty(n, dtype=np.int64)
+        top = 0
+        # in the edges' order, near in memory (the greedy order is all over it)
+        for i in range(n):
+            k = rank_of[i]
+            e = np.int64(edges[i])
+            f = np.int64(he[e])
+            s1 = start[e // 3] != 0
+            s2 = start[f // 3] != 0
+            if s1 and s2:
+                continue
+            if s1 or s2:  # a candidate of a triangle of start, with a triangle outside
+                stack_e[top] = e
+                stack_k[top] = k
+                top += 1
+            else:
+                rank[e] = k
+                rank[f] = k
+        while top > 0:
+            top -= 1
+            e = stack_e[top]
+            k = stack_k[top]
+            f = np.int64(he[e])
+            # the edge's gain reads its two triangles; whether it is a candidate at
+            # all, each edge around them reads the triangle beyond it
+            for g in (e, f, _next(e), _prev(e), _next(f), _prev(f)):
+                hit[g // 3] = 1
+                h = he[g]
+                if h >= 0:
+                    hit[h // 3] = 1
+            for t in (e // 3, f // 3):
+                if start[t]:
+                    continue
+                for j in range(3):
+                    g = 3 * t + j
+                    r = rank[g]
+                    if r >= 0 and r < k:
+                        h = he[g]
+                        rank[g] = -1
+                        rank[h] = -1
+                        stack_e[top] = g
+                        stack_k[top] = r
+                        top += 1
+    zoned = zone.shape[0] == nt
+    out = empty(nt, dtype=np.int64)
+    count = 0
+    for t in range(nt):
+        if not taint[t]:
+            continue
+        need = start[t] != 0 or hit[t] != 0 or (zoned and zone[t] != 0)
+        if not need and ring:
+            for j in range(3):
+                h = he[3 * t + j]
+                if h >= 0 and start[h // 3]:
+                    need = True
+        if need:
+            out[count] = t
+            count += 1
+    return out[:count].copy()
 
 
 KERNEL_STAGES = ("triangulation", "faces")

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, njit
+from ._jit import empty, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
@@ -123,6 +123,40 @@ def circle_in_input_frame(x, y, a: int, b: int, c: int, ox: float, oy: float) ->
     return ux, uy, r
 
 
+@njit_helper
+def _surely_inside(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
+    """True when :func:`circle_in_input_frame` of the triangle (local
+    coordinates) is inside the box (``x_lo - ox`` ...: the box in the local
+    frame; ``slack``: more than the rounding of that shift and of the
+    circle's to the input frame), decided without divisions or roots; False
+    means "compute the circle".
+
+    The circumdisk lies within 2 R of each corner.  When the triangle takes
+    :func:`safe_circle`'s direct branch (its cross product keeps its digits)
+    and no side is shorter than 1e-10 of another, the computed centre is
+    within 1e-4 R of the exact one and the computed radius within 5e-4 R of
+    R (each of their errors is at most 16 units of roundoff times R times
+    the ratio of two sides), so the computed disk lies within 4 R of corner
+    a: inside the box when the box's sides are farther (with 4 R squared as
+    4 a^2 b^2 c^2 / cross^2, the rounding of these products is 1e-15)."""
+    dx, dy, ex, ey, bl, cl, d = circumcenter_terms(ax, ay, bx, by, cx, cy)
+    # safe_circle's test of its direct branch, the same bits
+    if not abs(d) > 1e12 * (16.0 * _U * (abs(dx * ey) + abs(dy * ex))):
+        return False
+    fx = cx - bx
+    fy = cy - by
+    al = fx * fx + fy * fy
+    shortest = smaller(al, smaller(bl, cl))
+    longest = larger(al, larger(bl, cl))
+    if not (shortest >= 1e-20 * longest and 1e-60 < shortest and longest < 1e60):
+        return False
+    reach = smaller(smaller(ax - x_lo, x_hi - ax), smaller(ay - y_lo, y_hi - ay))
+    reach = reach * (1.0 - 1e-9) - slack - 1e-9 * (abs(ax) + abs(ay))
+    if not (0.0 < reach < 1e60):
+        return False
+    return 4.0 * (al * bl * cl) * (1.0 + 1e-6) < reach * reach * (d * d)
+
+
 @njit
 def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     """The triangles whose circumcircle (input frame) is not inside the box, and the circles."""
@@ -130,10 +164,19 @@ def _circles_leaving(x, y, tri, ox, oy, x_lo, y_lo, x_hi, y_hi):
     rows = empty(nt, dtype=np.int64)
     out = empty((nt, 3))
     n = 0
+    # the box in the local frame, and a bound of the rounding of that shift and of the circles' to the input
+    # frame: most circles are settled inside it without computing them
+    l_x_lo = x_lo - ox
+    l_y_lo = y_lo - oy
+    l_x_hi = x_hi - ox
+    l_y_hi = y_hi - oy
+    slack = 1e-9 * (abs(ox) + abs(oy) + 1.0)
     for t in range(nt):
         a = tri[3 * t]
         b = tri[3 * t + 1]
         c = tri[3 * t + 2]
+        if _surely_inside(x[a], y[a], x[b], y[b], x[c], y[c], l_x_lo, l_y_lo, l_x_hi, l_y_hi, slack):
+            continue
         ux, uy, r = circle_in_input_frame(x, y, a, b, c, ox, oy)
         if ux - r >= x_lo and ux + r <= x_hi and uy - r >= y_lo and uy + r <= y_hi:
             continue

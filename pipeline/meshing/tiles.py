@@ -233,16 +233,22 @@ def _lens_array(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box)
 def _open_lenses(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box, held: list) -> list:
     """The circles whose lens in the hull (:func:`_disk_boxes_in_hull`) is not
     inside the held boxes: ``(index, the parts of its box outside them)``."""
+    rows, boxes = _open_lens_rows(circles, hull_xy, box, held)
+    return [(i, _uncovered(tuple(boxes[i].tolist()), held)) for i in rows.tolist()]
+
+
+def _open_lens_rows(circles: NDArray[np.float64], hull_xy: NDArray[np.float64], box, held: list):
+    """The rows of :func:`_open_lenses`' circles, and every circle's lens box
+    (:func:`_lens_array`): without the parts, which only a load asks for."""
     if circles.shape[0] == 0:
-        return []
+        return np.empty(0, dtype=np.int64), np.empty((0, 4))
     boxes = _lens_array(circles, hull_xy, box)
     held_array = np.array(held, dtype=np.float64).reshape(-1, 4)
     open_ = ~np.isnan(boxes[:, 0])
     for h in held_array:  # most lie inside one held box: settled at once
         open_ &= ~((boxes[:, 0] >= h[0]) & (boxes[:, 1] >= h[1]) & (boxes[:, 2] <= h[2]) & (boxes[:, 3] <= h[3]))
     rows = np.flatnonzero(open_)
-    rows = rows[_outside_boxes(np.ascontiguousarray(boxes[rows]), held_array)]
-    return [(i, _uncovered(tuple(boxes[i].tolist()), held)) for i in rows.tolist()]
+    return rows[_outside_boxes(np.ascontiguousarray(boxes[rows]), held_array)], boxes
 
 
 @meshcore.kernels.kernel
@@ -480,7 +486,7 @@ class _HeldRegion(meshcore.tiles.KnownRegion):
         if rest.size:
             hull = self.hull if self.hull is not None else np.empty((0, 2))
             out[rest] = True
-            out[rest[[i for i, _ in _open_lenses(circles[rest], hull, self._extent, self._held)]]] = False
+            out[rest[_open_lens_rows(circles[rest], hull, self._extent, self._held)[0]]] = False
         return out
 
 
