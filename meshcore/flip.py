@@ -84,6 +84,19 @@ _prefetch = _no_prefetch if numba.config.DISABLE_JIT else _prefetch_intrinsic
 _AHEAD = 8
 """How many candidates or winners ahead the rounds ask for the memory they will read."""
 
+
+@_njit_inline
+def _prefetch_across(tri, he, q, touched, imp, e: int) -> None:
+    """Ask for what the rounds read of the triangles across the other two edges of half-edge ``e``'s."""
+    for g in (_next(e), _prev(e)):
+        h = he[g]
+        if h >= 0:
+            _prefetch(tri, h)
+            _prefetch(he, h)
+            _prefetch(q, h // 3)
+            _prefetch(touched, h // 3)
+            _prefetch(imp, h)
+
 _NO_SOURCE = -1
 _OPEN_EDGE = -2
 """A triangle's doubt came from a hull edge of the point set that may not be one of the global set's."""
@@ -507,28 +520,14 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                 for g in (e, _next(e), _prev(e)):
                     _prefetch(x, tri[g])
                     _prefetch(y, tri[g])
-                for g in (_next(e), _prev(e)):
-                    h = he[g]
-                    if h >= 0:
-                        _prefetch(tri, h)
-                        _prefetch(he, h)
-                        _prefetch(q, h // 3)
-                        _prefetch(touched, h // 3)
-                        _prefetch(imp, h)
+                _prefetch_across(tri, he, q, touched, imp, e)
             if i + _AHEAD // 2 < nw:
                 e = np.int64(winners[i + _AHEAD // 2])
                 f = np.int64(he[e])
                 d = tri[_prev(f)]
                 _prefetch(x, d)
                 _prefetch(y, d)
-                for g in (_next(f), _prev(f)):
-                    h = he[g]
-                    if h >= 0:
-                        _prefetch(tri, h)
-                        _prefetch(he, h)
-                        _prefetch(q, h // 3)
-                        _prefetch(touched, h // 3)
-                        _prefetch(imp, h)
+                _prefetch_across(tri, he, q, touched, imp, f)
                 for g in (_next(e), _prev(e)):
                     h = he[g]
                     if h >= 0:
