@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -112,8 +112,8 @@ class GroundSummary:
     """Points on the convex hull of the ground points the window owns."""
 
     def to_record(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in ("row", "col", "ground", "not_ground", "low_outliers", "tiles_read",
-                                              "rounds", "seconds")}
+        """Every field but the hull (recorded as an array beside it)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "hull"}
 
 
 def ground_provenance(parameters: dict[str, float] | None = None) -> dict[str, Any]:
@@ -149,9 +149,9 @@ def _tile_range(grid: TileGrid, points: NDArray[np.float64], reach: NDArray[np.f
             int(grid.bins(x - reach, 0).min()), int(grid.bins(x + reach, 0).max()))
 
 
-def _owned(scratch: Scratch, grid: TileGrid, row: int, col: int, width: int) -> NDArray[np.float64]:
-    """The ground spill points the tile's window owns (each point of the survey in one tile only)."""
-    _, parts = _load(scratch, row, col, width)
+def _owned(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64]], width: int) -> NDArray[np.float64]:
+    """The points of a tile's ground spill files (``parts``) that its window owns (each point of the survey
+    in one tile only)."""
     pts = np.concatenate(parts) if parts else np.empty((0, width))
     if pts.shape[0] == 0:
         return pts
@@ -212,13 +212,15 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
             math.inf if job.cols[1] == grid.n_cols - 1 else held[2], math.inf if job.rows[1] == grid.n_rows - 1 else held[3])
     block = _tile_range(grid, corners, np.full(2, parameters.margin(job.unit) + 2 * parameters.cell / job.unit))
     loaded: dict[tuple[int, int], NDArray[np.float64]] = {}
+    spilled = {key: _load(scratch, *key, width) for key in job.tiles()}  # the block's own files, written below
     rounds = 0
     while True:
         rounds += 1
         r0, r1, c0, c1 = block
         for key in ((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)):
             if key not in loaded:
-                loaded[key] = _owned(scratch, grid, *key, width)
+                parts = spilled[key][1] if key in spilled else _load(scratch, *key, width)[1]
+                loaded[key] = _owned(grid, *key, parts, width)
         cloud = np.concatenate([loaded[k] for k in sorted(loaded)])
         result = classify_ground(
             cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
@@ -235,15 +237,14 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
     summaries = []
     owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
     for row, col in job.tiles():
-        names, parts = _load(scratch, row, col, width)
+        names, parts = spilled[(row, col)]
         files = {}
         positions: dict[str, list[NDArray]] = {}
         for name, part in zip(names, parts):
             at = lookup.find(part)
             files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
             if "point_index" in job.columns:
-                rows_, cols_ = grid.owner(part[:, 0], part[:, 1])
-                mine = result.ground[at] & (rows_ == row) & (cols_ == col)
+                mine = result.ground[at] & (owner_rows[at] == row) & (owner_cols[at] == col)
                 index = part[mine, 3 + job.columns.index("point_index")].astype(np.int64)
                 positions.setdefault(name.split("_", 1)[0], []).append(index)
         files.update({f"{tile_dir(row, col)}/{CLASSIFIED}/{source}.npy": np.concatenate(found)

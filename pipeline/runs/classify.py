@@ -27,7 +27,6 @@ from ..config import RunConfig
 from ..errors import OutputWriteError, UsageError
 from ..meshing.ground import CLASSIFIED, GROUND_COLUMNS
 from ..tiling.checkpoint import WorkDir
-from ..tiling.grid import tile_dir
 from .cluster import close, connect
 from .plan import plan_run
 
@@ -101,21 +100,21 @@ def classify(
     t0 = time.perf_counter()
     out = Path(output_dir)
     paths = [str(p) for p in discover_inputs(list(inputs))]
-    _targets(paths, out, overwrite)  # every clash said before any work
+    targets = dict(zip(paths, _targets(paths, out, overwrite)))  # every clash said before any work
     out.mkdir(parents=True, exist_ok=True)
     groups: dict[str | None, list[str]] = {}
     for path in paths:
         groups.setdefault(read_info(path).crs_wkt, []).append(path)
     report = ClassifyReport()
     for group in groups.values():
-        _classify_group(group, out, report, tile_size=tile_size, buffer=buffer, workers=workers,
-                        scheduler=scheduler, in_crs=in_crs, overwrite=overwrite, progress=progress)
+        _classify_group(group, out, targets, report, tile_size=tile_size, buffer=buffer, workers=workers,
+                        scheduler=scheduler, in_crs=in_crs, progress=progress)
     report.seconds = time.perf_counter() - t0
     return report
 
 
-def _classify_group(paths: list[str], out: Path, report: ClassifyReport, *, tile_size, buffer, workers, scheduler,
-                    in_crs, overwrite, progress) -> None:
+def _classify_group(paths: list[str], out: Path, targets: dict[str, Path], report: ClassifyReport, *,
+                    tile_size, buffer, workers, scheduler, in_crs, progress) -> None:
     """Classify files of one CRS together (:func:`classify`)."""
     from . import resume
     from .runner import RunReport, _ground_stage, _route_stage
@@ -125,7 +124,6 @@ def _classify_group(paths: list[str], out: Path, report: ClassifyReport, *, tile
                        tile_size=tile_size, buffer=buffer, workers=workers, scheduler=scheduler, in_crs=in_crs,
                        classify_ground=True)
     plan = plan_run(config)
-    targets = _targets([str(p) for p in plan.paths], out, overwrite)
     show = sys.stderr.isatty() if progress is None else progress
     report.notes.extend(plan.notes)
     work = WorkDir(tempfile.mkdtemp(prefix=".terrain-classify-", dir=out))
@@ -137,21 +135,16 @@ def _classify_group(paths: list[str], out: Path, report: ClassifyReport, *, tile
         routed = _route_stage(plan, work, client, show, run_report, ground_columns=columns)
         _ground_stage(plan, work, client, routed, show, run_report, columns=columns)
         report.notes.extend(run_report.notes)
-        for index, (path, target) in enumerate(zip(plan.paths, targets)):
-            ground = _ground_positions(work, plan.grid, index)
-            report.files.append(_write(str(path), target, ground))
+        for index, path in enumerate(plan.paths):
+            report.files.append(_write(str(path), targets[str(path)], _ground_positions(work, index)))
     finally:
         close(client, cluster)
         work.remove()
 
 
-def _ground_positions(work: WorkDir, grid, index: int) -> np.ndarray:
+def _ground_positions(work: WorkDir, index: int) -> np.ndarray:
     """The positions in input ``index`` of its ground points, from every tile."""
-    keys = [f"{tile_dir(r, c)}/{CLASSIFIED}/{index:06d}.npy" for r, c in grid.tiles()]
-    names = {f"{tile_dir(r, c)}/{CLASSIFIED}": set(work.scratch.names(f"{tile_dir(r, c)}/{CLASSIFIED}"))
-             for r, c in grid.tiles()}
-    found = [k for k in keys if k.rsplit("/", 1)[1] in names[k.rsplit("/", 1)[0]]]
-    arrays = work.scratch.load_many(found)
+    arrays = work.scratch.load_many(work.scratch.glob(f"tiles/*/{CLASSIFIED}/{index:06d}.npy"))
     return np.concatenate(arrays).astype(np.int64) if arrays else np.empty(0, dtype=np.int64)
 
 
