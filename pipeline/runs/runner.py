@@ -534,7 +534,7 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     jobs = [
         _RouteJob(
             i, str(p), scratch, grid, plan.buffer, crs.source_wkts[i], crs.target_wkt, crs.z_factor(i),
-            classes, config.keep_withheld, config.bbox, config.skip_bad_files, plan.products(classes), classify,
+            classes, config.keep_withheld, config.bbox, config.skip_bad_files, _products(plan, classify), classify,
             ground_columns,
         )
         for i, p in enumerate(paths)
@@ -579,6 +579,14 @@ def _route_stage(plan: RunPlan, work: WorkDir, client, show: bool, report: RunRe
     if not classify:  # else the hull of the ground stage's points
         hull = _settled_hull(plan, work, np.concatenate([c.hull for c in done]), windows, report)
     return Routed(done, windows, hull, fallback, classify)
+
+
+def _products(plan: RunPlan, classify: bool) -> ProductSettings:
+    """The run's products, the same for the route stage (which spills their points' columns) and the DEM
+    stage (which reads them): with the ground classified, of the points it classifies."""
+    if classify:
+        return plan.products(resume.ALL_BUT_NOISE, classified=True)
+    return plan.products(plan.config.classes)
 
 
 def _settled_hull(plan: RunPlan, work: WorkDir, candidates: np.ndarray, windows: tuple[WindowSource, ...],
@@ -785,7 +793,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
     store.reset_tiles_done(config.output, sorted({t for job in meshed.meshed_now for t in reached[(job.row, job.col)]}))
     fallback = resume.class_fallback(work)
     classify = config.classify_ground or fallback is not None
-    products = plan.products(resume.ALL_BUT_NOISE if classify else config.classes, classified=classify)
+    products = _products(plan, classify)
     tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)])), products=products)
                  for job in meshed.tile_jobs]
     written = store.tiles_done(config.output)

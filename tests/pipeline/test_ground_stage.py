@@ -96,6 +96,22 @@ def test_the_ground_is_the_same_at_any_tiling(tmp_path, survey, tile_size, buffe
     assert face_set(np.asarray(node_a), faces_a) == face_set(np.asarray(node_b), faces_b)
 
 
+def test_the_products_read_the_points_the_ground_stage_routed(tmp_path, survey):
+    """With the ground classified, the route stage spills the products' points with the columns the DEM
+    stage reads (a DSM and a CHM over the classified DTM), at any tiling."""
+    path = survey[0]
+    common = dict(classify_ground=True, layers=("elevation", "dsm", "chm", "ground_density"))
+    tiled = _run(path, tmp_path / "tiled.zarr", tile_size=60.0, buffer=20.0, **common)
+    whole = _run(path, tmp_path / "whole.zarr", tile_size=400.0, **common)
+    assert tiled.tiles > 4 and whole.tiles == 1
+    a, b = xr.open_zarr(tmp_path / "tiled.zarr"), xr.open_zarr(tmp_path / "whole.zarr")
+    for name in common["layers"]:
+        assert np.array_equal(a[name].values, b[name].values, equal_nan=True), name
+    chm = a["chm"].values
+    assert np.nanmax(chm) > 8.0  # the roofs and crowns stand above the classified ground
+    assert np.nanmedian(chm) < 0.5
+
+
 def test_classify_ground_ignores_the_files_classes(tmp_path, survey):
     path, x, y, z, label = survey
     las = laspy.read(path)
