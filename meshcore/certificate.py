@@ -303,8 +303,12 @@ def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.nda
         r = r + 4 * _U * (abs(cx) + abs(cy) + r + big)
         lo_x, lo_y, hi_x, hi_y = math.inf, math.inf, -math.inf, -math.inf
         grow = 0.0
+        reach = 2.0 * r  # an edge whose box lies farther from the centre has no corner or crossing in the disk
         for j in range(h):
             k = j + 1 if j + 1 < h else 0
+            if (min(hull[j, 0], hull[k, 0]) > cx + reach or max(hull[j, 0], hull[k, 0]) < cx - reach
+                    or min(hull[j, 1], hull[k, 1]) > cy + reach or max(hull[j, 1], hull[k, 1]) < cy - reach):
+                continue
             px, py = hull[j, 0] - cx, hull[j, 1] - cy
             dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
             a = dx * dx + dy * dy
@@ -328,7 +332,8 @@ def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.nda
                     qx, qy = px + tc * dx, py + tc * dy
                     lo_x, hi_x, lo_y, hi_y = min(lo_x, qx), max(hi_x, qx), min(lo_y, qy), max(hi_y, qy)
                     grow = max(grow, dt * math.sqrt(a))
-        # the disk's extreme points (east, west, north, south) inside the polygon
+        # the disk's extreme points (east, west, north, south) inside the polygon; the rounding's
+        # bound takes 1-norms for the 2-norms (larger: a point on an edge counts as inside)
         for m in range(4):
             ex = r if m == 0 else (-r if m == 1 else 0.0)
             ey = r if m == 2 else (-r if m == 3 else 0.0)
@@ -338,7 +343,7 @@ def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.nda
                 px, py = hull[j, 0] - cx, hull[j, 1] - cy
                 dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
                 side = dx * (ey - py) - dy * (ex - px)
-                if side < -8 * _U * math.sqrt(dx * dx + dy * dy) * (r + math.sqrt(px * px + py * py)):
+                if side < -8 * _U * (abs(dx) + abs(dy)) * (r + abs(px) + abs(py)):
                     inside = False
                     break
             if inside:

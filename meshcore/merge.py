@@ -38,10 +38,19 @@ def _quad_score(measure: int, ax, ay, bx, by, cx, cy, dx, dy) -> float:
     """Score of the quadrangle with these corners: S2, or S4 cubed (paired with the
     triangle scores S1, S3 cubed); computed from the corner that comes first by
     coordinates, so any rotation of the same quadrangle gives the same bits."""
-    for _ in range(3):
-        if lex_before(ax, ay, bx, by) and lex_before(ax, ay, cx, cy) and lex_before(ax, ay, dx, dy):
-            break
+    first, fx, fy = 0, ax, ay
+    if lex_before(bx, by, fx, fy):
+        first, fx, fy = 1, bx, by
+    if lex_before(cx, cy, fx, fy):
+        first, fx, fy = 2, cx, cy
+    if lex_before(dx, dy, fx, fy):
+        first = 3
+    if first == 1:
         ax, ay, bx, by, cx, cy, dx, dy = bx, by, cx, cy, dx, dy, ax, ay
+    elif first == 2:
+        ax, ay, bx, by, cx, cy, dx, dy = cx, cy, dx, dy, ax, ay, bx, by
+    elif first == 3:
+        ax, ay, bx, by, cx, cy, dx, dy = dx, dy, ax, ay, bx, by, cx, cy
     if measure == 2:
         return s2_kernel(ax, ay, bx, by, cx, cy, dx, dy)
     return s4_cubed_kernel(ax, ay, bx, by, cx, cy, dx, dy)
