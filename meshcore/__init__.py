@@ -14,24 +14,83 @@ patches through every point, the paper's section 4).  No I/O.
 
 from __future__ import annotations
 
-from .build import build_mesh
+import sys
+import types
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
 from .errors import InvalidInputError, InvalidMeshError, MeshError
-from .ground import GroundParameters, GroundResult, classify_ground
-from .interpolate import gradient, interpolate
-from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
-from .predicates import incircle, orient2d
-from .quadrature import FaceQuadrature, face_quadrature, l2_errors
-from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
-from .rasterize import rasterize
-from .refine import Refinement, refine_long_faces
-from .smooth import SmoothSurface, Variogram, fit_variogram, smooth_nodes, smooth_surface
-from .validate import convex_hull, validate
 
 __version__ = "0.1.0"
 
+#: where each name of the API lives: imported on first use, so that a caller
+#: that needs only the options or the errors (a command line's flags) does not
+#: load the kernels
+_HOMES = {
+    "build_mesh": "build",
+    "classify_ground": "ground", "GroundParameters": "ground", "GroundResult": "ground",
+    "gradient": "interpolate", "interpolate": "interpolate",
+    "Mesh": "mesh",
+    "incircle": "predicates", "orient2d": "predicates",
+    "FaceQuadrature": "quadrature", "face_quadrature": "quadrature", "l2_errors": "quadrature",
+    "MeasureSummary": "quality", "QualitySummary": "quality", "quality_summary": "quality",
+    "s1": "quality", "s2": "quality", "s3": "quality", "s4": "quality",
+    "rasterize": "rasterize",
+    "Refinement": "refine", "refine_long_faces": "refine",
+    "SmoothSurface": "smooth", "Variogram": "smooth", "fit_variogram": "smooth", "smooth_nodes": "smooth",
+    "smooth_surface": "smooth",
+    "convex_hull": "validate", "validate": "validate",
+}
 
-from . import kernels, tiles  # noqa: E402  (the kernel helpers for callers' own, and the tile protocol)
+if TYPE_CHECKING:
+    from . import kernels, tiles
+    from .build import build_mesh
+    from .ground import GroundParameters, GroundResult, classify_ground
+    from .interpolate import gradient, interpolate
+    from .mesh import Mesh
+    from .predicates import incircle, orient2d
+    from .quadrature import FaceQuadrature, face_quadrature, l2_errors
+    from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
+    from .rasterize import rasterize
+    from .refine import Refinement, refine_long_faces
+    from .smooth import SmoothSurface, Variogram, fit_variogram, smooth_nodes, smooth_surface
+    from .validate import convex_hull, validate
+
+
+class _Api(types.ModuleType):
+    """The package: a submodule named as the function it defines (``rasterize``,
+    ``interpolate``, ``validate``) does not take the function's name when it
+    is imported."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if isinstance(value, types.ModuleType) and _HOMES.get(name) == name:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Api
+
+
+def __getattr__(name: str) -> Any:
+    """A name of the API, or a submodule (``meshcore.tiles``, ``meshcore.kernels``), imported on first use."""
+    home = _HOMES.get(name)
+    if home is not None:
+        value = getattr(import_module(f".{home}", __name__), name)
+    else:
+        try:
+            value = import_module(f".{name}", __name__)
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_HOMES, "kernels", "tiles"})
+
 
 __all__ = [
     # meshes

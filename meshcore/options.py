@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import Enum, StrEnum
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -11,7 +11,7 @@ from .errors import InvalidInputError
 __all__ = ["TriangleMeasure", "QuadMeasure", "MergeMethod", "Surface", "parse_option"]
 
 
-class TriangleMeasure(str, Enum):
+class TriangleMeasure(StrEnum):
     """How triangles are improved: none (Delaunay), or flips driven by S1 or S3."""
 
     DELAUNAY = "delaunay"
@@ -19,21 +19,21 @@ class TriangleMeasure(str, Enum):
     S3 = "s3"
 
 
-class QuadMeasure(str, Enum):
+class QuadMeasure(StrEnum):
     """The quadrangle measure that drives the elimination of diagonals."""
 
     S2 = "s2"
     S4 = "s4"
 
 
-class MergeMethod(str, Enum):
+class MergeMethod(StrEnum):
     """Which diagonals are eliminated: the paper's greedy queue, or a maximum-weight matching."""
 
     GREEDY = "greedy"
     OPTIMAL = "optimal"
 
 
-class Surface(str, Enum):
+class Surface(StrEnum):
     """The surface over the faces: the paper's linear/bilinear one, or cubic patches through the same points."""
 
     LINEAR = "linear"
