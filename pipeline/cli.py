@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from .config import LAYERS, Returns, positive_integer
+from .config import positive_integer
 from .errors import OutputWriteError, PipelineError, SeamError, StorageUnreachableError, UsageError
 from .logs import LOGGER, configure
 
@@ -110,51 +110,52 @@ def _add_run(sub) -> None:
             "(UGRID group 'mesh') to one Zarr store. Parameters may also come from a TOML job file."
         ),
     )
-    run.add_argument("inputs", nargs="*", metavar="INPUT", help="LAS/LAZ files, folders or glob patterns")
-    run.add_argument("-o", "--output", help="the Zarr store to write (e.g. dem.zarr)")
+    add_config_flags(run)
     run.add_argument("--config", type=Path, help="a TOML job file; flags given here override it")
-    run.add_argument("--resolution", type=float, help="DEM cell size in CRS units")
-    run.add_argument("--tile-size", type=float, help="tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile)")
-    run.add_argument("--buffer", type=float, help="overlap around each tile in CRS units (default: 12 point spacings)")
-    run.add_argument("--classes", help="ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground; "
-                     "a survey whose ground makes no surface: its ground is classified, with a note)")
-    run.add_argument("--classify-ground", action="store_true", default=None,
-                     help="classify the ground from every point but noise, ignoring the files' classes")
-    run.add_argument("--keep-withheld", action="store_true", default=None, help="keep points flagged withheld")
-    run.add_argument("--bbox", help="xmin,ymin,xmax,ymax in the output CRS")
-    run.add_argument(
-        "--extent", help="xmin,ymin,xmax,ymax in the output CRS: the survey's planned area, which the grid covers "
-        "(files inside it never move the grid)"
-    )
-    run.add_argument("--in-crs", help="CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
-    run.add_argument("--override-crs", help="CRS of every input, whatever its CRS record says (e.g. EPSG:32612): "
-                     "for records the coordinates contradict; not with --in-crs")
-    run.add_argument("--out-crs", help="reproject to this CRS (required for mixed or geographic inputs)")
-    run.add_argument("--duplicates", choices=("lowest", "highest", "mean", "first"), help="z of points sharing x,y (default lowest; first: the first read, files in sorted path order)")
-    run.add_argument("--triangle-measure", choices=("delaunay", "s1", "s3"), help="flip measure (default s3)")
-    run.add_argument("--quad-measure", choices=("s2", "s4", "none"), help="elimination measure (default s4; none: triangles only)")
-    run.add_argument("--merge", choices=("greedy", "optimal"), help="elimination strategy (default greedy)")
-    run.add_argument("--max-edge", type=float, help="leave cells of faces with a longer edge as nodata")
-    run.add_argument(
-        "--surface", choices=("linear", "smooth"),
-        help="linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches through "
-        "every point, kriged between them, voids filled from their rims (more accurate; 1.25-1.86x the time "
-        "of a linear run on the real samples)",
-    )
-    run.add_argument("--layers", help=f"extra DEM layers: {','.join(LAYERS[1:])} (see docs/products.md)")
-    run.add_argument("--returns", choices=tuple(r.value for r in Returns),
-                     help="returns the DTM is made of (default all; the DSM always uses first returns)")
-    run.add_argument("--dsm-max-edge", type=float,
-                     help="longest edge and circumradius of the DSM's triangles (default: 5 point spacings)")
-    run.add_argument("--workers", type=_positive_int, help="threads of this process that run the tasks (default: one per core; not with --scheduler)")
-    run.add_argument("--scheduler", help="address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
-    run.add_argument("--zarr-format", type=int, choices=(2, 3), help="Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)")
-    run.add_argument("--scratch-dir", help="folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
-    run.add_argument("--max-cells", type=_positive_int, help="refuse a DEM above this many cells (default 4e9)")
-    run.add_argument("--overwrite", action="store_true", default=None, help="replace an existing store")
-    run.add_argument("--skip-bad-files", action="store_true", default=None,
-                     help="skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_config_flags(parser: argparse.ArgumentParser, names: Sequence[str] | None = None,
+                     helps: dict[str, str] | None = None) -> None:
+    """The flags of :class:`pipeline.config.RunConfig`'s parameters (``names``:
+    only these), derived from its fields: ``--NAME`` (underscores as dashes),
+    the field's :class:`pipeline.config.Flag` help (or ``helps[NAME]``), an
+    enum's values as choices.  None of them has a default here: a flag not
+    given leaves the job file's value, or the field's default."""
+    import dataclasses
+    import enum
+    import types
+    import typing
+
+    from .config import RunConfig
+
+    hints = typing.get_type_hints(RunConfig)
+    for f in dataclasses.fields(RunConfig):
+        flag = f.metadata.get("flag")
+        if flag is None or (names is not None and f.name not in names):
+            continue
+        kind, optional = hints[f.name], False
+        if isinstance(kind, types.UnionType) and type(None) in typing.get_args(kind):
+            optional = True
+            kind = next(a for a in typing.get_args(kind) if a is not type(None))
+        spec: dict = {"help": (helps or {}).get(f.name, flag.help)}
+        if flag.metavar is not None:
+            spec["metavar"] = flag.metavar
+        if flag.positional:
+            parser.add_argument(f.name, nargs="*", **spec)
+            continue
+        if kind is bool:
+            spec.update(action="store_true", default=None)
+        elif isinstance(kind, type) and issubclass(kind, enum.Enum):
+            spec["choices"] = tuple(m.value for m in kind) + (("none",) if optional and f.default is not None else ())
+        elif kind is float:
+            spec["type"] = float
+        elif kind is int:
+            spec["type"] = _positive_int if flag.choices is None else int
+            if flag.choices is not None:
+                spec["choices"] = flag.choices
+        opts = ([flag.short] if flag.short else []) + ["--" + f.name.replace("_", "-")]
+        parser.add_argument(*opts, dest=f.name, **spec)
 
 
 def _add_demo(sub) -> None:
@@ -233,74 +234,30 @@ def _add_classify(sub) -> None:
                          "(class 2 ground, class 1 for former ground; nothing else changed)")
     cls.add_argument("inputs", nargs="+", metavar="INPUT", help="LAS/LAZ files, folders or glob patterns")
     cls.add_argument("-o", "--output", required=True, help="folder to write NAME.laz into, one per input")
-    cls.add_argument("--tile-size", type=float, help="tile edge in CRS units (default: from the point density)")
-    cls.add_argument("--buffer", type=float, help="overlap around each tile in CRS units")
-    cls.add_argument("--in-crs", help="CRS of inputs whose record is missing or broken")
-    cls.add_argument("--workers", type=_positive_int, help="local worker threads")
-    cls.add_argument("--scheduler", help="address of a Dask scheduler")
-    cls.add_argument("--overwrite", action="store_true", help="replace files already in the output folder")
+    add_config_flags(cls, ("tile_size", "buffer", "in_crs", "workers", "scheduler", "overwrite"),
+                     {"overwrite": "replace files already in the output folder"})
     cls.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def _run_config(args: argparse.Namespace):
+    from dataclasses import fields
+
     from .config import RunConfig
 
     data: dict = {}
     if args.config is not None:
         job = RunConfig.from_toml(args.config)
         data = job.to_dict() | {"storage_options": job.storage_options}  # to_dict leaves credentials out
-    flags = {
-        "output": args.output,
-        "resolution": args.resolution,
-        "tile_size": args.tile_size,
-        "buffer": args.buffer,
-        "keep_withheld": args.keep_withheld,
-        "classify_ground": args.classify_ground,
-        "in_crs": args.in_crs,
-        "override_crs": args.override_crs,
-        "out_crs": args.out_crs,
-        "duplicates": args.duplicates,
-        "triangle_measure": args.triangle_measure,
-        "merge": args.merge,
-        "max_edge": args.max_edge,
-        "returns": args.returns,
-        "dsm_max_edge": args.dsm_max_edge,
-        "surface": args.surface,
-        "workers": args.workers,
-        "scheduler": args.scheduler,
-        "zarr_format": args.zarr_format,
-        "scratch_dir": args.scratch_dir,
-        "max_cells": args.max_cells,
-        "overwrite": args.overwrite,
-        "skip_bad_files": args.skip_bad_files,
-    }
+    flags = {f.name: getattr(args, f.name) for f in fields(RunConfig) if "flag" in f.metadata}
     for flag, other in (("in_crs", "override_crs"), ("override_crs", "in_crs")):
         if flags[flag] is not None:  # the command line's choice of the two replaces the job file's
             data.pop(other, None)
-    data.update({k: v for k, v in flags.items() if v is not None})
-    if args.inputs:
-        data["inputs"] = tuple(args.inputs)
-    if args.quad_measure is not None:
-        data["quad_measure"] = None if args.quad_measure == "none" else args.quad_measure
-    if args.classes is not None:
-        data["classes"] = None if args.classes.strip().lower() == "all" else _int_list(args.classes, "--classes")
-    for flag in ("bbox", "extent"):
-        if getattr(args, flag) is not None:
-            data[flag] = tuple(_float_list(getattr(args, flag), f"--{flag}", 4))
-    if args.layers is not None:
-        data["layers"] = tuple(name.strip() for name in args.layers.split(",") if name.strip())
+    data.update({k: v for k, v in flags.items() if v is not None and v != []})
     for needed in ("inputs", "output", "resolution"):
         if needed not in data:
             flag = {"inputs": "INPUT", "output": "-o/--output", "resolution": "--resolution"}[needed]
             raise UsageError(f"terrain run needs {flag} (on the command line or in --config)")
     return RunConfig.from_dict(data)
-
-
-def _int_list(text: str, flag: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise UsageError(f"{flag} takes integers separated by commas, got {text!r}") from None
 
 
 def _float_list(text: str, flag: str, count: int) -> list[float]:
@@ -332,7 +289,7 @@ def _demo(args: argparse.Namespace) -> int:
     )
     # a machine's first run compiles its mesh kernels: another process starts
     # now, while this one writes the survey on one core, and the run takes it over
-    compiling = compile_aside(config)
+    compiling = compile_aside(config.mesh_options())
     try:
         paths = write_survey(survey, spec)
         written = sum(read_info(p).point_count for p in paths)  # none fall in the lake
@@ -500,7 +457,7 @@ def _command(args: argparse.Namespace) -> int:
         from .runs.classify import classify
 
         done = classify(args.inputs, args.output, tile_size=args.tile_size, buffer=args.buffer, workers=args.workers,
-                        scheduler=args.scheduler, in_crs=args.in_crs, overwrite=args.overwrite,
+                        scheduler=args.scheduler, in_crs=args.in_crs, overwrite=bool(args.overwrite),
                         progress=_progress(args))
         for note in done.notes:
             LOGGER.info(_said(args, note))

@@ -13,18 +13,23 @@ import math
 import numbers
 import os
 import tomllib
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from enum import Enum, StrEnum
 from pathlib import Path
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeVar
+
+from meshcore.options import MergeMethod, QuadMeasure, Surface, TriangleMeasure, parse_option
 
 from .errors import UsageError
 
 from .products.attributes import Returns
 from .products.registry import names as _product_names
 
-__all__ = ["RunConfig", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]
+__all__ = ["RunConfig", "MeshOptions", "Flag", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]
+
+
+E = TypeVar("E", bound=Enum)
 
 
 class _LayerNames(StrEnum):
@@ -38,8 +43,6 @@ class _LayerNames(StrEnum):
         >>> Layer.parse("slope")
         <Layer.SLOPE: 'slope'>
         """
-        from meshcore import parse_option
-
         return parse_option(
             cls, value, "layer", error=UsageError, fold_case=False, message="unknown layer {value!r}; valid layers: {names}"
         )
@@ -57,7 +60,7 @@ or too few) is meshed from every class but noise instead
 (:data:`pipeline.runs.resume.ALL_BUT_NOISE`), with a note."""
 
 
-class DuplicatePolicy(str, Enum):
+class DuplicatePolicy(StrEnum):
     """The elevation kept for points that share x and y."""
 
     LOWEST = "lowest"
@@ -66,11 +69,9 @@ class DuplicatePolicy(str, Enum):
     FIRST = "first"
 
 
-def _choice(enum: type[Enum], value: object, name: str) -> str:
-    """The value of option ``name`` (exact text), by meshcore's parser of options."""
-    from meshcore import parse_option
-
-    return parse_option(enum, value, name, error=UsageError, fold_case=False).value  # type: ignore[no-any-return]
+def _choice(enum: type[E], value: object, name: str) -> E:
+    """The member of option ``name`` (exact text), by meshcore's parser of options."""
+    return parse_option(enum, value, name, error=UsageError, fold_case=False)
 
 
 def _flag(name: str, value: object) -> bool:
@@ -132,9 +133,12 @@ def _positive(name: str, value: object, allow_none: bool = False, allow_zero: bo
 
 
 def _box(name: str, value: object) -> tuple[float, float, float, float] | None:
-    """A finite (xmin, ymin, xmax, ymax) with min < max, or None."""
+    """A finite (xmin, ymin, xmax, ymax) with min < max (or its text,
+    ``xmin,ymin,xmax,ymax``), or None."""
     if value is None:
         return None
+    if isinstance(value, str):
+        value = value.split(",")
     try:
         box = tuple(float(v) for v in value)  # type: ignore[union-attr]
     except (TypeError, ValueError):
@@ -145,62 +149,112 @@ def _box(name: str, value: object) -> tuple[float, float, float, float] | None:
 
 
 @dataclass(frozen=True)
+class Flag:
+    """How the command line takes a :class:`RunConfig` parameter: ``--NAME``
+    (underscores as dashes), its help, and how its value is written there.
+
+    The kind of value follows the field's type: a bool is a switch, an enum
+    offers its values (and ``"none"`` where the parameter may be None), a
+    number is a number, and a tuple is given as text that
+    :class:`RunConfig` reads itself (``2,9``; ``xmin,ymin,xmax,ymax``).
+    """
+
+    help: str
+    metavar: str | None = None
+    short: str | None = None
+    """A one-letter form (``-o``)."""
+    positional: bool = False
+    """Given without a flag, as many as wanted (the inputs)."""
+    choices: tuple[object, ...] | None = None
+    """For a number: the values it may take (the Zarr format)."""
+
+
+def _param(default: object = MISSING, help: str = "", **flag: object) -> Any:
+    """A :class:`RunConfig` field that the command line takes (see :class:`Flag`)."""
+    meta = {"flag": Flag(help, **flag)}  # type: ignore[arg-type]
+    return field(metadata=meta) if default is MISSING else field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
 class RunConfig:
-    """Everything a run needs; see ``terrain run --help`` for the meaning of each field.
+    """Everything a run needs: the one home of a run's parameters.
+
+    ``terrain run``'s flags and a job file's keys are these fields (each
+    field's :class:`Flag` holds its help); options are enums end to end.
 
     Examples
     --------
     >>> cfg = RunConfig(inputs=("tiles/*.laz",), output="dem.zarr", resolution=1.0)
-    >>> cfg.classes, cfg.duplicates, cfg.quad_measure
+    >>> cfg.classes, cfg.duplicates.value, cfg.quad_measure.value
     ((2,), 'lowest', 's4')
     >>> RunConfig.from_dict(cfg.to_dict()) == cfg
     True
     """
 
-    inputs: tuple[str, ...]
-    output: str
-    resolution: float
-    tile_size: float | None = None
-    buffer: float | None = None
-    classes: tuple[int, ...] | None = DEFAULT_CLASSES
-    classify_ground: bool = False
+    inputs: tuple[str, ...] = _param(help="LAS/LAZ files, folders or glob patterns", metavar="INPUT", positional=True)
+    output: str = _param(help="the Zarr store to write (e.g. dem.zarr)", short="-o")
+    resolution: float = _param(help="DEM cell size in CRS units")
+    tile_size: float | None = _param(
+        None, "tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile; the result is "
+        "the same at any tile size)")
+    buffer: float | None = _param(None, "overlap around each tile in CRS units (default: 12 point spacings)")
+    classes: tuple[int, ...] | None = _param(
+        DEFAULT_CLASSES, "ASPRS classes to keep, e.g. 2 or 2,9, or 'all' (default 2: ground; a survey whose ground "
+        "makes no surface: its ground is classified, with a note)")
+    classify_ground: bool = _param(
+        False, "classify the ground from every point but noise, ignoring the files' classes")
     """Classify the ground from every point but noise (classes 7 and 18),
     ignoring the files' own classes (:mod:`pipeline.meshing.ground`).  A
     survey whose points of the default classes make no surface is classified
     so whatever this says."""
-    keep_withheld: bool = False
-    bbox: tuple[float, float, float, float] | None = None
-    extent: tuple[float, float, float, float] | None = None
+    keep_withheld: bool = _param(False, "keep points flagged withheld")
+    bbox: tuple[float, float, float, float] | None = _param(None, "xmin,ymin,xmax,ymax in the output CRS")
+    extent: tuple[float, float, float, float] | None = _param(
+        None, "xmin,ymin,xmax,ymax in the output CRS: the survey's planned area, which the grid covers (files "
+        "inside it never move the grid)")
     """The survey's planned area (output CRS): the grid covers it, so files
     inside it never move the grid (an archive that grows file by file)."""
-    in_crs: str | None = None
+    in_crs: str | None = _param(None, "CRS of inputs with a missing or broken CRS (e.g. EPSG:2154)")
     """The CRS of inputs whose record is missing or broken (PDAL's ``default_srs``)."""
-    override_crs: str | None = None
+    override_crs: str | None = _param(
+        None, "CRS of every input, whatever its CRS record says (e.g. EPSG:32612): for records the coordinates "
+        "contradict; not with --in-crs")
     """The CRS of every input, whatever its record says (PDAL's ``override_srs``):
     for files whose record the coordinates contradict."""
-    out_crs: str | None = None
-    duplicates: str = DuplicatePolicy.LOWEST.value
-    triangle_measure: str = "s3"
-    quad_measure: str | None = "s4"
-    merge: str = "greedy"
-    max_edge: float | None = None
-    surface: str = "linear"
+    out_crs: str | None = _param(None, "reproject to this CRS (required for mixed or geographic inputs)")
+    duplicates: DuplicatePolicy = _param(
+        DuplicatePolicy.LOWEST, "z of points sharing x,y (default lowest; first: the first read, files in sorted "
+        "path order)")
+    triangle_measure: TriangleMeasure = _param(TriangleMeasure.S3, "flip measure (default s3)")
+    quad_measure: QuadMeasure | None = _param(QuadMeasure.S4, "elimination measure (default s4; none: triangles only)")
+    merge: MergeMethod = _param(MergeMethod.GREEDY, "elimination strategy (default greedy)")
+    max_edge: float | None = _param(None, "leave cells of faces with a longer edge as nodata")
+    surface: Surface = _param(
+        Surface.LINEAR, "linear: the mesh's flat triangles and bilinear quads (default); smooth: cubic patches "
+        "through every point, kriged between them, voids filled from their rims (more accurate; 1.25-1.86x the "
+        "time of a linear run on the real samples)")
     """The surface the DEM samples: "linear" (the mesh's own faces) or
     "smooth" (cubic patches through every point, kriged between them)."""
-    layers: tuple[str, ...] = ("elevation",)
-    returns: str = Returns.ALL.value
+    layers: tuple[str, ...] = _param(
+        ("elevation",), "extra DEM layers, comma-separated: " + ",".join(_product_names()[1:]) + " (see docs/products.md)")
+    returns: Returns = _param(
+        Returns.ALL, "returns the DTM is made of (default all; the DSM always uses first returns)")
     """The returns the DTM is made of: "all", "first", "last" or "single"
     (the DSM is made of first returns whatever this says)."""
-    dsm_max_edge: float | None = None
+    dsm_max_edge: float | None = _param(
+        None, "longest edge and circumradius of the DSM's triangles (default: 5 point spacings)")
     """The longest edge (and circumradius) of the DSM's triangles; None: five
     mean point spacings of the survey (every return counted)."""
-    workers: int | None = None
-    scheduler: str | None = None
-    zarr_format: int = 3
-    scratch_dir: str | None = None
-    overwrite: bool = False
-    max_cells: int = 4_000_000_000
-    skip_bad_files: bool = False
+    workers: int | None = _param(
+        None, "threads of this process that run the tasks (default: one per core; not with --scheduler)")
+    scheduler: str | None = _param(None, "address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
+    zarr_format: int = _param(3, "Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)", choices=(2, 3))
+    scratch_dir: str | None = _param(
+        None, "folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
+    overwrite: bool = _param(False, "replace an existing store")
+    max_cells: int = _param(4_000_000_000, "refuse a DEM above this many cells (default 4e9)")
+    skip_bad_files: bool = _param(
+        False, "skip unreadable or broken inputs (listed in the report with the reason) instead of stopping")
     storage_options: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
     """fsspec options for URL inputs and stores (``endpoint_url``, ``key``,
     ``secret``, ``anon``, ...).  Kept out of :meth:`to_dict`, so out of the
@@ -208,8 +262,6 @@ class RunConfig:
     extra: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        from meshcore import MergeMethod, QuadMeasure, Surface, TriangleMeasure
-
         inputs = (self.inputs,) if isinstance(self.inputs, (str, Path)) else self.inputs
         inputs = tuple(str(p) for p in inputs)
         if not inputs:
@@ -255,12 +307,12 @@ class RunConfig:
             object.__setattr__(self, "quad_measure", None)
         object.__setattr__(self, "merge", _choice(MergeMethod, self.merge, "merge"))
         object.__setattr__(self, "surface", _choice(Surface, self.surface, "surface"))
-        layers = (self.layers,) if isinstance(self.layers, str) else tuple(self.layers)
+        layers = tuple(w.strip() for w in self.layers.split(",") if w.strip()) if isinstance(self.layers, str) else tuple(self.layers)
         unknown = [name for name in layers if name not in LAYERS]
         if unknown:
             raise UsageError(f"unknown layer(s) {unknown}; expected some of {', '.join(LAYERS)}")
         # in one order whatever the order asked: the store is the same
-        object.__setattr__(self, "layers", tuple(name for name in LAYERS if name == "elevation" or name in layers))
+        object.__setattr__(self, "layers", tuple(Layer(name) for name in LAYERS if name == "elevation" or name in layers))
         object.__setattr__(self, "workers", _whole("workers", self.workers, allow_none=True))
         if self.zarr_format not in (2, 3) or isinstance(self.zarr_format, (bool, float)):
             raise UsageError(f"zarr_format must be 2 or 3, got {self.zarr_format!r}")
@@ -278,6 +330,10 @@ class RunConfig:
             object.__setattr__(self, name, None if value is None else str(value))
         if self.in_crs is not None and self.override_crs is not None:
             raise UsageError(BOTH_CRS_OPTIONS)
+
+    def mesh_options(self) -> MeshOptions:
+        """The part of the parameters a tile's mesh and grid read."""
+        return MeshOptions.of(self)
 
     @property
     def scheduler_address(self) -> str | None:
@@ -297,7 +353,7 @@ class RunConfig:
                 if key in _NONE_WORDS:
                     out[key] = _NONE_WORDS[key]
                 continue
-            out[key] = list(value) if isinstance(value, tuple) else value
+            out[key] = list(value) if isinstance(value, tuple) else (value.value if isinstance(value, Enum) else value)
         return out
 
     @classmethod
@@ -329,3 +385,23 @@ class RunConfig:
         """Names of the parameters that change the result and differ from ``other``."""
         mine, theirs = asdict(self), asdict(other)
         return sorted(k for k in mine if k not in _NEUTRAL and mine[k] != theirs[k])
+
+
+@dataclass(frozen=True)
+class MeshOptions:
+    """The part of a :class:`RunConfig` that a tile's mesh and grid read,
+    taken from it by name (:meth:`RunConfig.mesh_options`): a task gets this,
+    not copies of the fields one by one."""
+
+    triangle_measure: TriangleMeasure = TriangleMeasure.S3
+    quad_measure: QuadMeasure | None = QuadMeasure.S4
+    merge: MergeMethod = MergeMethod.GREEDY
+    duplicates: DuplicatePolicy = DuplicatePolicy.LOWEST
+    surface: Surface = Surface.LINEAR
+    max_edge: float | None = None
+    layers: tuple[Layer, ...] = (Layer("elevation"),)
+
+    @classmethod
+    def of(cls, config: RunConfig) -> MeshOptions:
+        """The options ``config`` sets."""
+        return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})

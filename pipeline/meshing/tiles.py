@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 import meshcore
 from meshcore.kernels import empty
 
+from ..config import MeshOptions
 from ..errors import SeamError
 from ..products import ProductSettings, TileContext
 from ..products.points import from_columns
@@ -50,9 +51,10 @@ from ..tiling.windows import WindowSource, points_in_boxes, tile_points
 from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
 from ..tiling.routing import PRODUCT_SPILL, load_tile_points, neighbour_tile_points, points_in_box
 from .kernels import load_mesh_kernels, sample_grid_mesh
+from .piece import MESH_ARRAYS, SURFACE_ARRAYS, Piece, PiecePart
 
 __all__ = [
-    "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "save_piece", "load_piece", "held_box", "hull_near",
+    "TileJob", "TileSummary", "mesh_tile", "dem_tile", "vertex_z", "held_box", "hull_near",
     "reached_tiles", "load_kernels", "load_surface_kernels",
 ]
 
@@ -73,12 +75,8 @@ class TileJob:
     grid: TileGrid
     buffer: float
     extent: tuple[float, float, float, float]
-    duplicates: str
-    triangle_measure: str
-    quad_measure: str | None
-    merge: str
-    max_edge: float | None = None
-    layers: tuple[str, ...] = ("elevation",)
+    options: MeshOptions = MeshOptions()
+    """The run's measures, surface, duplicates policy, longest edge and layers."""
     hull: NDArray[np.float64] | None = None
     """The global convex hull's points (x, y, z), added to every tile's points."""
     height_scale: float = 1.0
@@ -89,8 +87,6 @@ class TileJob:
     run_id: str = ""
     """Names the run: tiles' points read for this one are kept in memory for
     the other tiles of the same run (empty: never kept)."""
-    surface: str = "linear"
-    """"smooth": the piece also holds its faces' patch nodes, kriged with ``variogram``."""
     variogram: meshcore.Variogram | None = None
     windows: tuple[WindowSource, ...] = ()
     """COPC inputs this tile reads by window (:mod:`pipeline.tiling.windows`), not from spill files."""
@@ -420,7 +416,7 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     # the triangles a few rings around, round after round: on the throughput bench's corner tiles a
     # twentieth of the buffer left 5-8 circles open (4-6 builds), a buffer none
     depth = job.buffer
-    if job.surface == "smooth" and job.variogram is not None and job.variogram.spacing is not None:
+    if job.options.surface == "smooth" and job.variogram is not None and job.variogram.spacing is not None:
         # the nodes of those slivers are kriged from disks of about 2.3
         # spacings around cells of 1.4: 4 spacings hold them
         depth = max(depth, 4.0 * job.variogram.spacing)
@@ -602,7 +598,7 @@ class _Certifying:
         self.loaded = loaded
         self.expansions = 0
         self.hull_xy = np.empty((0, 2)) if job.hull is None else np.ascontiguousarray(job.hull[:, :2])
-        self.smooth = job.surface == "smooth"
+        self.smooth = job.options.surface == "smooth"
         self.mesh, self.meshed = self._build()
         # the smooth surface's long faces and kriging systems over ``mesh``, once
         # its faces are certified: every point held is then outside their
@@ -622,7 +618,7 @@ class _Certifying:
             # (random file orders made them 10-20% slower); the mesh is the same in any order
             points = np.take(points, meshcore.tiles.block_order(points, _BLOCK_SPACINGS * job.variogram.spacing, self.held[0]), axis=0)
         mesh = meshcore.build_mesh(
-            points[:, :2], job.triangle_measure, job.quad_measure, job.merge, window=self.window,
+            points[:, :2], job.options.triangle_measure, job.options.quad_measure, job.options.merge, window=self.window,
             known=_HeldRegion(self.held, self.hull_xy, job.extent), assume_rounds=job.assume_rounds,
         )
         return mesh, points
@@ -772,7 +768,7 @@ class _PieceTables:
 def _piece_tables(job: TileJob, mesh: meshcore.Mesh, meshed: NDArray[np.float64], own: NDArray[np.float64]) -> _PieceTables:
     g = job.grid
     xy = mesh.vertices
-    z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.duplicates)
+    z = vertex_z(mesh.input_to_vertex, xy.shape[0], meshed[:, 2], job.options.duplicates)
 
     orow, ocol = g.owner(xy[:, 0], xy[:, 1])
     owned = (orow == job.row) & (ocol == job.col)
@@ -804,7 +800,7 @@ def _save_piece_and_border(job: TileJob, work: _Certifying, tables: _PieceTables
     returns the border's vertices."""
     mesh, faces = work.mesh, tables.faces
     counts = None
-    if "point_count" in job.layers:
+    if "point_count" in job.options.layers:
         counts = _point_counts(job, own)
     vertices = np.column_stack([np.take(mesh.vertices, tables.order, axis=0), tables.z[tables.order]])
     # the smooth surface's arrays: from the neighbourhoods held, the same in every tile
@@ -812,17 +808,12 @@ def _save_piece_and_border(job: TileJob, work: _Certifying, tables: _PieceTables
     if work.smooth:
         surface = _piece_surface(meshcore.smooth_surface(mesh, tables.z, job.variogram, plan=work.plan), mesh.faces,
                                  tables.z, tables.remap, work.sampled)
-    save_piece(
-        job.scratch, job.row, job.col, "piece",
-        vertices=vertices,
-        faces=faces,
-        point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32),
-        **surface,
-    )
-    reaching = _reaching_out(vertices, faces, job.grid.box(job.row, job.col))
-    border = _select_faces({"vertices": vertices, "faces": faces, **surface}, reaching)
-    save_piece(job.scratch, job.row, job.col, "border", **border)
-    return border["vertices"]
+    piece = Piece(vertices=vertices, faces=faces, **surface)
+    replace(piece, point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32)).save(
+        job.scratch, job.row, job.col, PiecePart.PIECE)
+    border = piece.select(_reaching_out(vertices, faces, job.grid.box(job.row, job.col)))
+    border.save(job.scratch, job.row, job.col, PiecePart.BORDER)
+    return border.vertices
 
 
 def mesh_tile(job: TileJob) -> TileSummary:
@@ -898,37 +889,6 @@ def _corner_outside(outside, faces):
     return out
 
 
-def _select_faces(part: dict[str, NDArray], keep: NDArray[np.bool_]) -> dict[str, NDArray]:
-    """The faces ``keep`` of a piece's arrays (:data:`PIECE_ARRAYS`, and the smooth
-    surface's of :func:`_piece_surface`), with the vertices they use (kept in
-    index order) and the faces renumbered to them; a missing fourth corner
-    (-1) stays -1.  The nodes and the cut faces' triangles follow their faces;
-    every added point is kept."""
-    faces = np.compress(keep, part["faces"], axis=0)
-    used, inverse = np.unique(faces, return_inverse=True)  # -1 first when present
-    has_gap = used.size > 0 and used[0] < 0
-    used = used[int(has_gap):]
-    out = {"vertices": np.take(part["vertices"], used, axis=0), "faces": inverse.reshape(faces.shape) - int(has_gap)}
-    row = np.cumsum(keep, dtype=np.int64) - 1  # a face kept: its row among those kept
-    if "nodes" in part:  # the faces with nodes (``noded``) among those kept
-        noded = np.asarray(part["noded"])
-        mine = keep[noded]
-        out["nodes"] = np.compress(mine, part["nodes"], axis=0)
-        out["noded"] = row[np.compress(mine, noded)].astype(np.int32)
-    if "cut_parent" in part:
-        n_v = part["vertices"].shape[0]
-        mine = keep[part["cut_parent"]]
-        corners = np.compress(mine, part["cut_faces"], axis=0).astype(np.int64)
-        old = corners < n_v  # a corner of the face cut (so among ``used``), else an added point
-        corners[old] = np.searchsorted(used, corners[old])
-        corners[~old] += used.size - n_v
-        out["cut_faces"] = corners.astype(np.int32)
-        out["cut_parent"] = row[np.compress(mine, part["cut_parent"])].astype(np.int32)
-        out["cut_nodes"] = np.compress(mine, part["cut_nodes"], axis=0)
-        out["added"] = np.asarray(part["added"])
-    return out
-
-
 def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z: NDArray[np.float64],
                    remap: NDArray[np.int32], sampled: NDArray[np.bool_]) -> dict[str, NDArray]:
     """A tile's smooth surface as its piece saves it, beside the faces ``faces``
@@ -964,43 +924,6 @@ def _piece_surface(surface: meshcore.SmoothSurface, faces: NDArray[np.int64], z:
     }
 
 
-#: the arrays :func:`mesh_tile` saves, by piece name
-PIECE_ARRAYS = {
-    "piece": ("vertices", "faces", "point_count"),
-    "border": ("vertices", "faces"),
-}
-
-
-def piece_intact(scratch: Scratch, row: int, col: int, extra: tuple[str, ...] = ()) -> bool:
-    """Whether every array :func:`mesh_tile` saved for the tile (and the
-    ``extra`` ones of its piece) is still there."""
-    wanted = {name: set(keys) for name, keys in PIECE_ARRAYS.items()}
-    wanted["piece"].update(extra)
-    for name, keys in wanted.items():
-        if not {f"{k}.npy" for k in keys} <= set(scratch.names(f"{tile_dir(row, col)}/{name}")):
-            return False
-    return True
-
-
-def save_piece(scratch: Scratch, row: int, col: int, name: str, **arrays: NDArray) -> None:
-    """Save a tile's arrays under ``name`` (one ``.npy`` each, so local readers can map slices)."""
-    folder = f"{tile_dir(row, col)}/{name}"
-    scratch.save_many({f"{folder}/{key}.npy": value for key, value in arrays.items()})
-
-
-def load_piece(scratch: Scratch, row: int, col: int, keys, name: str = "piece") -> dict[str, NDArray]:
-    """Arrays saved by :func:`save_piece`, memory-mapped when local (copy-on-write)."""
-    return load_pieces(scratch, [(row, col, name)], keys)[0]
-
-
-def load_pieces(scratch: Scratch, pieces: list[tuple[int, int, str]], keys) -> list[dict[str, NDArray]]:
-    """:func:`load_piece` of several ``(row, col, name)`` at once (on object
-    storage, in concurrent requests)."""
-    wanted = [f"{tile_dir(r, c)}/{name}/{k}.npy" for r, c, name in pieces for k in keys]
-    arrays = iter(scratch.load_many(wanted, mmap=True))
-    return [{k: next(arrays) for k in keys} for _ in pieces]
-
-
 def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArray[np.int8], meshcore.SmoothSurface | None]:
     """The faces of this tile and its neighbours that overlap the tile's cells
     (smooth surface: those of them that have nodes, the only ones that hold a
@@ -1008,21 +931,22 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     the surface over them."""
     g = job.grid
     box = g.box(job.row, job.col)
-    smooth = job.surface == "smooth"
+    smooth = job.options.surface == "smooth"
     parts = []
     # the tile's own piece first: its faces need no shift
     around = job.reaching if job.reaching is not None else reached_tiles(g, None, job.row, job.col)
     neighbours = [t for t in around if t != (job.row, job.col)]
-    keys = ("vertices", "faces", *SURFACE_ARRAYS) if smooth else ("vertices", "faces")
+    arrays = (*MESH_ARRAYS, *SURFACE_ARRAYS) if smooth else MESH_ARRAYS
     tiles = [(job.row, job.col), *neighbours]
-    pieces = load_pieces(job.scratch, [(r, c, "piece" if k == 0 else "border") for k, (r, c) in enumerate(tiles)], keys)
+    pieces = Piece.load_many(
+        job.scratch, [(r, c, PiecePart.PIECE if k == 0 else PiecePart.BORDER) for k, (r, c) in enumerate(tiles)], arrays)
     for (r, c), piece in zip(tiles, pieces):
-        f = piece["faces"]
+        f = piece.faces
         if f.shape[0] == 0:
             continue
         keep = None
         if (r, c) != (job.row, job.col):
-            v = piece["vertices"]
+            v = piece.vertices
             corner = np.maximum(f, 0)
             fx = np.where(f >= 0, np.take(v[:, 0], corner), np.nan)
             fy = np.where(f >= 0, np.take(v[:, 1], corner), np.nan)
@@ -1031,19 +955,19 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
         if smooth:
             # the faces with nodes: those that hold a cell centre, so the only ones the DEM reads
             noded = np.zeros(f.shape[0], dtype=bool)
-            noded[piece["noded"]] = True
+            noded[piece.noded] = True
             keep = noded if keep is None else keep & noded
-        parts.append(piece if keep is None else _select_faces(piece, keep))
+        parts.append(piece if keep is None else piece.select(keep))
     if not parts:
         empty = meshcore.Mesh(np.empty((0, 2)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int64))
         z = np.empty(0)
         return empty, z, np.empty(0, dtype=np.int8), _smooth_surface(empty, z, parts) if smooth else None
     # a corner shared with a neighbour's face appears once per piece, with the
     # same coordinates and z: interpolation needs no merged vertex table
-    offsets = np.cumsum([0] + [p["vertices"].shape[0] for p in parts])
-    v = np.concatenate([p["vertices"] for p in parts])
-    faces = np.concatenate([np.where(p["faces"] >= 0, p["faces"] + o, -1) if o else p["faces"] for p, o in zip(parts, offsets)])
-    kinds = np.concatenate([(p["faces"][:, 3] >= 0).astype(np.int8) + 1 for p in parts])
+    offsets = np.cumsum([0] + [p.vertices.shape[0] for p in parts])
+    v = np.concatenate([p.vertices for p in parts])
+    faces = np.concatenate([np.where(p.faces >= 0, p.faces + o, -1) if o else p.faces for p, o in zip(parts, offsets)])
+    kinds = np.concatenate([(p.faces[:, 3] >= 0).astype(np.int8) + 1 for p in parts])
     mesh = meshcore.Mesh(np.ascontiguousarray(v[:, :2]), faces, np.arange(v.shape[0]))
     z = np.ascontiguousarray(v[:, 2])
     # the faces in the pieces' order: a cell centre on an edge two faces share reads the face that comes
@@ -1051,30 +975,26 @@ def _local_mesh(job: TileJob) -> tuple[meshcore.Mesh, NDArray[np.float64], NDArr
     return mesh, z, kinds, _smooth_surface(mesh, z, parts) if smooth else None
 
 
-#: the smooth surface's arrays of a piece (:func:`_piece_surface`)
-SURFACE_ARRAYS = ("nodes", "noded", "cut_faces", "cut_parent", "cut_nodes", "added")
-
-
-def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[dict[str, NDArray]]) -> meshcore.SmoothSurface:
+def _smooth_surface(mesh: meshcore.Mesh, z: NDArray[np.float64], parts: list[Piece]) -> meshcore.SmoothSurface:
     """The smooth surface over ``mesh`` (the faces of ``parts``, in order, every
     one with nodes), from the arrays of :func:`_piece_surface`: each face in
     its row (a face cut: its first triangle), then the other triangles of the
     faces cut."""
     n_v, n_f = z.shape[0], mesh.faces.shape[0]
-    added = [np.asarray(p["added"]) for p in parts]
+    added = [np.asarray(p.added) for p in parts]
     tris, parent, cut_nodes = [], [], []
     vertex_offset, face_offset, added_offset = 0, 0, n_v
     for p, a in zip(parts, added):
-        n_here = p["vertices"].shape[0]
-        if p["cut_parent"].shape[0]:
-            c = np.asarray(p["cut_faces"], dtype=np.int64)
+        n_here = p.vertices.shape[0]
+        if p.cut_parent.shape[0]:
+            c = np.asarray(p.cut_faces, dtype=np.int64)
             tris.append(np.where(c < n_here, c + vertex_offset, c - n_here + added_offset))
-            parent.append(np.asarray(p["cut_parent"], dtype=np.int64) + face_offset)
-            cut_nodes.append(np.asarray(p["cut_nodes"]))
+            parent.append(np.asarray(p.cut_parent, dtype=np.int64) + face_offset)
+            cut_nodes.append(np.asarray(p.cut_nodes))
         vertex_offset += n_here
-        face_offset += p["faces"].shape[0]
+        face_offset += p.faces.shape[0]
         added_offset += a.shape[0]
-    deviations = (np.concatenate([p["nodes"] for p in parts]) if parts
+    deviations = (np.concatenate([p.nodes for p in parts]) if parts
                   else np.empty((0, meshcore.tiles.NODES_PER_FACE), dtype=np.float32))
     if not parent:  # nothing cut: the mesh's own faces
         return meshcore.SmoothSurface(mesh, z, meshcore.tiles.nodes_from_deviations(mesh.faces, z, deviations), np.arange(n_f))
@@ -1094,15 +1014,15 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     """The DEM layers of one tile's cells (south-up), from the stitched faces
     around it and, for the products that read points, the points routed to it."""
     mesh, z, kinds, smooth = _local_mesh(job)
-    settings = job.products or ProductSettings.for_run(job.layers, None, "all")
+    settings = job.products or ProductSettings.for_run(job.options.layers, None, "all")
     ctx = TileContext(
         job.grid, job.row, job.col, settings, mesh=mesh, z=z, kinds=kinds,
-        surface={"surface": job.surface if smooth is None else smooth}, height_scale=job.height_scale,
-        max_edge=job.max_edge,
+        surface={"surface": job.options.surface if smooth is None else smooth}, height_scale=job.height_scale,
+        max_edge=job.options.max_edge,
         load_points=lambda: from_columns(
             load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, 3 + len(settings.columns)), settings.columns
         ),
-        load_piece=lambda name: load_piece(job.scratch, job.row, job.col, (name,))[name],
+        load_piece=lambda name: getattr(Piece.load(job.scratch, job.row, job.col, (name,)), name),
         load_dtm_points=lambda: from_columns(load_tile_points(job.scratch, job.row, job.col), ()),
     )
     return tile_layers(ctx, settings)
@@ -1113,8 +1033,9 @@ def load_kernels(job: TileJob) -> None:
     tile, with the job's measures: a thread that the route stage leaves idle
     loads them from the compiled cache meanwhile (0.1 s of a one-file job), so
     the first tiles start at once.  Reads and writes nothing."""
-    load_mesh_kernels(job.triangle_measure, job.quad_measure, job.merge, job.surface)
-    load_surface_kernels(job.max_edge, job.surface, job.layers)
+    o = job.options
+    load_mesh_kernels(o.triangle_measure, o.quad_measure, o.merge, o.surface)
+    load_surface_kernels(o.max_edge, o.surface, o.layers)
 
 
 def load_surface_kernels(max_edge: float | None, surface: str, layers: tuple[str, ...] = ()) -> None:

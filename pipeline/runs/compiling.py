@@ -22,9 +22,8 @@ import sys
 
 import meshcore
 
-from ..config import RunConfig
+from ..config import MeshOptions
 from ..meshing.kernels import MESH_KERNEL_PARTS
-from ..meshing.tiles import TileJob
 
 __all__ = ["KernelCompile", "compile_aside"]
 
@@ -66,19 +65,20 @@ _STARTED: dict[str, list[subprocess.Popen]] = {}
 over those still compiling (``terrain demo`` starts them before it writes its survey)."""
 
 
-def compile_aside(job: TileJob | RunConfig) -> KernelCompile:
-    """Start compiling the mesh kernels of ``job``'s measures in other
-    processes, one per part, unless the kernel cache holds them already or
-    such processes are still at it (then those are returned)."""
+def compile_aside(options: MeshOptions) -> KernelCompile:
+    """Start compiling the mesh kernels of the measures ``options`` names in
+    other processes, one per part, unless the kernel cache holds them already
+    or such processes are still at it (then those are returned)."""
     if meshcore.tiles.kernels_compiled():
         return KernelCompile()
-    measures = {"triangle_measure": job.triangle_measure, "quad_measure": job.quad_measure, "merge": job.merge,
-                "surface": job.surface}
+    o = options
+    measures = {"triangle_measure": o.triangle_measure, "quad_measure": o.quad_measure, "merge": o.merge,
+                "surface": o.surface}
     key = json.dumps(measures, sort_keys=True)
     running = [p for p in _STARTED.get(key, []) if p.poll() is None]
     if running:
         return KernelCompile(running)
-    parts = [part for part in MESH_KERNEL_PARTS if part != "smooth" or job.surface == "smooth"]
+    parts = [part for part in MESH_KERNEL_PARTS if part != "smooth" or o.surface == "smooth"]
     processes = []
     for part in parts:
         try:

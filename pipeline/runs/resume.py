@@ -16,6 +16,7 @@ import functools
 import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +25,7 @@ from ..tiling.checkpoint import Ledger, WorkDir, source_key
 from ..config import RunConfig
 from ..errors import PipelineError, UsageError
 from .plan import RunPlan, frame_change, frame_grew, frame_moved
-from ..meshing.tiles import SURFACE_ARRAYS, piece_intact
+from ..meshing.piece import SURFACE_ARRAYS, Piece
 from ..tiling.grid import TileGrid, tile_key
 from ..tiling.routing import spill_intact
 
@@ -265,11 +266,11 @@ def forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra:
             lost += 1
     for r, c in grid.tiles():
         key = tile_key(r, c)
-        if work.recorded(Ledger.MESH, key) is not None and not piece_intact(work.scratch, r, c, piece_extra):
+        if work.recorded(Ledger.MESH, key) is not None and not Piece.intact(work.scratch, r, c, piece_extra):
             work.forget_record(Ledger.MESH, key)
             work.forget_record(Ledger.WRITE, f"ids_{key}")
             lost += 1
-        elif work.recorded(Ledger.WRITE, f"ids_{key}") is not None and not piece_intact(work.scratch, r, c, ("node_ids",)):
+        elif work.recorded(Ledger.WRITE, f"ids_{key}") is not None and not Piece.intact(work.scratch, r, c, ("node_ids",)):
             work.forget_record(Ledger.WRITE, f"ids_{key}")
             lost += 1
     return lost
@@ -277,6 +278,13 @@ def forget_lost_units(work: WorkDir, n_inputs: int, grid: TileGrid, piece_extra:
 
 def input_keys(inputs: list[dict[str, Any]]) -> set[tuple]:
     return {(i.get("path"), i.get("size"), i.get("mtime"), i.get("etag")) for i in inputs}
+
+
+def _plain(value: object) -> object:
+    """A parameter's value as its job file writes it (an option's text, not its enum)."""
+    if isinstance(value, tuple):
+        return tuple(_plain(v) for v in value)
+    return value.value if isinstance(value, Enum) else value
 
 
 def existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs: bool = False) -> dict[str, Any] | None:
@@ -299,7 +307,7 @@ def existing_job(config: RunConfig, provenance: dict[str, Any], allow_new_inputs
         raise UsageError(f"{where}: an existing store of unknown origin; pass overwrite=True to replace it") from None
     changed = config.differences(before)
     if changed:
-        detail = ", ".join(f"{k}: {getattr(before, k)!r} -> {getattr(config, k)!r}" for k in changed)
+        detail = ", ".join(f"{k}: {_plain(getattr(before, k))!r} -> {_plain(getattr(config, k))!r}" for k in changed)
         raise UsageError(f"{where}: the existing store was made with other parameters ({detail}); pass overwrite=True to replace it")
     was, now = input_keys(old.get("inputs", [])), input_keys(provenance["inputs"])
     if was != now and not allow_new_inputs:

@@ -393,7 +393,7 @@ def _execute(
         # first run on this machine): the mesh kernels are compiled in another
         # process meanwhile, the DEM's in that thread
         job = _kernel_job(plan, work.scratch)
-        compiling = compile_aside(job)
+        compiling = compile_aside(job.options)
         client.submit(_load_surface_kernels if compiling.processes else load_kernels, job)
     try:
         resume.prepare(plan, decision, work, incremental, report.notes, say)
@@ -642,14 +642,13 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
 
 
 def _load_surface_kernels(job: TileJob) -> None:
-    load_surface_kernels(job.max_edge, job.surface, job.layers)
+    load_surface_kernels(job.options.max_edge, job.options.surface, job.options.layers)
 
 
 def _kernel_job(plan: RunPlan, scratch: Scratch) -> TileJob:
     """A tile job with the run's measures, for :func:`load_kernels`."""
     config = plan.config
-    return TileJob(0, 0, scratch, plan.grid, plan.buffer, plan.bounds, config.duplicates, config.triangle_measure,
-                   config.quad_measure, config.merge, config.max_edge, config.layers, surface=config.surface)
+    return TileJob(0, 0, scratch, plan.grid, plan.buffer, plan.bounds, config.mesh_options())
 
 
 @dataclass(frozen=True)
@@ -672,10 +671,8 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     run_id = uuid.uuid4().hex
     tile_jobs = [
         TileJob(
-            r, c, work.scratch, grid, plan.buffer, extent, config.duplicates, config.triangle_measure,
-            config.quad_measure, config.merge, config.max_edge, config.layers, hull=routed.hull,
-            height_scale=plan.crs.height_scale, run_id=run_id, surface=config.surface, variogram=variogram,
-            windows=routed.windows,
+            r, c, work.scratch, grid, plan.buffer, extent, config.mesh_options(), hull=routed.hull,
+            height_scale=plan.crs.height_scale, run_id=run_id, variogram=variogram, windows=routed.windows,
         )
         for r, c in grid.tiles()
     ]

@@ -22,7 +22,8 @@ from meshcore.kernels import empty
 from . import zarr_store as store
 from ..errors import PipelineError
 from ..tiling.scratch import Scratch
-from ..meshing.tiles import TileJob, TileSummary, load_piece, save_piece
+from ..meshing.piece import Piece, PiecePart
+from ..meshing.tiles import TileJob, TileSummary
 from ..tiling.grid import TileGrid
 
 __all__ = ["mesh_offsets", "global_node_ids", "MeshBlock", "write_mesh_block"]
@@ -51,7 +52,7 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
     """
     grid = job.grid
     scratch = job.scratch
-    v = load_piece(scratch, job.row, job.col, ("vertices",))["vertices"]
+    v = Piece.load(scratch, job.row, job.col, ("vertices",)).vertices
     here = job.row * grid.n_cols + job.col
     owned = int(node_offsets[here + 1] - node_offsets[here])
     # the slot past the vertices stands for the -1 of a triangle's 4th corner
@@ -67,12 +68,12 @@ def global_node_ids(job: TileJob, node_offsets: np.ndarray) -> None:
             sel = owner == number
             r, c = divmod(number, grid.n_cols)
             # a binary search in the (memory-mapped) table reads a few of its pages, not all
-            table = load_piece(scratch, r, c, ("vertices",))["vertices"][: node_offsets[number + 1] - node_offsets[number]]
+            table = Piece.load(scratch, r, c, ("vertices",)).vertices[: node_offsets[number + 1] - node_offsets[number]]
             idx = _sorted_rows(table, fx[sel], fy[sel])
             if number == here or np.any(idx < 0):
                 raise PipelineError(f"tile {(job.row, job.col)}: a face corner is not owned by tile {(r, c)}")
             gid[owned + np.flatnonzero(sel)] = node_offsets[number] + idx
-    save_piece(scratch, job.row, job.col, "piece", node_ids=gid)
+    Piece(node_ids=gid).save(scratch, job.row, job.col, PiecePart.PIECE)
 
 
 @meshcore.kernels.kernel
@@ -119,22 +120,22 @@ def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
             break
         if lo >= hi:
             continue
-        keys = ("vertices",) if block.what == "nodes" else ("faces", "node_ids")
-        piece = load_piece(block.scratch, *block.tiles[k], keys)
+        arrays = ("vertices",) if block.what == "nodes" else ("faces", "node_ids")
+        piece = Piece.load(block.scratch, *block.tiles[k], arrays)
         rows = slice(lo - offsets[k], hi - offsets[k])
         if block.what == "nodes":
-            parts.append({key: np.asarray(a[rows]) for key, a in piece.items()})
+            parts.append(np.asarray(piece.vertices[rows]))
         else:
-            ids = np.asarray(piece["node_ids"])
+            ids = np.asarray(piece.node_ids)
             faces = np.empty((hi - lo, 4), dtype=ids.dtype)
-            _renumber(ids, np.asarray(piece["faces"][rows]), faces)
-            parts.append({"faces": faces})
+            _renumber(ids, np.asarray(piece.faces[rows]), faces)
+            parts.append(faces)
     writer = store.MeshWriter.attach(block.output)
     if block.what == "nodes":
-        xyz = np.concatenate([p["vertices"] for p in parts])
+        xyz = np.concatenate(parts)
         writer.write_nodes(block.start, xyz[:, 0], xyz[:, 1], xyz[:, 2])
     else:
-        writer.write_faces(block.start, np.concatenate([p["faces"] for p in parts]))
+        writer.write_faces(block.start, np.concatenate(parts))
     return block.what, block.start, block.stop
 
 

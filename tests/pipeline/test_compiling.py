@@ -6,17 +6,17 @@ import json
 import os
 import subprocess
 import sys
-from types import SimpleNamespace
 
 import pytest
 
-from pipeline.config import RunConfig
+from meshcore import Surface
+from pipeline.config import MeshOptions, RunConfig
 from pipeline.runs import compiling
 from pipeline.runs.runner import run
 from pipeline.tools.synthetic import SurveySpec, write_survey
 
-_MEASURES = SimpleNamespace(triangle_measure="s3", quad_measure="s4", merge="greedy", duplicates="lowest", surface="linear")
-_SMOOTH = SimpleNamespace(**{**vars(_MEASURES), "surface": "smooth"})
+_MEASURES = MeshOptions()
+_SMOOTH = MeshOptions(surface=Surface.SMOOTH)
 
 
 @pytest.fixture
@@ -67,8 +67,8 @@ def test_a_run_takes_over_the_process_its_caller_started(tmp_path, started):
     """terrain demo starts compiling before it writes its survey; its run waits for that process, starts none."""
     survey = tmp_path / "survey"
     config = RunConfig(inputs=(str(survey),), output=str(tmp_path / "o.zarr"), resolution=2.0)
-    early = compiling.compile_aside(config)
-    assert compiling.compile_aside(config).processes == early.processes  # still at it: the same processes
+    early = compiling.compile_aside(config.mesh_options())
+    assert compiling.compile_aside(config.mesh_options()).processes == early.processes  # still at it: the same processes
     write_survey(survey, SurveySpec(points=6_000, files=1, width=60.0, height=40.0, seed=2))
     report = run(config, progress=False)
     assert report.points_kept > 0

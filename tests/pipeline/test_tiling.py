@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from pipeline.config import RunConfig
 from pipeline.errors import UsageError
 from pipeline.tiling.scratch import Scratch
 from pipeline.tiling.grid import TileGrid, check_cells
@@ -234,8 +235,9 @@ def test_loading_the_kernels_reads_and_writes_nothing(tmp_path, measures):
     scratch = Scratch(str(tmp_path / "work"))
     grid = TileGrid.covering((0.0, 0.0, 99.0, 99.0), 1.0, 50)
     triangle, quad, merge, surface = measures
-    load_kernels(TileJob(0, 0, scratch, grid, 5.0, (0.0, 0.0, 99.0, 99.0), "lowest", triangle, quad, merge, max_edge=3.0,
-                         surface=surface))
+    options = RunConfig(inputs=("a.las",), output="o.zarr", resolution=1.0, triangle_measure=triangle,
+                        quad_measure=quad, merge=merge, surface=surface, max_edge=3.0).mesh_options()
+    load_kernels(TileJob(0, 0, scratch, grid, 5.0, (0.0, 0.0, 99.0, 99.0), options))
     assert not (tmp_path / "work").exists()
 
 
