@@ -318,9 +318,28 @@ def _progress(args: argparse.Namespace) -> bool | None:
     return None
 
 
-_SWITCHES = re.compile(r"\b(overwrite|skip_bad_files|keep_withheld|classify_ground)=True\b")
-_VALUES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|buffer|window)=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))")
-_NAMES = re.compile(r"\b(in_crs|override_crs|out_crs|max_cells|dsm_max_edge|max_edge|skip_bad_files|tile_size)\b")
+def _parameter_patterns() -> tuple[re.Pattern[str], re.Pattern[str], re.Pattern[str]]:
+    """How a library message names :class:`pipeline.config.RunConfig`'s
+    parameters, from its fields: ``switch=True``, ``name=value``, and a name
+    alone (one with an underscore anywhere; a one-word one as ``NAME must``,
+    else it is a word of the prose: "the tile's buffer")."""
+    from dataclasses import fields
+
+    from .config import RunConfig
+
+    flagged = [f for f in fields(RunConfig) if "flag" in f.metadata and not f.metadata["flag"].positional]
+    switches = [f.name for f in flagged if f.type == "bool"]
+    values = [f.name for f in flagged if f.type != "bool"] + ["window"]  # (preview's --window)
+    joined = "|".join(sorted(switches, key=len, reverse=True))
+    valued = "|".join(sorted(values, key=len, reverse=True))
+    underscored = "|".join(sorted((n for n in switches + values if "_" in n), key=len, reverse=True))
+    single = "|".join(sorted((n for n in values if "_" not in n), key=len, reverse=True))
+    return (re.compile(rf"\b({joined})=True\b"),
+            re.compile(rf"\b({valued})=(?:'([^']*)'|([^\s;,)]+(?:, [^\s;,)]+)*\)?|\S+))"),
+            re.compile(rf"\b(?:({underscored})\b|({single})(?= must\b))"))
+
+
+_SWITCHES, _VALUES, _NAMES = _parameter_patterns()
 
 
 def _flag(name: str) -> str:
@@ -337,7 +356,7 @@ def as_flags(text: str) -> str:
     """
     text = _SWITCHES.sub(lambda m: _flag(m.group(1)), text)
     text = _VALUES.sub(lambda m: f"{_flag(m.group(1))} {m.group(2) if m.group(2) is not None else m.group(3)}", text)
-    return _NAMES.sub(lambda m: _flag(m.group(1)), text)
+    return _NAMES.sub(lambda m: _flag(m.group(1) or m.group(2)), text)
 
 
 def _said(args: argparse.Namespace, text: str) -> str:

@@ -320,3 +320,47 @@ def test_the_smooth_surfaces_cost_in_the_help_is_the_docs():
     in_docs = re.search(ratio + r" the linear run", " ".join(section.split()))
     assert in_help and in_docs
     assert (float(in_help[1]), float(in_help[2])) == (float(in_docs[1]), float(in_docs[2]))
+
+
+def test_every_parameter_of_a_run_is_a_flag_with_its_values(tmp_path):
+    """The flags are RunConfig's fields: every parameter with a Flag can be set
+    on the command line, an option offers exactly its enum's values, and the
+    value reaches the config as that enum's member."""
+    import dataclasses
+    import enum
+    import typing
+
+    from pipeline.cli import _parser, _run_config
+    from pipeline.config import RunConfig
+
+    parser = _parser()
+    run = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "run")[1]
+    by_dest = {a.dest: a for a in run._actions}
+    hints = typing.get_type_hints(RunConfig)
+    flagged = [f for f in dataclasses.fields(RunConfig) if "flag" in f.metadata]
+    assert {f.name for f in flagged} == {f.name for f in dataclasses.fields(RunConfig)} - {"storage_options", "extra"}
+    for f in flagged:
+        assert f.name in by_dest, f.name
+        kind = next((a for a in typing.get_args(hints[f.name]) if a is not type(None)), hints[f.name])
+        if isinstance(kind, type) and issubclass(kind, enum.Enum):
+            values = [m.value for m in kind]
+            assert [c for c in by_dest[f.name].choices if c != "none"] == values, f.name
+            for value in values:
+                argv = ["run", "in.las", "-o", str(tmp_path / "o.zarr"), "--resolution", "1",
+                        f"--{f.name.replace('_', '-')}", value]
+                got = getattr(_run_config(parser.parse_args(argv)), f.name)
+                assert got is kind(value), (f.name, value, got)
+    argv = ["run", "in.las", "-o", str(tmp_path / "o.zarr"), "--resolution", "0.5", "--tile-size", "64",
+            "--classes", "2,9", "--layers", "dsm,slope", "--quad-measure", "none", "--keep-withheld",
+            "--workers", "3", "--zarr-format", "2"]
+    config = _run_config(parser.parse_args(argv))
+    assert (config.resolution, config.tile_size, config.classes, config.quad_measure) == (0.5, 64.0, (2, 9), None)
+    assert config.layers == ("elevation", "slope", "dsm") and config.keep_withheld is True
+    assert (config.workers, config.zarr_format) == (3, 2)
+
+
+def test_a_bad_value_of_a_derived_flag_names_the_flag(tmp_path, capsys):
+    code = main(["run", str(tmp_path / "in.las"), "-o", str(tmp_path / "o.zarr"), "--resolution", "1",
+                 "--bbox", "1,2,3"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--bbox" in err and err.count("\n") == 1
