@@ -38,7 +38,7 @@ _HOMES = {
     "s1": "quality", "s2": "quality", "s3": "quality", "s4": "quality",
     "rasterize": "rasterize",
     "Refinement": "refine", "refine_long_faces": "refine",
-    "SmoothSurface": "smooth", "Variogram": "smooth", "fit_variogram": "smooth", "smooth_nodes": "smooth",
+    "SmoothSurface": "smooth", "Variogram": "variogram", "fit_variogram": "variogram", "smooth_nodes": "smooth",
     "smooth_surface": "smooth",
     "convex_hull": "validate", "validate": "validate",
 }
@@ -54,7 +54,8 @@ if TYPE_CHECKING:
     from .quality import MeasureSummary, QualitySummary, quality_summary, s1, s2, s3, s4
     from .rasterize import rasterize
     from .refine import Refinement, refine_long_faces
-    from .smooth import SmoothSurface, Variogram, fit_variogram, smooth_nodes, smooth_surface
+    from .smooth import SmoothSurface, smooth_nodes, smooth_surface
+    from .variogram import Variogram, fit_variogram
     from .validate import convex_hull, validate
 
 

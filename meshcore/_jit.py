@@ -263,7 +263,9 @@ class _Dispatcher(CPUDispatcher):
 _WIDE_VECTORS = '"prefer-vector-width"="512"'
 """LLVM's function attribute that lets its vectoriser use 512-bit vectors."""
 
-_WIDE_VECTOR_MODULES = frozenset({"meshcore.smooth", "meshcore._buckets"})
+_WIDE_VECTOR_MODULES = frozenset({
+    "meshcore.smooth", "meshcore.kriging", "meshcore.variogram", "meshcore.voids", "meshcore.cells", "meshcore._buckets",
+})
 """The modules whose kernels prefer the widest vectors (:class:`_KernelLibrary`)."""
 
 

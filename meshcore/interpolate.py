@@ -60,7 +60,8 @@ from .errors import InvalidInputError
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface, parse_option
 from .patches import NODES_PER_FACE, bilinear_gradient, quad_patch, triangle_patch
-from .smooth import SmoothSurface, Variogram, smooth_surface
+from .smooth import SmoothSurface, smooth_surface
+from .variogram import Variogram
 
 __all__ = ["interpolate", "gradient"]
 

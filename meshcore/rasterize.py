@@ -49,7 +49,8 @@ from .interpolate import (
 from .mesh import Mesh, mesh_arrays, vertex_values
 from .options import Surface
 from .patches import quad_patch, triangle_patch
-from .smooth import SmoothSurface, Variogram
+from .smooth import SmoothSurface
+from .variogram import Variogram
 
 __all__ = ["rasterize", "sampled_faces"]
 

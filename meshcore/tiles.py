@@ -38,15 +38,9 @@ from .natural import NaturalCoordinates, natural_coordinates, natural_values
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .rasterize import sampled_faces
 from .refine import cut_face_rows, with_cut_faces
-from .smooth import (
-    DEFAULT_NEIGHBOURS,
-    AddedPoints,
-    Neighbourhoods,
-    SmoothPlan,
-    VoidFill,
-    smooth_neighbourhoods,
-    smooth_plan,
-)
+from .kriging import DEFAULT_NEIGHBOURS
+from .smooth import AddedPoints, Neighbourhoods, SmoothPlan, smooth_neighbourhoods, smooth_plan
+from .voids import VoidFill
 
 __all__ = [
     "KnownRegion",

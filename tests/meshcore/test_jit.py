@@ -233,9 +233,9 @@ def test_kernels_of_some_modules_may_use_the_widest_vectors_with_the_same_result
 
 @pytest.mark.skipif(numba.config.DISABLE_JIT, reason="kernels run as Python")
 def test_the_smooth_surfaces_kernels_prefer_the_widest_vectors(fresh_cache):
-    from meshcore import smooth
+    from meshcore import kriging
 
-    correlation = _kernel(smooth._correlation_kernel.py_func)  # compiled here, not read from the cache
+    correlation = _kernel(kriging._correlation_kernel.py_func)  # compiled here, not read from the cache
     out = np.empty(3)
     correlation(np.array([0.5, 1.0, 2.0]), 1.0, 1, out)
     assert _jit._WIDE_VECTORS in correlation.inspect_llvm(correlation.signatures[0])

@@ -9,7 +9,8 @@ import meshcore
 from meshcore.errors import InvalidInputError
 from meshcore.interpolate import _surface_at
 from meshcore.refine import refine_long_faces
-from meshcore.smooth import Variogram, fit_variogram, smooth_plan, smooth_surface
+from meshcore.smooth import smooth_plan, smooth_surface
+from meshcore.variogram import Variogram, fit_variogram
 
 from .mesh_checks import edge_faces
 

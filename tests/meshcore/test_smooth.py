@@ -13,11 +13,10 @@ from meshcore.mesh import Mesh
 
 from .mesh_checks import edge_faces, hand_mesh, python_and_compiled
 from meshcore._buckets import _nearest
-from meshcore.smooth import (
-    CELL_PER_SPACING, _LANES, MODELS, Variogram, _dual_systems, _kriging_scratch, _layout, _loo_errors_kernel,
-    _solve_systems,
-    fit_variogram, smooth_neighbourhoods, smooth_nodes,
-)
+from meshcore.cells import CELL_PER_SPACING
+from meshcore.kriging import _LANES, _dual_systems, _kriging_scratch, _solve_systems
+from meshcore.smooth import _layout, smooth_neighbourhoods, smooth_nodes
+from meshcore.variogram import MODELS, Variogram, _loo_errors_kernel, fit_variogram
 
 OFFSET = np.array([6.0e5, 6.8e6])
 

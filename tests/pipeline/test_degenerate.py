@@ -141,7 +141,7 @@ def test_a_tile_size_far_too_small_for_the_points_gets_a_note_in_the_words_of_ea
     tiles, small = notes(5.0)  # 16 x 24 tiles of about 30 points
     assert tiles >= 300 and len(small) == 1
     assert small[0].startswith(f"tile_size=5 cuts the survey into {tiles:,} tiles of about ")
-    assert as_flags(small[0]).startswith("--tile-size=5 cuts the survey")
+    assert as_flags(small[0]).startswith("--tile-size 5 cuts the survey")
     tiles, small = notes(60.0)  # 2 x 2 tiles of 3,000 points
     assert 12_000 / tiles >= SMALL_TILE_POINTS and small == []
     assert notes(None)[1] == []  # a size chosen from the density is never too small
