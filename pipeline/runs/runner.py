@@ -407,14 +407,14 @@ def _execute(
     provenance = dict(plan.provenance)
     try:
         before = copy.deepcopy(report)
-        try:
-            meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
-        except _NoDefaultClasses as no_surface:
+        meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
+        if isinstance(meshed, NoDefaultSurface):
             # the default classes made no surface (a survey never classified, or a ground point or
-            # two): every point but noise, rather than no surface
-            resume.keep_all_but_noise(work, config.output, no_surface.points)
+            # two): the ground classified from every point but noise, rather than no surface
+            resume.keep_all_but_noise(work, config.output, meshed.points)
             report = before
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
+            assert isinstance(meshed, Meshed)  # the fallback's classes are not the default ones
         t0 = time.perf_counter()
         node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
         valued = _dem_stage(plan, work, client, meshed, node_offsets, show)
@@ -455,16 +455,18 @@ def _already_complete(config: RunConfig, decision: resume.Resume, work: WorkDir,
     return done
 
 
-class _NoDefaultClasses(Exception):
-    """The inputs' points of the default classes make no surface, and they hold points of others."""
+@dataclass(frozen=True)
+class NoDefaultSurface:
+    """The mesh stage's result when the inputs' points of the default classes
+    make no surface and they hold points of others: the run starts over on
+    the ground it classifies (:func:`pipeline.runs.resume.keep_all_but_noise`)."""
 
-    def __init__(self, points: int) -> None:
-        super().__init__(points)
-        self.points = points
+    points: int
+    """The points of the default classes that were kept."""
 
 
 def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompile, show: bool, report: RunReport,
-                    provenance: dict[str, Any]) -> Meshed:
+                    provenance: dict[str, Any]) -> Meshed | NoDefaultSurface:
     """The route, variogram and mesh stages (see :func:`_execute`)."""
     config = plan.config
     t0 = time.perf_counter()
@@ -662,8 +664,9 @@ class Meshed:
 
 
 def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram, show: bool,
-                report: RunReport) -> Meshed:
-    """Mesh every tile without a record, the largest first, and total the tiles' counts."""
+                report: RunReport) -> Meshed | NoDefaultSurface:
+    """Mesh every tile without a record, the largest first, and total the tiles' counts
+    (:class:`NoDefaultSurface` when the default classes made no surface)."""
     config, grid, results = plan.config, plan.grid, routed.results
     # where the points are: the headers' extent, grown where a stale header
     # understates it (the tiles' search for missing points must reach them)
@@ -724,7 +727,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         paths = plan.paths
         names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
         if report.filtered_class > 0 and config.classes == DEFAULT_CLASSES and routed.fallback is None:
-            raise _NoDefaultClasses(report.points_kept)
+            return NoDefaultSurface(report.points_kept)
         if report.points_kept == 0 and report.filtered_class > 0:
             kept = ("every class but noise" if routed.fallback is not None
                     else ", ".join(str(c) for c in config.classes or ()))
