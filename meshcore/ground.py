@@ -282,49 +282,80 @@ def _low_outlier_kernel(z, order, starts, nx, ny, depth, support, out) -> None:
 
 
 @njit
-def _line_min(values, n, stride, start, r, padded, g, h, out_values) -> None:
-    """Minimum over a window of radius ``r`` along one line of a raveled grid
-    (van Herk / Gil-Werman: three comparisons per cell whatever ``r``).
-
-    The line is ``values[start + i * stride]`` for ``i < n``; beyond its ends
-    the values are infinite.
-    """
+def _line_min(values, n, r, padded, g, h, out) -> None:
+    """Minimum over a window of radius ``r`` along the line ``values[:n]``
+    into ``out`` (van Herk / Gil-Werman: three comparisons per cell whatever
+    ``r``); beyond the line's ends the values are infinite."""
     k = 2 * r + 1
-    m = n + 2 * r
-    blocks = (m + k - 1) // k
-    total = blocks * k
+    total = ((n + 2 * r + k - 1) // k) * k
     for j in range(total):
         i = j - r
-        padded[j] = values[start + i * stride] if 0 <= i < n else np.inf
-    for j in range(total):
-        if j % k == 0:
-            g[j] = padded[j]
-        else:
+        padded[j] = values[i] if 0 <= i < n else np.inf
+    for b in range(0, total, k):  # running minima forwards and backwards within blocks of k
+        g[b] = padded[b]
+        for j in range(b + 1, b + k):
             g[j] = min(g[j - 1], padded[j])
-    for j in range(total - 1, -1, -1):
-        if j % k == k - 1 or j == total - 1:
-            h[j] = padded[j]
-        else:
+        h[b + k - 1] = padded[b + k - 1]
+        for j in range(b + k - 2, b - 1, -1):
             h[j] = min(h[j + 1], padded[j])
     for i in range(n):
-        out_values[start + i * stride] = min(h[i], g[i + 2 * r])
+        out[i] = min(h[i], g[i + 2 * r])
+
+
+def _square_work(shape: tuple[int, int], radius: int) -> np.ndarray:
+    """Room for :func:`_square_min` up to ``radius`` on a grid of ``shape``."""
+    ny, nx = shape
+    return np.empty((3, ny + 4 * radius + 2, nx))
 
 
 @njit
-def _square_min(grid, r, out) -> None:
-    """Minimum of the raveled ``(ny, nx)`` ``grid`` over squares of radius ``r`` cells, into ``out``."""
+def _square_min(grid, r, out, work) -> None:
+    """Minimum of the ``(ny, nx)`` ``grid`` over squares of radius ``r`` cells, into ``out``
+    (``work``: :func:`_square_work` of at least ``r``).
+
+    Along the rows, :func:`_line_min`; down the columns, the same running
+    minima taken a whole row at a time (contiguous rows: a column walked
+    alone reads a cache line per cell)."""
     ny, nx = grid.shape
-    size = max(nx, ny) + 4 * r + 2
+    k = 2 * r + 1
+    size = nx + 2 * r + k
     padded = np.empty(size)
     g = np.empty(size)
     h = np.empty(size)
-    flat = grid.ravel()
-    tmp = np.empty(nx * ny)
+    across = work[0]
     for row in range(ny):
-        _line_min(flat, nx, 1, row * nx, r, padded, g, h, tmp)
-    o = out.ravel()
-    for col in range(nx):
-        _line_min(tmp, ny, nx, col, r, padded, g, h, o)
+        _line_min(grid[row], nx, r, padded, g, h, across[row])
+    total = ((ny + 2 * r + k - 1) // k) * k
+    down_g = work[1]
+    down_h = work[2]
+    for b in range(0, total, k):
+        for j in range(b, b + k):
+            i = j - r
+            if 0 <= i < ny:
+                if j == b:
+                    down_g[j, :] = across[i, :]
+                else:
+                    for c in range(nx):
+                        down_g[j, c] = min(down_g[j - 1, c], across[i, c])
+            elif j == b:
+                down_g[j, :] = np.inf
+            else:
+                down_g[j, :] = down_g[j - 1, :]
+        for j in range(b + k - 1, b - 1, -1):
+            i = j - r
+            if 0 <= i < ny:
+                if j == b + k - 1:
+                    down_h[j, :] = across[i, :]
+                else:
+                    for c in range(nx):
+                        down_h[j, c] = min(down_h[j + 1, c], across[i, c])
+            elif j == b + k - 1:
+                down_h[j, :] = np.inf
+            else:
+                down_h[j, :] = down_h[j + 1, :]
+    for i in range(ny):
+        for c in range(nx):
+            out[i, c] = min(down_h[i, c], down_g[i + 2 * r, c])
 
 
 GAP_CELLS = 8
@@ -339,7 +370,7 @@ plane's opening) leaves a tree on a void's edge as ground."""
 def _near_data(surface: np.ndarray, k: int) -> np.ndarray:
     """Cells with data, and the empty cells within ``k`` cells of one: those whose erosion a dilation reads."""
     low = np.empty_like(surface)
-    _square_min(np.where(np.isnan(surface), np.inf, surface), k, low)
+    _square_min(np.where(np.isnan(surface), np.inf, surface), k, low, _square_work(surface.shape, k))
     return np.isfinite(low)
 
 
@@ -348,21 +379,16 @@ def _min3(grid, tmp, out) -> None:
     """Minimum of ``grid`` over the 3 x 3 cells around each (the grid's outside infinite)."""
     ny, nx = grid.shape
     for i in range(ny):
-        for j in range(nx):
-            v = grid[i, j]
-            if j > 0 and grid[i, j - 1] < v:
-                v = grid[i, j - 1]
-            if j + 1 < nx and grid[i, j + 1] < v:
-                v = grid[i, j + 1]
-            tmp[i, j] = v
+        tmp[i, 0] = grid[i, 0] if nx == 1 else min(grid[i, 0], grid[i, 1])
+        for j in range(1, nx - 1):
+            tmp[i, j] = min(min(grid[i, j - 1], grid[i, j]), grid[i, j + 1])
+        if nx > 1:
+            tmp[i, nx - 1] = min(grid[i, nx - 2], grid[i, nx - 1])
     for i in range(ny):
+        lo = max(i - 1, 0)
+        hi = min(i + 1, ny - 1)
         for j in range(nx):
-            v = tmp[i, j]
-            if i > 0 and tmp[i - 1, j] < v:
-                v = tmp[i - 1, j]
-            if i + 1 < ny and tmp[i + 1, j] < v:
-                v = tmp[i + 1, j]
-            out[i, j] = v
+            out[i, j] = min(min(tmp[lo, j], tmp[i, j]), tmp[hi, j])
 
 
 @njit
@@ -386,6 +412,7 @@ def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
     current = np.empty_like(surface)
     scratch = np.empty_like(surface)
     tmp = np.empty_like(surface)
+    work = np.empty((3, ny + 4 * radii + 2, nx))  # _square_work
     for r in range(1, radii + 1):
         _min3(eroded, tmp, scratch)
         eroded, scratch = scratch, eroded
@@ -393,7 +420,7 @@ def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
             for j in range(nx):
                 # a maximum as the minimum of negatives, over the cells read
                 scratch[i, j] = -eroded[i, j] if read[i, j] else np.inf
-        _square_min(scratch, r, current)
+        _square_min(scratch, r, current, work)
         limit = min(slope_cell * r, cap)
         for i in range(ny):
             for j in range(nx):
