@@ -117,7 +117,7 @@ def _classify_group(paths: list[str], out: Path, targets: dict[str, Path], repor
                     tile_size, buffer, workers, scheduler, in_crs, progress) -> None:
     """Classify files of one CRS together (:func:`classify`)."""
     from . import resume
-    from .runner import RunReport, _ground_stage, _route_stage
+    from .runner import RunReport, _ground_stage, _route_stage, ground_parameters
 
     # the run's plan over the files as they are: no reprojection, cells of one unit only size the tiles
     config = RunConfig(inputs=tuple(paths), output=str(out / ".terrain-classify.zarr"), resolution=1.0,
@@ -133,7 +133,7 @@ def _classify_group(paths: list[str], out: Path, targets: dict[str, Path], repor
         run_report = RunReport()
         columns = (*GROUND_COLUMNS, "point_index")
         routed = _route_stage(plan, work, client, show, run_report, ground_columns=columns)
-        _ground_stage(plan, work, client, routed, show, run_report, columns=columns)
+        _ground_stage(plan, work, client, routed, show, run_report, ground_parameters(plan, routed), columns=columns)
         report.notes.extend(run_report.notes)
         for index, path in enumerate(plan.paths):
             report.files.append(_write(str(path), targets[str(path)], _ground_positions(work, index)))

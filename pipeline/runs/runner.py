@@ -34,6 +34,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from meshcore import GroundParameters, convex_hull
 
 from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
@@ -474,9 +475,10 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
     report.stages["route"] = time.perf_counter() - t0
     if routed.classify:
         t0 = time.perf_counter()
-        routed = replace(routed, hull=_ground_stage(plan, work, client, routed, show, report))
+        parameters = ground_parameters(plan, routed)
+        routed = replace(routed, hull=_ground_stage(plan, work, client, routed, show, report, parameters))
         report.stages["ground"] = time.perf_counter() - t0
-        provenance["ground_classification"] = ground_provenance()
+        provenance["ground_classification"] = ground_provenance(parameters.to_dict())
     if routed.fallback is not None:
         found = routed.fallback.default_points
         default = ", ".join(str(c) for c in DEFAULT_CLASSES)
@@ -605,12 +607,29 @@ def _settled_hull(plan: RunPlan, work: WorkDir, candidates: np.ndarray, windows:
     return hull
 
 
+def ground_parameters(plan: RunPlan, routed: Routed) -> GroundParameters:
+    """The ground filter's parameters for this survey: the defaults, for its
+    point spacing (:meth:`meshcore.GroundParameters.for_spacing`), measured
+    as the square root of the area of the convex hull of the points routed
+    over their number, so the same whatever the tiling."""
+    unit = unit_metres(plan.crs.horizontal_unit) or 1.0
+    # each input's hull candidates (the routed points', every class but noise when classifying)
+    parts = [np.asarray(c.hull).reshape(-1, 3) for c in routed.results if c.hull is not None]
+    hull = np.concatenate(parts) if parts else np.empty((0, 3))
+    count = sum(n for c in routed.results for _, _, n in c.tile_points)
+    if hull.shape[0] < 3 or count <= 0:
+        return GroundParameters()
+    x, y = hull[:, 0] - hull[:, 0].min(), hull[:, 1] - hull[:, 1].min()
+    order = convex_hull(x, y)
+    hx, hy = x[order], y[order]
+    area = 0.5 * abs(float(np.dot(hx, np.roll(hy, -1)) - np.dot(hy, np.roll(hx, -1))))
+    return GroundParameters().for_spacing(math.sqrt(area / count) * unit)
+
+
 def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport,
-                  columns: tuple[str, ...] = GROUND_COLUMNS) -> np.ndarray:
+                  parameters: GroundParameters, columns: tuple[str, ...] = GROUND_COLUMNS) -> np.ndarray:
     """Classify the ground of every block of tiles not done (:mod:`pipeline.meshing.ground`), count the
     points it left out, and return the global hull of the ground points."""
-    from meshcore import GroundParameters
-
     grid, scratch = plan.grid, work.scratch
     unit = unit_metres(plan.crs.horizontal_unit) or 1.0
     points: dict[tuple[int, int], int] = {}
@@ -621,8 +640,8 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
     def done(r: int, c: int) -> bool:
         return ground_tile_done(scratch, r, c) and work.recorded(Ledger.GROUND, tile_key(r, c)) is not None
 
-    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, columns=columns)
-            for rows, cols in ground_blocks(grid, points, GroundParameters().margin(unit))]
+    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, parameters.to_dict(), columns=columns)
+            for rows, cols in ground_blocks(grid, points, parameters.margin(unit))]
     jobs = [job for job in jobs if not all(done(r, c) for r, c in job.tiles())]
 
     def classified(job: GroundJob, summaries: list[GroundSummary]) -> None:

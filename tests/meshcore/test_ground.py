@@ -293,3 +293,27 @@ def test_shared_sample(name, unit, rms_limit):
     d = (a - b)[np.isfinite(a - b)]
     assert d.size > 0.9 * nx * ny * 0.5
     assert np.sqrt(np.mean(d * d)) < rms_limit
+
+
+def test_a_sparse_cloud_is_filtered_on_cells_of_its_spacing():
+    """Points tens of metres apart leave a 1 m grid nearly empty and its
+    openings blind: with the defaults, four trees in ten are ground; on cells
+    of half the spacing and windows of four spacings, hardly any, and the
+    ground stays ground.  Dense clouds keep the defaults."""
+    defaults = GroundParameters()
+    assert defaults.for_spacing(0.3) == defaults and defaults.for_spacing(1.9) == defaults
+    assert defaults.for_spacing(float("nan")) == defaults
+    sparse = defaults.for_spacing(100.0)
+    assert (sparse.cell, sparse.max_window, sparse.slope) == (50.0, 400.0, defaults.slope)
+
+    rng = np.random.default_rng(7)
+    n = 1500
+    x, y = rng.uniform(0, 3000, (2, n)) + np.array([[6.5e5], [6.8e6]])
+    ground = 200 + 0.02 * (x - 6.5e5) + 10 * np.sin((y - 6.8e6) / 500)
+    tree = rng.random(n) < 0.3
+    z = np.round(ground + np.where(tree, rng.uniform(8, 25, n), rng.normal(0, 0.05, n)), 2)
+    blind = classify_ground(x, y, z, parameters=defaults)
+    assert (blind.ground & tree).sum() > 0.3 * tree.sum()
+    seeing = classify_ground(x, y, z, parameters=defaults.for_spacing(math.sqrt(9e6 / n)))
+    assert (seeing.ground & tree).sum() < 0.05 * tree.sum()
+    assert (seeing.ground & ~tree).sum() > 0.9 * (~tree).sum()

@@ -96,6 +96,36 @@ def test_the_ground_is_the_same_at_any_tiling(tmp_path, survey, tile_size, buffe
     assert face_set(np.asarray(node_a), faces_a) == face_set(np.asarray(node_b), faces_b)
 
 
+def test_a_sparse_survey_is_filtered_on_cells_of_its_spacing_at_any_tiling(tmp_path):
+    """1,500 points over 3 x 3 km (77 m apart), three in ten on trees 8-25 m
+    up: the run measures the spacing from every point routed, so the cells
+    (and the classes) are the same at any tiling, and the trees are not
+    ground."""
+    rng = np.random.default_rng(7)
+    n = 1500
+    x, y = rng.uniform(0, 3000, (2, n)) + np.array([[X0], [Y0]])
+    ground = 200 + 0.02 * (x - X0) + 10 * np.sin((y - Y0) / 500)
+    tree = rng.random(n) < 0.3
+    z = np.round(ground + np.where(tree, rng.uniform(8, 25, n), rng.normal(0, 0.05, n)), 2)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([0.01, 0.01, 0.01])
+    header.offsets = np.array([X0, Y0, 0.0])
+    header.add_crs(CRS.from_epsg(2154))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = x, y, z
+    las.classification = np.ones(n, dtype=np.uint8)
+    path = tmp_path / "sparse.laz"
+    las.write(path)
+    whole = _run(path, tmp_path / "whole.zarr", classify_ground=True, resolution=10.0, tile_size=4000.0)
+    tiled = _run(path, tmp_path / "tiled.zarr", classify_ground=True, resolution=10.0, tile_size=500.0, buffer=0.0)
+    assert whole.tiles == 1 and tiled.tiles > 20
+    assert whole.not_ground == tiled.not_ground and 0.9 * tree.sum() < whole.not_ground < 1.2 * tree.sum()
+    prov = store.read_attrs(tmp_path / "tiled.zarr")["provenance"]["ground_classification"]["parameters"]
+    assert 30.0 < prov["cell"] < 45.0 and prov["max_window"] > 4 * 50.0
+    a, b = xr.open_zarr(tmp_path / "tiled.zarr"), xr.open_zarr(tmp_path / "whole.zarr")
+    assert np.array_equal(a["elevation"].values, b["elevation"].values, equal_nan=True)
+
+
 def test_the_products_read_the_points_the_ground_stage_routed(tmp_path, survey):
     """With the ground classified, the route stage spills the products' points with the columns the DEM
     stage reads (a DSM and a CHM over the classified DTM), at any tiling."""
