@@ -34,6 +34,12 @@ def survey(tmp_path_factory) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray, 
     would make it classified): path, x, y, z, label."""
     rng = np.random.default_rng(7)
     x, y, z, label, _ = _scene(rng, density=1.5)
+    path = _write_unclassified(tmp_path_factory.mktemp("ground") / "scene.laz", x, y, z)
+    return path, x, y, z, label
+
+
+def _write_unclassified(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> Path:
+    """One LAZ file of these points in Lambert-93, all of class 1, single returns."""
     header = laspy.LasHeader(point_format=6, version="1.4")
     header.scales = np.array([0.01, 0.01, 0.01])
     header.offsets = np.array([X0, Y0, 0.0])
@@ -43,9 +49,8 @@ def survey(tmp_path_factory) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray, 
     las.classification = np.ones(x.size, dtype=np.uint8)
     las.return_number = np.ones(x.size, dtype=np.uint8)
     las.number_of_returns = np.ones(x.size, dtype=np.uint8)
-    path = tmp_path_factory.mktemp("ground") / "scene.laz"
     las.write(path)
-    return path, x, y, z, label
+    return path
 
 
 def _run(path: Path, out: Path, **kw):
@@ -107,15 +112,7 @@ def test_a_sparse_survey_is_filtered_on_cells_of_its_spacing_at_any_tiling(tmp_p
     ground = 200 + 0.02 * (x - X0) + 10 * np.sin((y - Y0) / 500)
     tree = rng.random(n) < 0.3
     z = np.round(ground + np.where(tree, rng.uniform(8, 25, n), rng.normal(0, 0.05, n)), 2)
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.array([0.01, 0.01, 0.01])
-    header.offsets = np.array([X0, Y0, 0.0])
-    header.add_crs(CRS.from_epsg(2154))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = x, y, z
-    las.classification = np.ones(n, dtype=np.uint8)
-    path = tmp_path / "sparse.laz"
-    las.write(path)
+    path = _write_unclassified(tmp_path / "sparse.laz", x, y, z)
     whole = _run(path, tmp_path / "whole.zarr", classify_ground=True, resolution=10.0, tile_size=4000.0)
     tiled = _run(path, tmp_path / "tiled.zarr", classify_ground=True, resolution=10.0, tile_size=500.0, buffer=0.0)
     assert whole.tiles == 1 and tiled.tiles > 20
