@@ -7,14 +7,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._jit import empty, full, larger, njit, njit_borrowing, njit_helper, smaller, zeros
 from ._order import geometric_order
-from .delaunay import Triangulation, _next, _prev, circumcenter_terms, delaunay, grid_triangulation
+from .delaunay import Triangulation, _next, _prev, delaunay, grid_triangulation
 from .errors import InvalidInputError
-from .certificate import KnownRegion, WindowCertificate, circles_leaving, open_hull_edges
+from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_doubt, open_hull_edges
 from .flip import _centroid, _meets_box, flip_edges
 from .merge import greedy_order, merge_candidates, merge_triangles
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
-from .predicates import cross_rounded, lex_before
+from .predicates import lex_before
 
 __all__ = ["build_mesh", "as_points", "load_kernels", "KERNEL_STAGES"]
 
@@ -67,18 +67,6 @@ def _in_window(x, y, ox, oy, tri, t, inner, x_lo, y_lo, x_hi, y_hi) -> bool:
         return True
     gx, gy = _centroid(ax, ay, bx, by, cx, cy, ox, oy)
     return x_lo <= gx < x_hi and y_lo <= gy < y_hi
-
-
-@njit
-def _window_mask(x, y, ox, oy, tri, x_lo, y_lo, x_hi, y_hi) -> np.ndarray:
-    """1 for the triangles whose centroid lies in ``[x_lo, x_hi) x [y_lo, y_hi)``."""
-    nt = tri.shape[0] // 3
-    active = zeros(nt, dtype=np.uint8)
-    inner = _inner_window(x, y, ox, oy, x_lo, y_lo, x_hi, y_hi)
-    for t in range(nt):
-        if _in_window(x, y, ox, oy, tri, t, inner, x_lo, y_lo, x_hi, y_hi):
-            active[t] = 1
-    return active
 
 
 @njit
@@ -304,7 +292,7 @@ def _combined_mesh(
         escapes = leaving[1][_meeting_window(
             triangulation.x, triangulation.y, triangulation.triangles, leaving[0], window, float(o[0]), float(o[1])
         )]
-        taint, doubted = _initial_doubt(region, leaving, nt)
+        taint, doubted = initial_doubt(region, leaving, nt)
         # each doubted triangle is where its doubt came from
         source = np.full(nt, -1, dtype=np.int64)
         source[doubted[0]] = doubted[0]
@@ -348,21 +336,6 @@ def _combined_mesh(
         window_escapes=escapes,
         certificate=certificate,
     )
-
-
-def _initial_doubt(known: KnownRegion, leaving, nt: int):
-    """:func:`meshcore.certificate.initial_taint` with its circles as the
-    rows of the triangles it flags (ascending) and their circles, rather
-    than a row of NaN for every other triangle (the certificate looks up the
-    few its doubt reached)."""
-    taint = np.zeros(nt, dtype=np.uint8)
-    rows, circles = leaving
-    if rows.size == 0:
-        return taint, (rows, circles)
-    vouched = np.asarray(known.covers(circles), dtype=bool)
-    rows, circles = rows[~vouched], circles[~vouched]
-    taint[rows] = 1
-    return taint, (rows, circles)
 
 
 def _certificate(triangulation: Triangulation, taint, source, doubted, start, candidates, flipped,
@@ -429,7 +402,10 @@ def _doubt_reached(he, taint, start, zone, ring: bool, edges, order) -> np.ndarr
     (whether an edge is a merge candidate reads the triangle beyond it), the
     flips' ``zone`` (empty: none), and the triangles the greedy merge's choice
     for ``start`` reads (``edges`` in the greedy ``order``, empty: none), as
-    :func:`meshcore.merge.merge_dependencies` finds them.
+    the greedy queue reads them: an edge's gain reads its two triangles and,
+    whether it is a candidate at all, the triangles beyond their edges; and a
+    candidate of a triangle outside ``start`` that comes earlier in the order
+    is read in turn.
 
     Only the tainted triangles are asked for, and only the chains through the
     triangles outside ``start`` are followed: a candidate with both triangles

@@ -3,7 +3,7 @@
 A tiled run meshes each tile's points (its window plus a buffer) and keeps the
 faces its window owns.  The Delaunay triangles are the global set's where their
 circumcircles hold no point the tile lacks; the flips and merges that follow
-read the triangles around them, round after round.  :func:`initial_taint`
+read the triangles around them, round after round.  :func:`initial_doubt`
 flags the triangles whose circles reach beyond what the tile holds,
 :func:`open_hull_edges` the hull edges of the tile's points that may not be
 hull edges of the survey; the flips spread the flags (see
@@ -23,7 +23,7 @@ from ._jit import empty, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
-__all__ = ["KnownRegion", "WindowCertificate", "circles_leaving", "disk_box_in", "lens_boxes", "initial_taint", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
+__all__ = ["KnownRegion", "WindowCertificate", "circles_leaving", "disk_box_in", "lens_boxes", "initial_doubt", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
 
 _U = 2.0**-53
 """The unit roundoff of float64."""
@@ -198,25 +198,21 @@ def circles_leaving(triangulation: Triangulation, box) -> tuple[NDArray[np.int64
     return _circles_leaving(t.x, t.y, t.triangles, float(t.origin[0]), float(t.origin[1]), *box)
 
 
-def initial_taint(triangulation: Triangulation, known: KnownRegion,
-                  leaving: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
-                  ) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
-    """1 for the Delaunay triangles that may not be the global set's: their
-    circumcircle leaves ``known.box`` and ``known`` does not vouch for it; and
-    those circles ``(x, y, r)``, one row per triangle (NaN for the others).
-    ``leaving``: :func:`circles_leaving` of ``known.box``, when known."""
-    t = triangulation
-    nt = t.triangles.shape[0] // 3
+def initial_doubt(known: KnownRegion, leaving: tuple[NDArray[np.int64], NDArray[np.float64]], nt: int,
+                  ) -> tuple[NDArray[np.uint8], tuple[NDArray[np.int64], NDArray[np.float64]]]:
+    """1 for the Delaunay triangles (of ``nt``) that may not be the global
+    set's: their circumcircle leaves ``known.box`` and ``known`` does not
+    vouch for it; and the rows of those triangles (ascending) with their
+    circles ``(x, y, r)``.  ``leaving``: :func:`circles_leaving` of
+    ``known.box`` (ascending rows)."""
     taint = np.zeros(nt, dtype=np.uint8)
-    circle_of = np.full((nt, 3), np.nan)
-    if known.box == _EVERYWHERE or nt == 0:
-        return taint, circle_of
-    rows, circles = circles_leaving(t, known.box) if leaving is None else leaving
-    if rows.size:
-        vouched = np.asarray(known.covers(circles), dtype=bool)
-        taint[rows[~vouched]] = 1
-        circle_of[rows[~vouched]] = circles[~vouched]
-    return taint, circle_of
+    rows, circles = leaving
+    if rows.size == 0:
+        return taint, (rows, circles)
+    vouched = np.asarray(known.covers(circles), dtype=bool)
+    rows, circles = rows[~vouched], circles[~vouched]
+    taint[rows] = 1
+    return taint, (rows, circles)
 
 
 def open_hull_edges(triangulation: Triangulation, known: KnownRegion) -> NDArray[np.uint8]:

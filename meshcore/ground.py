@@ -317,9 +317,9 @@ def _line_min(values, n, r, padded, g, h, out) -> None:
         out[i] = min(h[i], g[i + 2 * r])
 
 
-def _square_work(shape: tuple[int, int], radius: int) -> np.ndarray:
-    """Room for :func:`_square_min` up to ``radius`` on a grid of ``shape``."""
-    ny, nx = shape
+@njit
+def _square_work(ny: int, nx: int, radius: int) -> np.ndarray:
+    """Room for :func:`_square_min` up to ``radius`` on a grid of ``ny`` x ``nx``."""
     return np.empty((3, ny + 4 * radius + 2, nx))
 
 
@@ -385,7 +385,7 @@ plane's opening) leaves a tree on a void's edge as ground."""
 def _near_data(surface: np.ndarray, k: int) -> np.ndarray:
     """Cells with data, and the empty cells within ``k`` cells of one: those whose erosion a dilation reads."""
     low = np.empty_like(surface)
-    _square_min(np.where(np.isnan(surface), np.inf, surface), k, low, _square_work(surface.shape, k))
+    _square_min(np.where(np.isnan(surface), np.inf, surface), k, low, _square_work(surface.shape[0], surface.shape[1], k))
     return np.isfinite(low)
 
 
@@ -427,7 +427,7 @@ def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
     current = np.empty_like(surface)
     scratch = np.empty_like(surface)
     tmp = np.empty_like(surface)
-    work = np.empty((3, ny + 4 * radii + 2, nx))  # _square_work
+    work = _square_work(ny, nx, radii)
     for r in range(1, radii + 1):
         _min3(eroded, tmp, scratch)
         eroded, scratch = scratch, eroded

@@ -11,7 +11,8 @@ by the edges' endpoints' coordinates) and deletes a diagonal while both of its
 triangles are still triangles and the gain is positive.  That is the locally
 dominant matching of the triangles: a diagonal is deleted exactly when no
 edge of its triangles that comes first in that order is, so the choice is one
-of the geometry alone, and :func:`merge_dependencies` says how far it reaches.
+of the geometry alone, and a tile's certificate follows how far it reaches
+(:func:`meshcore.build._doubt_reached`).
 ``optimal`` deletes the set of diagonals with the largest total gain: a
 maximum-weight matching of the triangles (networkx's blossom algorithm).
 """
@@ -21,13 +22,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller, zeros
+from ._jit import empty, full, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, _next, _prev
 from .flip import edge_before, flippable, triangle_score, triangle_scores
 from .predicates import lex_before
 from .quality import s2_kernel, s4_cubed_kernel
 
-__all__ = ["merge_candidates", "merge_triangles", "merge_dependencies", "greedy_order"]
+__all__ = ["merge_candidates", "merge_triangles", "greedy_order"]
 
 _PAIRED_TRIANGLE_MEASURE = {"s2": 1, "s4": 3}
 _QUAD_CODE = {"s2": 2, "s4": 4}
@@ -149,78 +150,6 @@ def _order_ties_by_endpoints(order, gains, edges, tri, x, y) -> None:
                 j -= 1
             order[j] = k
         start = stop
-
-
-@njit
-def _dependencies_kernel(he, edges, order, start, nt: int) -> np.ndarray:
-    """Triangles the greedy choice of ``start``'s triangles reads: see :func:`merge_dependencies`."""
-    n = edges.shape[0]
-    rank = empty(n, dtype=np.int64)
-    for k in range(n):
-        rank[order[k]] = k
-    first = full(nt, -1, dtype=np.int64)  # a triangle's candidates, as a linked list over 2n slots
-    link = full(2 * n, -1, dtype=np.int64)
-    for i in range(n):
-        for side in range(2):
-            t = (edges[i] if side == 0 else he[edges[i]]) // 3
-            link[2 * i + side] = first[t]
-            first[t] = 2 * i + side
-    need = zeros(nt, dtype=np.uint8)
-    seen = zeros(n, dtype=np.uint8)
-    stack = empty(n, dtype=np.int64)
-    top = 0
-    for t in range(nt):
-        if not start[t]:
-            continue
-        need[t] = 1
-        s = first[t]
-        while s >= 0:
-            i = s // 2
-            if not seen[i]:
-                seen[i] = 1
-                stack[top] = i
-                top += 1
-            s = link[s]
-    while top > 0:
-        top -= 1
-        i = stack[top]
-        e = np.int64(edges[i])
-        f = np.int64(he[e])
-        # the edge's gain reads its two triangles; whether it is a candidate at
-        # all, each edge around them reads the triangle beyond it
-        for g in (e, f, _next(e), _prev(e), _next(f), _prev(f)):
-            h = he[g]
-            need[g // 3] = 1
-            if h >= 0:
-                need[h // 3] = 1
-        for t in (e // 3, f // 3):
-            s = first[t]
-            while s >= 0:
-                j = s // 2
-                if not seen[j] and rank[j] < rank[i]:
-                    seen[j] = 1
-                    stack[top] = j
-                    top += 1
-                s = link[s]
-    return need
-
-
-def merge_dependencies(
-    triangulation: Triangulation, edges: NDArray[np.int32], gains: NDArray[np.float64], start: NDArray[np.uint8],
-    order: NDArray[np.int64] | None = None,
-) -> NDArray[np.uint8]:
-    """The triangles whose shapes decide the greedy choice for the triangles ``start`` flags.
-
-    A diagonal is deleted exactly when no candidate sharing a triangle with it
-    and coming first in the order is deleted, so the choice for a triangle
-    depends on the chains of candidates from its edges, each one coming before
-    the last.  Returns a flag per triangle: those chains' triangles and the
-    triangles around them (which say which edges are candidates at all).
-    """
-    nt = triangulation.triangles.shape[0] // 3
-    if order is None:
-        order = greedy_order(triangulation, edges, gains)
-    return _dependencies_kernel(triangulation.halfedges, edges, order, np.ascontiguousarray(start, dtype=np.uint8), nt)
 
 
 def merge_candidates(

@@ -281,7 +281,7 @@ def test_flips_of_a_window_never_touch_a_triangle_outside_it_on_survey_scan_line
     # neighbour's triangle, and the tiles' pieces overlapped (seed 4, the last
     # window, did it)
     from meshcore._order import geometric_order
-    from meshcore.build import _window_mask, as_points
+    from meshcore.build import _owned_faces, as_points
     from meshcore.delaunay import delaunay
     from meshcore.flip import flip_edges
 
@@ -294,7 +294,7 @@ def test_flips_of_a_window_never_touch_a_triangle_outside_it_on_survey_scan_line
         t = geometric_order(delaunay(as_points(xy)))
         x0, y0 = rng.random(2) * [30, 25]
         window = (x0, y0, x0 + rng.uniform(3, 15), y0 + rng.uniform(3, 15))
-        active = _window_mask(t.x, t.y, float(t.origin[0]), float(t.origin[1]), t.triangles, *window)
+        active = _centroid_rule(_owned_faces, t, window)
         before = t.triangles.reshape(-1, 3).copy()
         assert flip_edges(t, "s3" if w % 2 else "s1", active).flips > 0
         outside = active == 0
@@ -428,9 +428,17 @@ def test_lexicographic_order_is_numpys_order_for_any_coordinates(make, rng):
     assert np.array_equal(np.sort(order), np.arange(len(pts)))
 
 
+def _centroid_rule(owned_faces, t, window):
+    """The triangles a window owns when no two are merged: those whose centroid lies in it."""
+    partner = np.full(t.triangles.shape[0] // 3, -1, dtype=np.int32)
+    owned, _ = owned_faces(t.x, t.y, float(t.origin[0]), float(t.origin[1]), t.triangles, t.halfedges, partner,
+                           np.array(window, dtype=np.float64))
+    return owned
+
+
 @pytest.mark.parametrize("offset", [0.0, 6.5e5, -3.2e7, 1.0e8])
-def test_window_mask_takes_the_centroid_rule_for_every_triangle(offset, rng):
-    from meshcore.build import _centroid, _window_mask
+def test_a_window_owns_the_triangles_whose_centroid_it_holds(offset, rng):
+    from meshcore.build import _centroid, _owned_faces
     from meshcore.delaunay import delaunay
 
     # a lattice puts corners on the window's edges and its centroids on them
@@ -441,7 +449,7 @@ def test_window_mask_takes_the_centroid_rule_for_every_triangle(offset, rng):
     ox, oy = (float(v) for v in t.origin)
     tri = t.triangles.reshape(-1, 3)
     for window in [(offset + 10.0, offset + 5.0, offset + 20.5, offset + 17.0), (-np.inf, offset + 3.0, offset + 7.25, np.inf)]:
-        active = _window_mask(t.x, t.y, ox, oy, t.triangles, *window)
+        active = _centroid_rule(_owned_faces, t, window)
         expect = []
         for i, j, k in tri:
             cx, cy = _centroid(t.x[i], t.y[i], t.x[j], t.y[j], t.x[k], t.y[k], ox, oy)
