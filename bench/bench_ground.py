@@ -118,12 +118,12 @@ def agreement(ref, got) -> tuple[float, float, float]:
 def spacing_metres(x, y, unit: float) -> float:
     """The points' spacing as a run measures it: the square root of their convex hull's area over their number."""
     from meshcore import convex_hull
+    from pipeline.meshing.surface import signed_area
 
     if x.size < 3:
         return math.nan
-    hull = convex_hull(x - x.min(), y - y.min())
-    hx, hy = x[hull] - x.min(), y[hull] - y.min()
-    area = 0.5 * abs(float(np.dot(hx, np.roll(hy, -1)) - np.dot(hy, np.roll(hx, -1))))
+    local = np.column_stack([x - x.min(), y - y.min()])
+    area = abs(signed_area(local[convex_hull(local[:, 0], local[:, 1])]))
     return math.sqrt(area / x.size) * unit
 
 

@@ -31,7 +31,7 @@ from .tiles import _edge_sides, vertex_z
 from ..tiling.grid import TileGrid
 from ..tiling.routing import load_tile_points
 
-__all__ = ["run_variogram", "SAMPLE_CELLS", "SAMPLE_POINTS", "MAX_SAMPLE_CELLS"]
+__all__ = ["run_variogram", "signed_area", "SAMPLE_CELLS", "SAMPLE_POINTS", "MAX_SAMPLE_CELLS"]
 
 SAMPLE_POINTS = 400_000
 """A survey of at most this many points kept fits its variogram from all of
@@ -130,7 +130,7 @@ def _cell_side(grid: TileGrid, points: int, hull: NDArray[np.float64] | None) ->
     """The side of the sample's cells: a whole number of the grid's cells, so
     that one holds about ``SAMPLE_POINTS / SAMPLE_CELLS`` of the ``points``
     spread over the hull (or, without an area, the grid)."""
-    area = abs(_signed_area(hull)) if hull is not None else 0.0
+    area = abs(signed_area(hull)) if hull is not None else 0.0
     if not area > 0.0:
         x0, y0, x1, y1 = grid.extent
         area = (x1 - x0) * (y1 - y0)
@@ -138,7 +138,7 @@ def _cell_side(grid: TileGrid, points: int, hull: NDArray[np.float64] | None) ->
     return grid.resolution * max(1, math.ceil(wanted / grid.resolution))
 
 
-def _signed_area(polygon: NDArray[np.float64]) -> float:
+def signed_area(polygon: NDArray[np.float64]) -> float:
     """The area of a simple polygon ``(n, 2+)``, > 0 counter-clockwise (shoelace; 0 for fewer than three corners)."""
     if polygon.shape[0] < 3:
         return 0.0
@@ -160,7 +160,7 @@ def _cells_in_order(grid: TileGrid, side: float, hull: NDArray[np.float64] | Non
     i, j = first_i + index // n_j, first_j + index % n_j
     if hull is not None and hull.shape[0] >= 3:
         meets = np.zeros(index.size, dtype=bool)
-        ccw = hull if _signed_area(hull) >= 0.0 else hull[::-1]
+        ccw = hull if signed_area(hull) >= 0.0 else hull[::-1]
         px, py = np.ascontiguousarray(ccw[:, 0]), np.ascontiguousarray(ccw[:, 1])
         step = max(1, (1 << 19) // px.size)  # cells times corners at once
         for k in range(0, index.size, step):

@@ -43,7 +43,7 @@ from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import Ledger, WorkDir, output_lock, source_key, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
 from ..store.assemble import MeshBlock, global_node_ids, mesh_offsets, write_mesh_block
-from ..meshing.surface import run_variogram
+from ..meshing.surface import run_variogram, signed_area
 from ..store.catalog import write_stac_item
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, hull_copies, survey_hull
@@ -619,10 +619,8 @@ def ground_parameters(plan: RunPlan, routed: Routed) -> GroundParameters:
     count = sum(n for c in routed.results for _, _, n in c.tile_points)
     if hull.shape[0] < 3 or count <= 0:
         return GroundParameters()
-    x, y = hull[:, 0] - hull[:, 0].min(), hull[:, 1] - hull[:, 1].min()
-    order = convex_hull(x, y)
-    hx, hy = x[order], y[order]
-    area = 0.5 * abs(float(np.dot(hx, np.roll(hy, -1)) - np.dot(hy, np.roll(hx, -1))))
+    local = hull[:, :2] - hull[:, :2].min(axis=0)
+    area = abs(signed_area(local[convex_hull(local[:, 0], local[:, 1])]))
     return GroundParameters().for_spacing(math.sqrt(area / count) * unit)
 
 
