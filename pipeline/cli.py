@@ -118,44 +118,35 @@ def _add_run(sub) -> None:
 def add_config_flags(parser: argparse.ArgumentParser, names: Sequence[str] | None = None,
                      helps: dict[str, str] | None = None) -> None:
     """The flags of :class:`pipeline.config.RunConfig`'s parameters (``names``:
-    only these), derived from its fields: ``--NAME`` (underscores as dashes),
-    the field's :class:`pipeline.config.Flag` help (or ``helps[NAME]``), an
-    enum's values as choices.  None of them has a default here: a flag not
+    only these), derived from its fields (:func:`pipeline.config.parameters`):
+    ``--NAME`` (underscores as dashes), the field's help (or ``helps[NAME]``),
+    an enum's values as choices.  None of them has a default here: a flag not
     given leaves the job file's value, or the field's default."""
-    import dataclasses
     import enum
-    import types
-    import typing
 
-    from .config import RunConfig
+    from .config import parameters
 
-    hints = typing.get_type_hints(RunConfig)
-    for f in dataclasses.fields(RunConfig):
-        flag = f.metadata.get("flag")
-        if flag is None or (names is not None and f.name not in names):
+    for p in parameters():
+        if names is not None and p.name not in names:
             continue
-        kind, optional = hints[f.name], False
-        if isinstance(kind, types.UnionType) and type(None) in typing.get_args(kind):
-            optional = True
-            kind = next(a for a in typing.get_args(kind) if a is not type(None))
-        spec: dict = {"help": (helps or {}).get(f.name, flag.help)}
-        if flag.metavar is not None:
-            spec["metavar"] = flag.metavar
-        if flag.positional:
-            parser.add_argument(f.name, nargs="*", **spec)
+        spec: dict = {"help": (helps or {}).get(p.name, p.flag.help)}
+        if p.flag.metavar is not None:
+            spec["metavar"] = p.flag.metavar
+        if p.flag.positional:
+            parser.add_argument(p.name, nargs="*", **spec)
             continue
-        if kind is bool:
+        if p.kind is bool:
             spec.update(action="store_true", default=None)
-        elif isinstance(kind, type) and issubclass(kind, enum.Enum):
-            spec["choices"] = tuple(m.value for m in kind) + (("none",) if optional and f.default is not None else ())
-        elif kind is float:
+        elif isinstance(p.kind, type) and issubclass(p.kind, enum.Enum):
+            spec["choices"] = tuple(m.value for m in p.kind) + (("none",) if p.optional and p.default is not None else ())
+        elif p.kind is float:
             spec["type"] = float
-        elif kind is int:
-            spec["type"] = _positive_int if flag.choices is None else int
-            if flag.choices is not None:
-                spec["choices"] = flag.choices
-        opts = ([flag.short] if flag.short else []) + ["--" + f.name.replace("_", "-")]
-        parser.add_argument(*opts, dest=f.name, **spec)
+        elif p.kind is int:
+            spec["type"] = _positive_int if p.flag.choices is None else int
+            if p.flag.choices is not None:
+                spec["choices"] = p.flag.choices
+        opts = ([p.flag.short] if p.flag.short else []) + ["--" + p.name.replace("_", "-")]
+        parser.add_argument(*opts, dest=p.name, **spec)
 
 
 def _add_demo(sub) -> None:
@@ -240,15 +231,13 @@ def _add_classify(sub) -> None:
 
 
 def _run_config(args: argparse.Namespace):
-    from dataclasses import fields
-
-    from .config import RunConfig
+    from .config import RunConfig, parameters
 
     data: dict = {}
     if args.config is not None:
         job = RunConfig.from_toml(args.config)
         data = job.to_dict() | {"storage_options": job.storage_options}  # to_dict leaves credentials out
-    flags = {f.name: getattr(args, f.name) for f in fields(RunConfig) if "flag" in f.metadata}
+    flags = {p.name: getattr(args, p.name) for p in parameters()}
     for flag, other in (("in_crs", "override_crs"), ("override_crs", "in_crs")):
         if flags[flag] is not None:  # the command line's choice of the two replaces the job file's
             data.pop(other, None)
@@ -323,13 +312,11 @@ def _parameter_patterns() -> tuple[re.Pattern[str], re.Pattern[str], re.Pattern[
     parameters, from its fields: ``switch=True``, ``name=value``, and a name
     alone (one with an underscore anywhere; a one-word one as ``NAME must``,
     else it is a word of the prose: "the tile's buffer")."""
-    from dataclasses import fields
+    from .config import parameters
 
-    from .config import RunConfig
-
-    flagged = [f for f in fields(RunConfig) if "flag" in f.metadata and not f.metadata["flag"].positional]
-    switches = [f.name for f in flagged if f.type == "bool"]
-    values = [f.name for f in flagged if f.type != "bool"] + ["window"]  # (preview's --window)
+    flagged = [p for p in parameters() if not p.flag.positional]
+    switches = [p.name for p in flagged if p.kind is bool]
+    values = [p.name for p in flagged if p.kind is not bool] + ["window"]  # (preview's --window)
     joined = "|".join(sorted(switches, key=len, reverse=True))
     valued = "|".join(sorted(values, key=len, reverse=True))
     underscored = "|".join(sorted((n for n in switches + values if "_" in n), key=len, reverse=True))

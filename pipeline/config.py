@@ -26,7 +26,7 @@ from .errors import UsageError
 from .products.attributes import Returns
 from .products.registry import names as _product_names
 
-__all__ = ["RunConfig", "MeshOptions", "Flag", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]
+__all__ = ["RunConfig", "MeshOptions", "Flag", "Parameter", "parameters", "ZARR_FORMATS", "DuplicatePolicy", "Layer", "LAYERS", "DEFAULT_CLASSES", "Returns"]
 
 
 E = TypeVar("E", bound=Enum)
@@ -148,6 +148,10 @@ def _box(name: str, value: object) -> tuple[float, float, float, float] | None:
     return box  # type: ignore[return-value]
 
 
+ZARR_FORMATS = (2, 3)
+"""The Zarr formats a store can be written in."""
+
+
 @dataclass(frozen=True)
 class Flag:
     """How the command line takes a :class:`RunConfig` parameter: ``--NAME``
@@ -167,6 +171,38 @@ class Flag:
     """Given without a flag, as many as wanted (the inputs)."""
     choices: tuple[object, ...] | None = None
     """For a number: the values it may take (the Zarr format)."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A :class:`RunConfig` parameter that the command line takes: its field's
+    name and :class:`Flag`, the kind of its value (the field's type, None
+    left out) and whether it may be None."""
+
+    name: str
+    flag: Flag
+    kind: Any
+    optional: bool
+    default: Any
+
+
+def parameters() -> tuple[Parameter, ...]:
+    """The parameters of :class:`RunConfig` that the command line takes, in
+    the fields' order, their kinds read from the fields' types."""
+    import types
+    import typing
+
+    hints = typing.get_type_hints(RunConfig)
+    out = []
+    for f in fields(RunConfig):
+        if "flag" not in f.metadata:
+            continue
+        kind, args = hints[f.name], typing.get_args(hints[f.name])
+        optional = isinstance(kind, types.UnionType) and type(None) in args
+        if optional:
+            kind = next(a for a in args if a is not type(None))
+        out.append(Parameter(f.name, f.metadata["flag"], kind, optional, f.default))
+    return tuple(out)
 
 
 def _param(default: object = MISSING, help: str = "", **flag: object) -> Any:
@@ -235,7 +271,7 @@ class RunConfig:
         "time of a linear run on the real samples)")
     """The surface the DEM samples: "linear" (the mesh's own faces) or
     "smooth" (cubic patches through every point, kriged between them)."""
-    layers: tuple[str, ...] = _param(
+    layers: tuple[Layer, ...] = _param(
         ("elevation",), "extra DEM layers, comma-separated: " + ",".join(_product_names()[1:]) + " (see docs/products.md)")
     returns: Returns = _param(
         Returns.ALL, "returns the DTM is made of (default all; the DSM always uses first returns)")
@@ -248,7 +284,7 @@ class RunConfig:
     workers: int | None = _param(
         None, "threads of this process that run the tasks (default: one per core; not with --scheduler)")
     scheduler: str | None = _param(None, "address of a dask.distributed scheduler (or DASK_SCHEDULER_ADDRESS)")
-    zarr_format: int = _param(3, "Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)", choices=(2, 3))
+    zarr_format: int = _param(3, "Zarr format (default 3, read by GDAL 3.11+; 2 for older GDAL)", choices=ZARR_FORMATS)
     scratch_dir: str | None = _param(
         None, "folder for the work files (default: .NAME.work beside the store; shared by all workers on a cluster)")
     overwrite: bool = _param(False, "replace an existing store")
@@ -314,7 +350,7 @@ class RunConfig:
         # in one order whatever the order asked: the store is the same
         object.__setattr__(self, "layers", tuple(Layer(name) for name in LAYERS if name == "elevation" or name in layers))
         object.__setattr__(self, "workers", _whole("workers", self.workers, allow_none=True))
-        if self.zarr_format not in (2, 3) or isinstance(self.zarr_format, (bool, float)):
+        if self.zarr_format not in ZARR_FORMATS or isinstance(self.zarr_format, (bool, float)):
             raise UsageError(f"zarr_format must be 2 or 3, got {self.zarr_format!r}")
         object.__setattr__(self, "max_cells", _whole("max_cells", self.max_cells))
         for name in ("classify_ground", "keep_withheld", "overwrite", "skip_bad_files"):

@@ -48,7 +48,7 @@ from ..products.points import from_columns
 from ..products.tile import tile_layers, warm_up
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
-from ..tiling.grid import TileGrid, intersect_boxes, tile_dir
+from ..tiling.grid import TileGrid, intersect_boxes
 from ..tiling.routing import PRODUCT_SPILL, load_tile_points, neighbour_tile_points, points_in_box
 from .kernels import load_mesh_kernels, sample_grid_mesh
 from .piece import MESH_ARRAYS, SURFACE_ARRAYS, Piece, PiecePart
@@ -799,9 +799,6 @@ def _save_piece_and_border(job: TileJob, work: _Certifying, tables: _PieceTables
     """Save the piece and its faces that leave the tile's box (``border``);
     returns the border's vertices."""
     mesh, faces = work.mesh, tables.faces
-    counts = None
-    if "point_count" in job.options.layers:
-        counts = _point_counts(job, own)
     vertices = np.column_stack([np.take(mesh.vertices, tables.order, axis=0), tables.z[tables.order]])
     # the smooth surface's arrays: from the neighbourhoods held, the same in every tile
     surface = {}
@@ -809,8 +806,8 @@ def _save_piece_and_border(job: TileJob, work: _Certifying, tables: _PieceTables
         surface = _piece_surface(meshcore.smooth_surface(mesh, tables.z, job.variogram, plan=work.plan), mesh.faces,
                                  tables.z, tables.remap, work.sampled)
     piece = Piece(vertices=vertices, faces=faces, **surface)
-    replace(piece, point_count=counts if counts is not None else np.zeros((0, 0), dtype=np.int32)).save(
-        job.scratch, job.row, job.col, PiecePart.PIECE)
+    counts = _point_counts(job, own) if "point_count" in job.options.layers else np.zeros((0, 0), dtype=np.int32)
+    replace(piece, point_count=counts).save(job.scratch, job.row, job.col, PiecePart.PIECE)
     border = piece.select(_reaching_out(vertices, faces, job.grid.box(job.row, job.col)))
     border.save(job.scratch, job.row, job.col, PiecePart.BORDER)
     return border.vertices

@@ -71,14 +71,13 @@ def compile_aside(options: MeshOptions) -> KernelCompile:
     or such processes are still at it (then those are returned)."""
     if meshcore.tiles.kernels_compiled():
         return KernelCompile()
-    o = options
-    measures = {"triangle_measure": o.triangle_measure, "quad_measure": o.quad_measure, "merge": o.merge,
-                "surface": o.surface}
+    measures = {"triangle_measure": options.triangle_measure, "quad_measure": options.quad_measure,
+                "merge": options.merge, "surface": options.surface}
     key = json.dumps(measures, sort_keys=True)
     running = [p for p in _STARTED.get(key, []) if p.poll() is None]
     if running:
         return KernelCompile(running)
-    parts = [part for part in MESH_KERNEL_PARTS if part != "smooth" or o.surface == "smooth"]
+    parts = [part for part in MESH_KERNEL_PARTS if part != "smooth" or options.surface == "smooth"]
     processes = []
     for part in parts:
         try:

@@ -328,6 +328,7 @@ def test_every_parameter_of_a_run_is_a_flag_with_its_values(tmp_path):
     value reaches the config as that enum's member."""
     import dataclasses
     import enum
+    import types
     import typing
 
     from pipeline.cli import _parser, _run_config
@@ -341,7 +342,8 @@ def test_every_parameter_of_a_run_is_a_flag_with_its_values(tmp_path):
     assert {f.name for f in flagged} == {f.name for f in dataclasses.fields(RunConfig)} - {"storage_options", "extra"}
     for f in flagged:
         assert f.name in by_dest, f.name
-        kind = next((a for a in typing.get_args(hints[f.name]) if a is not type(None)), hints[f.name])
+        hint = hints[f.name]  # X | None: X
+        kind = next(a for a in typing.get_args(hint) if a is not type(None)) if isinstance(hint, types.UnionType) else hint
         if isinstance(kind, type) and issubclass(kind, enum.Enum):
             values = [m.value for m in kind]
             assert [c for c in by_dest[f.name].choices if c != "none"] == values, f.name
