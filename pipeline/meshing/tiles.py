@@ -423,7 +423,7 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
     lo_x, hi_x = max(x0, box[0] - reach), min(x1, box[2] + reach)
     lo_y, hi_y = max(y0, box[1] - reach), min(y1, box[3] + reach)
     hull = None if job.hull is None else job.hull[:, :2]
-    bands = []
+    bands = _slanted_bands(hull, box, depth, (lo_x, lo_y, hi_x, hi_y), job.extent)
     if box[1] <= y0:
         a, b = _along_hull(hull, 1, y0, depth, lo_x, hi_x)
         bands.append((a, y0, b, min(y1, y0 + depth)))
@@ -437,6 +437,81 @@ def _edge_bands(job: TileJob, box: tuple[float, float, float, float]) -> list:
         a, b = _along_hull(hull, 0, x1, depth, lo_y, hi_y)
         bands.append((max(x0, x1 - depth), a, x1, b))
     return bands
+
+
+def _slanted_bands(hull: NDArray[np.float64] | None, box, depth: float, reach, extent) -> list:
+    """Boxes that hold a strip ``depth`` deep inside the survey along each hull
+    edge that passes within ``depth`` of ``box`` and does not run along a side
+    of the ``extent`` (a survey cut on a slanted line), from ``reach`` (a box)
+    on.  Its slivers are those of a straight side, turned: without the strip,
+    a tile that a slanted edge crosses meshes twice.  A slanted piece of edge
+    is cut into boxes about ``depth`` across its run, so the boxes hold little
+    beyond the strip; consecutive small ones are joined."""
+    if hull is None or hull.shape[0] < 3 or not depth > 0.0:
+        return []
+    x0, y0, x1, y1 = extent
+    p, q = hull, np.roll(hull, -1, axis=0)
+    on_side = np.zeros(p.shape[0], dtype=bool)
+    for axis, side in ((0, x0), (0, x1), (1, y0), (1, y1)):
+        on_side |= (np.abs(p[:, axis] - side) <= depth) & (np.abs(q[:, axis] - side) <= depth)
+    near = (box[0] - depth, box[1] - depth, box[2] + depth, box[3] + depth)
+    _, _, meets = _clip_segments(p, q, near)
+    rows = np.flatnonzero(meets & ~on_side)
+    if rows.size == 0:
+        return []
+    slack = depth / 16.0
+    t0, t1, meets = _clip_segments(p[rows], q[rows], reach)
+    out: list = []
+    pieces_area: list = []  # the areas of the pieces each box of ``out`` joins
+    for i, lo, hi, ok in zip(rows, t0, t1, meets):
+        if not ok:
+            continue
+        d = q[i] - p[i]
+        length = float(np.hypot(d[0], d[1]))
+        if length == 0.0:
+            continue
+        inward = np.array([-d[1], d[0]]) * (depth / length)  # the hull runs counter-clockwise
+        pieces = max(1, math.ceil(float(min(abs(d[0]), abs(d[1]))) * (hi - lo) / depth))
+        for k in range(pieces):
+            a = p[i] + d * (lo + (hi - lo) * k / pieces)
+            b = p[i] + d * (lo + (hi - lo) * (k + 1) / pieces)
+            corners = np.array([a, b, a + inward, b + inward])
+            # and a little past the edge: a lens's box is known to its rounding, not to the hull's bits
+            lo_xy, hi_xy = corners.min(axis=0) - slack, corners.max(axis=0) + slack
+            piece = intersect_boxes((*lo_xy, *hi_xy), extent)
+            if piece is None:
+                continue
+            if out:  # the last box and this piece as one box, when it is not much larger than its pieces
+                last = out[-1]
+                joined = (min(last[0], piece[0]), min(last[1], piece[1]), max(last[2], piece[2]), max(last[3], piece[3]))
+                if _area(joined) <= 1.5 * (pieces_area[-1] + _area(piece)):
+                    out[-1] = joined
+                    pieces_area[-1] += _area(piece)
+                    continue
+            out.append(piece)
+            pieces_area.append(_area(piece))
+    return out
+
+
+def _area(box) -> float:
+    return (box[2] - box[0]) * (box[3] - box[1])
+
+
+def _clip_segments(p: NDArray[np.float64], q: NDArray[np.float64], box):
+    """The parameters ``t0 <= t1`` in [0, 1] of the part of each segment ``p + t (q - p)``
+    inside the closed ``box`` (Liang-Barsky), and whether there is one."""
+    t0, t1 = np.zeros(p.shape[0]), np.ones(p.shape[0])
+    ok = np.ones(p.shape[0], dtype=bool)
+    for axis in (0, 1):
+        lo, hi = box[axis], box[axis + 2]
+        d = q[:, axis] - p[:, axis]
+        flat = d == 0.0
+        ok &= ~flat | ((p[:, axis] >= lo) & (p[:, axis] <= hi))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = (lo - p[:, axis]) / d, (hi - p[:, axis]) / d
+        t0 = np.where(flat, t0, np.maximum(t0, np.minimum(a, b)))
+        t1 = np.where(flat, t1, np.minimum(t1, np.maximum(a, b)))
+    return t0, t1, ok & (t0 <= t1)
 
 
 def _along_hull(hull: NDArray[np.float64] | None, axis: int, side: float, depth: float, lo: float, hi: float):

@@ -176,6 +176,50 @@ def test_an_escaping_circle_needs_only_its_part_inside_the_hull(rng):
     assert area(lens) < 0.5 * area(full)
 
 
+@pytest.mark.parametrize("degrees", [20.0, 45.0, 71.0])
+def test_a_slanted_survey_edge_is_held_as_a_thin_strip_along_it(rng, degrees):
+    """The bands a tile holds along a hull edge cut at an angle: every point
+    within ``depth`` inside the edge and near the tile is in one of them, the
+    boxes hold little else, and the survey's straight sides get none (their
+    bands are the extent's)."""
+    from pipeline.meshing.tiles import _slanted_bands
+
+    a = math.radians(degrees)
+    # a 600 m square with its south-west corner cut on a line at ``degrees``
+    cut = 300.0
+    hull = np.array([[cut, 0.0], [600.0, 0.0], [600.0, 600.0], [0.0, 600.0],
+                     [0.0, cut * math.tan(a)]]) + np.array([7.5e5, 6.6e6])
+    extent = (*hull.min(axis=0), *hull.max(axis=0))
+    depth, reach = 5.0, 100.0
+    for box in [(7.5e5 + 100.0, 6.6e6 + 50.0, 7.5e5 + 228.0, 6.6e6 + 178.0),
+                (7.5e5 + 150.0, 6.6e6 - 10.0, 7.5e5 + 260.0, 6.6e6 + 60.0)]:
+        far = (max(extent[0], box[0] - reach), max(extent[1], box[1] - reach),
+               min(extent[2], box[2] + reach), min(extent[3], box[3] + reach))
+        bands = _slanted_bands(hull, box, depth, far, extent)
+        p, q = hull[0], hull[4]  # the cut runs from the last vertex to the first
+        d = (p - q) / np.hypot(*(p - q))
+        inward = np.array([-d[1], d[0]])
+        t = rng.uniform(0.0, np.hypot(*(p - q)), 50_000)
+        s = rng.uniform(0.0, depth, t.size)
+        strip = q + t[:, None] * d + s[:, None] * inward
+        base = q + t[:, None] * d  # where on the edge each strip point is
+        near = ((base >= np.array(far[:2])) & (base <= np.array(far[2:]))).all(axis=1)
+        near_box = ((strip >= np.array(box[:2]) - depth) & (strip <= np.array(box[2:]) + depth)).all(axis=1)
+        held = np.zeros(strip.shape[0], dtype=bool)
+        for b in bands:
+            held |= ((strip >= np.array(b[:2])) & (strip <= np.array(b[2:]))).all(axis=1)
+        if not near_box.any():
+            assert bands == []
+            continue
+        assert held[near].all()
+        length = np.hypot(*(np.minimum(strip[near].max(axis=0), far[2:]) - strip[near].min(axis=0)))
+        area = sum((b[2] - b[0]) * (b[3] - b[1]) for b in bands)
+        assert area < 4.0 * length * depth  # a strip, not the box around the diagonal
+        # nothing along the straight sides
+        for b in bands:
+            assert b[2] > extent[0] + depth and b[1] < extent[3] - depth
+
+
 def test_circles_against_a_hull_of_many_vertices_are_boxed_a_chunk_at_a_time(rng, monkeypatch):
     """A survey cut on a curve has a hull of thousands of vertices; the boxes of
     thousands of circles are computed a bounded chunk at a time, each the same
