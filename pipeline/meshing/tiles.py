@@ -717,7 +717,7 @@ class _Certifying:
         """The circles (and the smooth plan's disks) not yet vouched for, the
         boxes to load for them this round, whether the mesh still leaves a gap
         in the window, and whether this round's reach spans the survey."""
-        job, g, ext, held = self.job, self.job.grid, self.job.extent, self.held
+        g, ext, held = self.job.grid, self.job.extent, self.held
         # circles not yet vouched for; their points are loaded from near to
         # far (a sliver's circle can span the survey, though a few nearby
         # points usually break it)
