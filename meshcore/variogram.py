@@ -283,9 +283,9 @@ def fit_variogram(
         ranked = sorted(sorted(range(len(candidates)), key=lambda i: (screened[i], i))[:_FINALISTS])
         final = scores(every, ranked) if screen.size < m else [screened[i] for i in ranked]
     best: tuple[float, int] | None = None
-    for i, rmse in zip(ranked, final):
-        if math.isfinite(rmse) and (best is None or rmse < best[0] * (1.0 - 1e-9)):
-            best = (rmse, i)
+    for i, error in zip(ranked, final):
+        if math.isfinite(error) and (best is None or error < best[0] * (1.0 - 1e-9)):
+            best = (error, i)
     model, factor, ratio = candidates[best[1]] if best is not None else (0, 10.0, 0.1)
     rng_best = factor * nearest
     # the sill: semivariances of neighbour pairs against the model's shape
