@@ -8,13 +8,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit
+from ._jit import empty, larger, njit, njit_helper
 from .errors import InvalidInputError, InvalidMeshError
 
 if TYPE_CHECKING:
     from .certificate import WindowCertificate
 
-__all__ = ["Mesh", "mesh_arrays", "vertex_values", "with_vertices"]
+__all__ = ["Mesh", "mesh_arrays", "vertex_values", "with_vertices", "bounded_triangles"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,3 +169,58 @@ def vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:
     if np.isinf(arr).any():
         raise InvalidInputError("z must be finite or NaN (NaN marks unknown values), got inf")
     return arr
+
+
+def bounded_triangles(vertices: ArrayLike, triangles: ArrayLike, max_edge: float) -> NDArray[np.int64]:
+    """The ``triangles`` ``(k, 3)`` whose longest edge and circumradius are at
+    most ``max_edge``, as faces ``(m, 4)`` padded with -1, each starting at its
+    corner that comes first by x, then y, in their given order.
+
+    A tile that holds every point within ``2 * max_edge`` of a place has all
+    the global Delaunay triangles over it that pass this test: each one's
+    circumcircle lies inside that margin.  The test reads the corners in one
+    order whatever corner a triangle was given from, so every tile decides a
+    triangle alike.
+    """
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    t = np.ascontiguousarray(triangles, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] < 2 or t.ndim != 2 or t.shape[1] != 3:
+        raise InvalidInputError(f"vertices must be (n, 2) and triangles (k, 3), got {v.shape} and {t.shape}")
+    if not max_edge > 0.0:
+        raise InvalidInputError(f"max_edge must be a number > 0, got {max_edge!r}")
+    return _bounded_kernel(v, t, float(max_edge))
+
+
+@njit
+def _bounded_kernel(vertices, triangles, max_edge):
+    n = triangles.shape[0]
+    out = empty((n, 4), dtype=np.int64)
+    limit = max_edge * max_edge
+    k = 0
+    for t in range(n):
+        i0, i1, i2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        if _first(vertices, i1, i0) and _first(vertices, i1, i2):
+            i0, i1, i2 = i1, i2, i0
+        elif _first(vertices, i2, i0) and _first(vertices, i2, i1):
+            i0, i1, i2 = i2, i0, i1
+        ax, ay = vertices[i0, 0], vertices[i0, 1]
+        bx, by = vertices[i1, 0], vertices[i1, 1]
+        cx, cy = vertices[i2, 0], vertices[i2, 1]
+        ab = (bx - ax) ** 2 + (by - ay) ** 2
+        bc = (cx - bx) ** 2 + (cy - by) ** 2
+        ca = (ax - cx) ** 2 + (ay - cy) ** 2
+        cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        # the circumradius is |ab| |bc| |ca| / (2 |cross|): at most max_edge, without a root
+        if larger(ab, larger(bc, ca)) <= limit and ab * bc * ca <= 4.0 * limit * cross * cross:
+            out[k, 0] = i0
+            out[k, 1] = i1
+            out[k, 2] = i2
+            out[k, 3] = -1
+            k += 1
+    return out[:k].copy()
+
+
+@njit_helper
+def _first(vertices, i: int, j: int) -> bool:
+    """Whether vertex ``i`` comes before vertex ``j`` by x, then y."""
+    return vertices[i, 0] < vertices[j, 0] or (vertices[i, 0] == vertices[j, 0] and vertices[i, 1] < vertices[j, 1])

@@ -8,6 +8,8 @@ depend on the points it did not load:
   (held boxes, the survey's hull), and :class:`WindowCertificate` is what
   :func:`meshcore.build_mesh` answers with a window: the faces that stay
   doubtful, the circles that leave the held region;
+* :func:`bounded_triangles` keeps the triangles whose circumcircle a margin
+  holds (a surface drawn with a maximum edge is then the same in every tile);
 * :func:`with_vertices` adds points that no face uses (a smooth surface's
   kriging neighbours loaded after the faces were certified);
 * :func:`lexicographic_order` and :func:`block_order` sort points and
@@ -33,7 +35,7 @@ from __future__ import annotations
 from ._order import block_order, lexicographic_order
 from .build import KERNEL_STAGES, load_kernels
 from .certificate import KnownRegion, WindowCertificate
-from .mesh import with_vertices
+from .mesh import bounded_triangles, with_vertices
 from .natural import NaturalCoordinates, natural_coordinates, natural_values
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
 from .rasterize import sampled_faces
@@ -46,6 +48,7 @@ __all__ = [
     "KnownRegion",
     "WindowCertificate",
     "with_vertices",
+    "bounded_triangles",
     "lexicographic_order",
     "block_order",
     "sampled_faces",

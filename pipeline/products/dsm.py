@@ -48,36 +48,15 @@ FIRST_RETURNS = Selection(ALL_BUT_NOISE, Returns.FIRST)
 
 def dsm_faces(vertices: NDArray[np.float64], triangles: NDArray[np.int64], max_edge: float) -> NDArray[np.int64]:
     """The ``triangles`` (k, 3, counter-clockwise) the DSM draws, each from its
-    smallest corner (by x, then y), in an order of their coordinates, as
-    faces (m, 4) padded with -1: those whose longest edge and circumradius are
-    at most ``max_edge``.  Every number here comes from the corners'
-    coordinates in one order, so a triangle gets the same answer in every tile."""
-    if triangles.shape[0] == 0:
-        return np.empty((0, 4), dtype=np.int64)
-    x, y = vertices[triangles, 0], vertices[triangles, 1]
-    first = _smallest_corner(x, y)
-    turn = (np.arange(3)[None, :] + first[:, None]) % 3
-    tri = np.take_along_axis(triangles, turn, axis=1)
-    ax, ay, bx, by, cx, cy = (vertices[tri[:, k // 2], k % 2] for k in range(6))
-    ab = (bx - ax) ** 2 + (by - ay) ** 2
-    bc = (cx - bx) ** 2 + (cy - by) ** 2
-    ca = (ax - cx) ** 2 + (ay - cy) ** 2
-    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    limit = max_edge * max_edge
-    keep = (np.maximum(np.maximum(ab, bc), ca) <= limit) & (ab * bc * ca <= 4.0 * limit * cross * cross)
-    tri = tri[keep]
-    order = np.lexsort((by[keep], bx[keep], ay[keep], ax[keep]))
-    return np.column_stack([tri[order], np.full(order.size, -1, dtype=np.int64)])
+    smallest corner (by x, then y), as faces (m, 4) padded with -1: those
+    whose longest edge and circumradius are at most ``max_edge``
+    (:func:`meshcore.tiles.bounded_triangles`).  Every number there comes from
+    the corners' coordinates in one order, so a triangle gets the same answer
+    in every tile, and the rasterizer takes a centre on a shared edge from
+    the face first by its corners, whatever the order of the faces."""
+    import meshcore.tiles
 
-
-def _smallest_corner(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.int64]:
-    """For each row of three corners, the one smallest by x, then y."""
-    best = np.zeros(x.shape[0], dtype=np.int64)
-    for k in (1, 2):
-        bx, by = x[np.arange(x.shape[0]), best], y[np.arange(x.shape[0]), best]
-        better = (x[:, k] < bx) | ((x[:, k] == bx) & (y[:, k] < by))
-        best[better] = k
-    return best
+    return meshcore.tiles.bounded_triangles(vertices, triangles, max_edge)
 
 
 def _dsm(ctx: TileContext) -> NDArray[np.float32]:
