@@ -347,3 +347,30 @@ def test_the_grid_does_not_depend_on_the_order_of_the_faces(rng, surface):
             assert_array_equal(got, want)
     # the rule is the one of meshcore.interpolate: the grid is its values at the centres, bit for bit
     assert_array_equal(grid, values)
+
+
+def test_bounded_triangles_keep_those_of_short_edges_and_small_circles_from_their_first_corner():
+    from meshcore.tiles import bounded_triangles
+
+    rng = np.random.default_rng(5)
+    points = np.round(rng.uniform(0.0, 50.0, (400, 2)), 2) + [6.5e5, 6.8e6]
+    mesh = meshcore.build_mesh(points, "delaunay", None)
+    tri = mesh.faces[:, :3]
+    v = mesh.vertices - mesh.vertices.min(axis=0)  # the same lengths, fewer digits for the check
+    a, b, c = v[tri[:, 0]], v[tri[:, 1]], v[tri[:, 2]]
+    sides = np.stack([np.hypot(*(b - a).T), np.hypot(*(c - b).T), np.hypot(*(a - c).T)])
+    area2 = np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+    radius = sides.prod(axis=0) / (2.0 * area2)
+    for max_edge in (1.5, 3.0, 6.0):
+        kept = bounded_triangles(mesh.vertices, tri, max_edge)
+        want = (sides.max(axis=0) <= max_edge) & (radius <= max_edge)
+        assert {tuple(sorted(f)) for f in kept[:, :3].tolist()} == {tuple(sorted(f)) for f in tri[want].tolist()}
+        assert (kept[:, 3] == -1).all()
+        first = mesh.vertices[kept[:, 0]]
+        for k in (1, 2):  # each starts at its corner first by x, then y
+            other = mesh.vertices[kept[:, k]]
+            assert ((first[:, 0] < other[:, 0]) | ((first[:, 0] == other[:, 0]) & (first[:, 1] < other[:, 1]))).all()
+        # given from another corner, in another order: the same faces
+        shuffled = np.roll(tri, 1, axis=1)[::-1]
+        again = bounded_triangles(mesh.vertices, shuffled, max_edge)
+        assert sorted(map(tuple, again.tolist())) == sorted(map(tuple, kept.tolist()))
