@@ -20,7 +20,9 @@ import importlib.util
 import operator
 import pickle
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import llvmlite.binding as llvm
 import llvmlite.ir as llvmir
@@ -231,10 +233,28 @@ class _Dispatcher(CPUDispatcher):
     """
 
     _helper: _HelperDispatcher | None = None
+    _cache_factory: Callable[[], Any] | None = None
 
     def __init__(self, py_func, locals=None, targetoptions=None, pipeline_class=None) -> None:
         super().__init__(py_func=py_func, locals=locals, targetoptions=targetoptions,
                          pipeline_class=pipeline_class or _KernelCompiler)
+
+    @property
+    def _cache(self):
+        """numba's cache of this kernel, made when first asked for: finding
+        its folder tests that folder for writing, 0.2 ms a kernel, and most
+        of a process's kernels are helpers whose code their callers' caches
+        hold (45 ms of every command's start)."""
+        factory = self._cache_factory
+        if factory is not None:
+            self._cache_factory = None
+            self.__dict__["_cache"] = factory()
+        return self.__dict__["_cache"]
+
+    @_cache.setter
+    def _cache(self, cache) -> None:
+        self._cache_factory = None
+        self.__dict__["_cache"] = cache
 
     def get_call_template(self, args, kws):
         args = tuple(_call_type(a) for a in args)
@@ -254,8 +274,8 @@ class _Dispatcher(CPUDispatcher):
         if self._helper is None:
             options = {**self.targetoptions, "no_cpython_wrapper": True}
             helper = _HelperDispatcher(py_func=self.py_func, locals=self.locals, targetoptions=options)
-            if isinstance(self._cache, _FunctionCache):
-                helper._cache = _HelperCache(self.py_func, variant="-helper")
+            if self._cache_factory is not None or isinstance(self._cache, _FunctionCache):
+                helper._cache_factory = functools.partial(_HelperCache, self.py_func, variant="-helper")
             self._helper = helper
         return self._helper
 
@@ -482,7 +502,7 @@ def _compiler(helper: bool = False, **options):
             return function
         dispatcher = dispatcher_type(py_func=function, locals={}, targetoptions=targetoptions)
         # numba's enable_caching(), with an index robust to old types
-        dispatcher._cache = (_HelperCache if helper else _FunctionCache)(function)
+        dispatcher._cache_factory = functools.partial(_HelperCache if helper else _FunctionCache, function)
         return dispatcher
 
     return compile_
