@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..errors import UsageError
 from .declare import Attribute, Returns, Selection
 from .registry import PRODUCTS, product
 
@@ -89,18 +88,15 @@ class ProductSettings:
 
     @property
     def margin(self) -> float:
-        """How far beyond a tile's cells the products must hold every point
-        of their selections (the DSM's: twice its maximum edge)."""
+        """How far beyond a tile's box the products need every point of their
+        selections (the DSM's: twice its maximum edge, which holds the
+        circumcircle of every triangle it draws over the tile's cells)."""
         return 2.0 * self.dsm_max_edge if "dsm" in self.computed else 0.0
 
-    def check_buffer(self, buffer: float) -> None:
-        """A :class:`UsageError` when the tiles' ``buffer`` holds too few points for the products."""
-        if self.margin > buffer:
-            raise UsageError(
-                f"buffer={buffer:g} is less than twice dsm_max_edge={self.dsm_max_edge:g}: the DSM's triangles "
-                f"need every first return within {self.margin:g} of a tile; give a larger buffer or a smaller "
-                "dsm_max_edge"
-            )
+    def spill_buffer(self, buffer: float) -> float:
+        """The buffer of the products' spill files, for tiles of ``buffer``: at
+        least :attr:`margin`, so that any buffer gives the products they need."""
+        return max(buffer, self.margin)
 
     def reading(self) -> tuple[Selection, tuple[str, ...]]:
         """What the reader keeps (the DTM's points and the products') and the

@@ -165,7 +165,6 @@ def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
     }
     plan = RunPlan(config, tuple(paths), tuple(infos), tuple(skipped), crs, grid, bounds, buffer, tuple(file_bounds),
                    provenance, kept, dsm_edge)
-    plan.products(config.classes).check_buffer(buffer)
     return plan
 
 
@@ -412,8 +411,9 @@ def _dsm_max_edge(config: RunConfig, bounds, n_points: int) -> float:
 
 
 def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
-    """Tile edge in cells and buffer (CRS units) from the point density (a
-    buffer that holds the DSM's margin too, when the run computes one)."""
+    """Tile edge in cells and buffer (CRS units) from the point density (the
+    products' points are spilled with a margin of their own:
+    :attr:`pipeline.products.ProductSettings.margin`)."""
     area = max((bounds[2] - bounds[0]) * (bounds[3] - bounds[1]), config.resolution**2)
     density = max(n_points, 1) / area
     spacing = 1.0 / math.sqrt(density)
@@ -435,9 +435,7 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         cells = [max(1.0, (bounds[2] - bounds[0]) / config.resolution), max(1.0, (bounds[3] - bounds[1]) / config.resolution)]
         even = max(math.ceil(side / max(1, math.ceil(side / target))) for side in cells)
         tile_cells = min(max(16, -(-even // 16) * 16), MAX_AUTO_TILE_CELLS)
-    dsm_edge = _dsm_max_edge(config, bounds, n_points)
-    margin = 0.0 if math.isinf(dsm_edge) else 2.0 * dsm_edge
-    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution, margin)
+    buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
     return tile_cells, float(buffer)
 
 

@@ -254,7 +254,8 @@ class _RouteSplit:
         self.reading = settings.reading()[0]
         self.spill = None
         if settings.reads is not None:
-            self.spill = TileSpiller(job.scratch, job.grid, job.buffer, job.index, folder=PRODUCT_SPILL)
+            self.spill = TileSpiller(job.scratch, job.grid, settings.spill_buffer(job.buffer), job.index,
+                                     folder=PRODUCT_SPILL)
 
     def add(self, x, y, z, attributes, counts: dict[str, int]):
         """The DTM's points of ``x, y, z`` and their attributes; the products' ones spilled."""

@@ -274,13 +274,16 @@ def test_the_preview_draws_the_chm_beside_the_hillshade(stores, tmp_path):
     assert picture.shape[1] > 1.6 * picture.shape[0]  # two panels side by side
 
 
-def test_a_buffer_too_small_for_the_dsm_is_a_usage_error(scene, tmp_path, capsys):
+def test_a_buffer_smaller_than_the_dsms_margin_gives_the_same_layers(scene, tmp_path):
+    # tiles of 16 m with a 2 m buffer, a DSM of edges up to 3 m: its points are spilled with their own margin
     path, _ = scene
-    code = main(["run", str(path), "-o", str(tmp_path / "b.zarr"), "--resolution", "1", "--layers", "dsm",
-                 "--buffer", "2", "--dsm-max-edge", "3", "-q"])
-    assert code == 2
-    err = capsys.readouterr().err
-    assert "--buffer 2" in err and "--dsm-max-edge 3" in err and len(err.strip().splitlines()) == 1
+    report = _run([path], tmp_path / "small.zarr", tile_size=16.0, buffer=2.0, dsm_max_edge=3.0)
+    reference = _run([path], tmp_path / "big.zarr", tile_size=64.0, buffer=8.0, dsm_max_edge=3.0)
+    assert report.tiles > reference.tiles == 1
+    with xr.open_zarr(tmp_path / "small.zarr") as a, xr.open_zarr(tmp_path / "big.zarr") as b:
+        for layer in ("elevation", *NEW):
+            assert np.array_equal(a[layer].values, b[layer].values, equal_nan=True), layer
+        assert np.isfinite(a["dsm"].values).any()
 
 
 def test_the_dsm_draws_no_triangle_beyond_its_maximum_edge_or_circumradius():
