@@ -22,7 +22,10 @@ Mitchell 2013, the filter PDAL runs by default) with three changes:
    ``object_height``) from radius ``r - 1`` to ``r`` holds an object
    (Pingel's test).  Each opening is computed from the lowest surface
    itself, not from the previous one, which bounds what a cell's flag
-   depends on.
+   depends on.  The opening of radius 1 reads no cell beyond the survey's
+   convex hull: a window there holds only the rim's own cells, so a hedge
+   or a car on the rim would open as its own ground.  Larger radii read
+   them, which keeps a slope that rises to the rim whole.
 3. **A TIN of the ground cells instead of an inpainted grid.**  The lowest
    points of the cells not flagged (the seeds) are triangulated (Delaunay,
    :func:`meshcore.delaunay.delaunay`), and the triangles of circumradius
@@ -50,9 +53,10 @@ coordinates, so a point's class depends only on the points near it:
   the point's own;
 * a cell's object flag on the lowest points of the cells within ``2 R`` of
   it (an opening of radius ``R`` reads ``2 R`` cells each way, and whether
-  a cell's erosion is read, :data:`GAP_CELLS` beyond it), each of
-  which depends on the outliers as above: so a seed depends on the points
-  within :meth:`GroundParameters.margin` of it (a square);
+  a cell's erosion is read, :data:`GAP_CELLS` beyond it, and the
+  survey's hull), each of which depends on the outliers as above: so a seed
+  depends on the points within :meth:`GroundParameters.margin` of it (a
+  square), given the hull;
 * a point's class on the seeds of the live triangles containing it, fixed by
   the seeds inside their circumcircles, all within ``2 rho`` of it (``rho``
   the largest of their circumradii); or, in no live triangle, on the seeds
@@ -81,7 +85,7 @@ from dataclasses import asdict, dataclass, fields, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import njit, njit_helper
+from ._jit import larger, njit, njit_helper, smaller
 from .delaunay import _locate, _next, _prev, _walk, delaunay
 from .predicates import orient2d
 from .errors import InvalidInputError
@@ -135,7 +139,7 @@ class GroundParameters:
     cell: float = 1.0
     max_window: float = 50.0
     slope: float = 0.15
-    threshold: float = 0.25
+    threshold: float = 0.2
     scalar: float = 0.1
     object_height: float = 4.0
     outlier_depth: float = 1.0
@@ -407,7 +411,7 @@ def _min3(grid, tmp, out) -> None:
 
 
 @njit
-def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
+def _object_kernel(surface, read, first_read, radii, slope_cell, cap, objects) -> None:
     """Pingel's progressive test: ``objects`` where the opening of radius
     ``r`` lies more than ``slope_cell * r`` (at most ``cap``) below the
     opening of radius ``r - 1``.
@@ -434,7 +438,7 @@ def _object_kernel(surface, read, radii, slope_cell, cap, objects) -> None:
         for i in range(ny):
             for j in range(nx):
                 # a maximum as the minimum of negatives, over the cells read
-                scratch[i, j] = -eroded[i, j] if read[i, j] else np.inf
+                scratch[i, j] = -eroded[i, j] if (first_read[i, j] if r == 1 else read[i, j]) else np.inf
         _square_min(scratch, r, current, work)
         limit = min(slope_cell * r, cap)
         for i in range(ny):
@@ -680,6 +684,82 @@ def _checked(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[np.ndarray, np.n
     return arrays[0], arrays[1], arrays[2]
 
 
+def _survey_hull(x: np.ndarray, y: np.ndarray, hull: ArrayLike | None) -> np.ndarray:
+    """The hull given, checked, or the convex hull of the points (counter-clockwise, ``(h, 2)``)."""
+    if hull is not None:
+        out = np.asarray(hull, dtype=np.float64)
+        if out.ndim != 2 or out.shape[1] != 2 or not np.isfinite(out).all():
+            raise InvalidInputError(f"hull must be an (h, 2) array of finite coordinates, got shape {out.shape}")
+        return out
+    from .validate import convex_hull
+
+    if x.shape[0] < 3:
+        return np.empty((0, 2))
+    # chosen in local coordinates, its corners as given
+    return np.column_stack([x, y])[convex_hull(x - x.min(), y - y.min())]
+
+
+def _meets_hull(hull: np.ndarray, x: np.ndarray, y: np.ndarray, size: float, pad: int,
+                shape: tuple[int, int]) -> np.ndarray:
+    """Which cells of the padded grid (``shape``, ``pad`` cells around the
+    points' cells) meet the convex ``hull``: the survey's, and the empty cells
+    between its returns; not the cells beyond its rim.
+
+    A window on the rim that reached past it would hold only the rim's own
+    cells: a hedge or a parked car along the survey's edge, whose cells hold
+    no ground return, would open as its own ground and seed the TIN (0.5 to
+    1.4 m above the ground along the southern edge of
+    warsaw_small_broken_crs, half that sample's DTM error)."""
+    if hull.shape[0] < 3:
+        return np.ones(shape, dtype=np.bool_)
+    # the cells' sides, as the grid aligned on multiples of ``size`` has them (the same in every part)
+    col0 = np.floor(x / size).min() - pad
+    row0 = np.floor(y / size).min() - pad
+    xs = (col0 + np.arange(shape[1] + 1)) * size
+    ys = (row0 + np.arange(shape[0] + 1)) * size
+    lo, hi = _hull_rows(np.ascontiguousarray(hull[:, 0]), np.ascontiguousarray(hull[:, 1]), ys)
+    # a cell meets the convex hull when its column overlaps the hull's span across its row
+    return (xs[None, 1:] >= lo[:, None]) & (xs[None, :-1] <= hi[:, None])
+
+
+@njit
+def _hull_rows(hx, hy, ys):
+    """For each strip ``ys[j] <= y <= ys[j + 1]``: the span in x of the convex
+    polygon ``hx, hy`` inside it (``inf, -inf`` where it misses the strip)."""
+    ny = ys.shape[0] - 1
+    h = hx.shape[0]
+    lo = np.full(ny, np.inf)
+    hi = np.full(ny, -np.inf)
+    for j in range(ny):
+        y0 = ys[j]
+        y1 = ys[j + 1]
+        for k in range(h):
+            px = hx[k]
+            py = hy[k]
+            qx = hx[(k + 1) % h]
+            qy = hy[(k + 1) % h]
+            if (py < y0 and qy < y0) or (py > y1 and qy > y1):
+                continue
+            # the edge's part inside the strip: its ends, clipped to the strip's sides
+            dy = qy - py
+            t0 = 0.0
+            t1 = 1.0
+            if dy != 0.0:
+                a = (y0 - py) / dy
+                b = (y1 - py) / dy
+                t0 = larger(t0, smaller(a, b))
+                t1 = smaller(t1, larger(a, b))
+                if t0 > t1:
+                    continue
+            for t in (t0, t1):
+                xt = px + t * (qx - px)
+                if xt < lo[j]:
+                    lo[j] = xt
+                if xt > hi[j]:
+                    hi[j] = xt
+    return lo, hi
+
+
 def classify_ground(
     x: ArrayLike,
     y: ArrayLike,
@@ -689,6 +769,7 @@ def classify_ground(
     parameters: GroundParameters | None = None,
     return_number: ArrayLike | None = None,
     number_of_returns: ArrayLike | None = None,
+    hull: ArrayLike | None = None,
 ) -> GroundResult:
     """The ground points of a cloud (see the module docstring for the method).
 
@@ -703,6 +784,11 @@ def classify_ground(
         The defaults when omitted.
     return_number, number_of_returns : (n,) integer arrays, optional
         When both are given, only last returns seed the ground surface.
+    hull : (h, 2) array, optional
+        The survey's convex hull, counter-clockwise: the openings read no
+        cell outside it.  By default the hull of the points given; a caller
+        that classifies a survey in parts gives every part the whole
+        survey's hull, so that each part reads the same cells.
 
     Returns
     -------
@@ -753,7 +839,9 @@ def classify_ground(
     pad = min(radii, GAP_CELLS)  # the cells beyond the data that a dilation reads
     padded = np.pad(surface, pad, constant_values=np.nan)
     objects = np.zeros(padded.shape, dtype=np.bool_)
-    _object_kernel(padded, _near_data(padded, GAP_CELLS), radii, p.slope * size, p.object_height / unit, objects)
+    read = _near_data(padded, GAP_CELLS)
+    first_read = read & _meets_hull(_survey_hull(x, y, hull), x, y, size, pad, padded.shape)
+    _object_kernel(padded, read, first_read, radii, p.slope * size, p.object_height / unit, objects)
     objects = objects[pad:-pad, pad:-pad]
     seeds = lowest[~objects.ravel()[cell[lowest]]]
 

@@ -75,6 +75,9 @@ class GroundJob:
     """The spill files' columns after x, y, z: :data:`GROUND_COLUMNS`, and ``point_index`` for
     ``terrain classify``, which then gets each tile's ground points by file and position
     (:data:`CLASSIFIED`)."""
+    hull: NDArray[np.float64] | None = None
+    """The convex hull ``(h, 2)`` of the survey's points: the openings read no cell beyond it, in
+    every block alike (None: each block's own points' hull)."""
 
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.rows[0], self.rows[1] + 1) for c in range(self.cols[0], self.cols[1] + 1)]
@@ -224,7 +227,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
         cloud = np.concatenate([loaded[k] for k in sorted(loaded)])
         result = classify_ground(
             cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
-            return_number=cloud[:, 3], number_of_returns=cloud[:, 4],
+            return_number=cloud[:, 3], number_of_returns=cloud[:, 4], hull=job.hull,
         )
         mine = points_in_box(cloud, held)
         needed = _tile_range(grid, cloud[mine], result.reach[mine]) if mine.any() else block

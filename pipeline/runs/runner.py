@@ -614,15 +614,23 @@ def ground_parameters(plan: RunPlan, routed: Routed) -> GroundParameters:
     as the square root of the area of the convex hull of the points routed
     over their number, so the same whatever the tiling."""
     unit = unit_metres(plan.crs.horizontal_unit) or 1.0
-    # each input's hull candidates (the routed points', every class but noise when classifying)
-    parts = [np.asarray(c.hull).reshape(-1, 3) for c in routed.results if c.hull is not None]
-    hull = np.concatenate(parts) if parts else np.empty((0, 3))
+    hull = routed_hull(routed)
     count = sum(n for c in routed.results for _, _, n in c.tile_points)
     if hull.shape[0] < 3 or count <= 0:
         return GroundParameters()
-    local = hull[:, :2] - hull[:, :2].min(axis=0)
-    area = abs(signed_area(local[convex_hull(local[:, 0], local[:, 1])]))
+    area = abs(signed_area(hull - hull.min(axis=0)))
     return GroundParameters().for_spacing(math.sqrt(area / count) * unit)
+
+
+def routed_hull(routed: Routed) -> np.ndarray:
+    """The convex hull ``(h, 2)`` of the points routed (every class but noise when
+    classifying), from each input's hull candidates: the same whatever the tiling."""
+    parts = [np.asarray(c.hull).reshape(-1, 3) for c in routed.results if c.hull is not None]
+    points = np.concatenate(parts)[:, :2] if parts else np.empty((0, 2))
+    if points.shape[0] < 3:
+        return points
+    local = points - points.min(axis=0)  # the hull's choice in local coordinates, its corners as given
+    return points[convex_hull(local[:, 0], local[:, 1])]
 
 
 def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport,
@@ -639,7 +647,8 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
     def done(r: int, c: int) -> bool:
         return ground_tile_done(scratch, r, c) and work.recorded(Ledger.GROUND, tile_key(r, c)) is not None
 
-    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, parameters.to_dict(), columns=columns)
+    hull = routed_hull(routed)
+    jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, parameters.to_dict(), columns=columns, hull=hull)
             for rows, cols in ground_blocks(grid, points, parameters.margin(unit))]
     jobs = [job for job in jobs if not all(done(r, c) for r, c in job.tiles())]
 

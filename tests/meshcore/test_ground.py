@@ -208,6 +208,37 @@ def test_decisions_are_local(scene, box):
     np.testing.assert_array_equal(part.low_outlier[inside], result.low_outlier[window][inside])
 
 
+@pytest.mark.parametrize("rise", [0.0, 0.2])
+def test_a_hedge_on_the_rim_is_not_ground_and_a_slope_up_to_it_is(rise):
+    """Openings near the survey's rim read the windows beyond it, which hold
+    the rim's own cells only: that keeps a slope rising to the rim whole, but
+    would keep a hedge or a parked car on the rim too, as its own ground.  The
+    first radius reads no cell beyond the survey's hull, so a one-metre-wide
+    object along the edge is found; a slope (``rise`` per metre northward, up
+    to the northern rim) stays ground, but for a few points within a metre of
+    the rim, which the plane of the TIN's last triangles no longer reaches
+    (on a slope of 0.5, 16% of the last two metres' points)."""
+    rng = np.random.default_rng(11)
+    n = 6000
+    x = X0 + rng.uniform(0.0, 60.0, n)
+    y = Y0 + rng.uniform(0.0, 40.0, n)
+    z = 100.0 + rise * (y - Y0) + rng.normal(0.0, 0.02, n)
+    # a hedge 0.9 m high along the southern rim, 1 m deep, with no ground return under it
+    hedge = (y - Y0 < 1.0) & (x - X0 > 10.0) & (x - X0 < 40.0)
+    z[hedge] += 0.9
+    result = classify_ground(x, y, z)
+    assert not result.ground[hedge].any()
+    assert result.ground[~hedge].mean() > 0.97
+    north = y - Y0 > 38.0  # the rim at the top of the slope
+    assert result.ground[north].mean() > 0.9
+    # a caller classifying a part gives it the survey's hull: the same classes where the part holds their reach
+    hull = np.array([[X0, Y0], [X0 + 60.0, Y0], [X0 + 60.0, Y0 + 40.0], [X0, Y0 + 40.0]])
+    part = x - X0 < 45.0
+    again = classify_ground(x[part], y[part], z[part], hull=hull)
+    settled = (x[part] - X0 + result.reach[part]) < 45.0
+    np.testing.assert_array_equal(again.ground[settled], result.ground[part][settled])
+
+
 def test_order_does_not_matter(scene):
     """Shuffled input gives every point the same class (ties go by coordinates)."""
     x, y, z, label, truth, result = scene
