@@ -11,7 +11,7 @@ from .delaunay import Triangulation, _next, _prev, delaunay, grid_triangulation
 from .errors import InvalidInputError
 from .certificate import KnownRegion, WindowCertificate, circles_leaving, initial_doubt, open_hull_edges
 from .flip import _centroid, _meets_box, flip_edges
-from .merge import greedy_order, merge_candidates, merge_triangles
+from .merge import greedy_order, merge_candidates, merge_triangles, paired_triangle_measure
 from .mesh import Mesh
 from .options import MergeMethod, QuadMeasure, TriangleMeasure, parse_option
 from .predicates import lex_before
@@ -307,7 +307,9 @@ def _combined_mesh(
         partner = np.full(nt, -1, dtype=np.int32)
         candidates = None
     else:
-        candidates = merge_candidates(triangulation, qm.value, active)
+        # the flips' scores, when they flipped under the measure the gains compare with
+        paired = flipped is not None and tm.value == paired_triangle_measure(qm.value)
+        candidates = merge_candidates(triangulation, qm.value, active, scores=flipped.scores if paired else None)
         order = None if mm is MergeMethod.OPTIMAL else greedy_order(triangulation, *candidates)
         partner = merge_triangles(triangulation, qm.value, mm.value, active, candidates=candidates, order=order)
         candidates = (*candidates, order)

@@ -584,22 +584,25 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                     v = _improvement(measure, tolerance, x, y, tri, he, q, cg)
                     imp[g] = v
                     imp[h] = v
-    return flips, rounds, last_window, zone
+    return flips, rounds, last_window, zone, q
 
 
 class FlipRounds:
     """What :func:`flip_edges` did: ``flips`` made in ``rounds`` rounds; with a
     window, ``last_window_round`` (the last round whose flips touched a
     triangle meeting the window, 0 for none) and ``zone`` (per triangle slot:
-    it held such a triangle at some round)."""
+    it held such a triangle at some round); ``scores``, every triangle's score
+    after the flips (:func:`triangle_scores`, the same bits)."""
 
-    __slots__ = ("flips", "rounds", "last_window_round", "zone")
+    __slots__ = ("flips", "rounds", "last_window_round", "zone", "scores")
 
-    def __init__(self, flips: int, rounds: int, last_window_round: int, zone: np.ndarray) -> None:
+    def __init__(self, flips: int, rounds: int, last_window_round: int, zone: np.ndarray,
+                 scores: np.ndarray) -> None:
         self.flips = flips
         self.rounds = rounds
         self.last_window_round = last_window_round
         self.zone = zone
+        self.scores = scores
 
 
 def flip_edges(
@@ -644,7 +647,7 @@ def flip_edges(
         source = np.where(flags != 0, np.arange(flags.shape[0]), _NO_SOURCE).astype(np.int64)
     opened = np.zeros(triangulation.triangles.shape[0], dtype=np.uint8) if open_edges is None else open_edges
     o = triangulation.origin
-    flips, rounds, last, zone = _flip_rounds_kernel(
+    flips, rounds, last, zone, scores = _flip_rounds_kernel(
         triangulation.x,
         triangulation.y,
         triangulation.triangles,
@@ -660,4 +663,4 @@ def flip_edges(
         float(o[1]),
         np.zeros(0) if window is None else np.asarray(window, dtype=np.float64),
     )
-    return FlipRounds(int(flips), int(rounds), int(last), zone)
+    return FlipRounds(int(flips), int(rounds), int(last), zone, scores)

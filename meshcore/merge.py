@@ -63,8 +63,8 @@ def _score_to_measure(measure: int, score: float) -> float:
 
 
 @njit
-def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measure: int):
-    q = triangle_scores(triangle_measure, x, y, tri)
+def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measure: int, scores):
+    q = scores if scores.shape[0] == tri.shape[0] // 3 else triangle_scores(triangle_measure, x, y, tri)
     m = tri.shape[0]
     capacity = m // 8 + 16
     edges = empty(capacity, dtype=np.int32)
@@ -153,12 +153,15 @@ def _order_ties_by_endpoints(order, gains, edges, tri, x, y) -> None:
 
 
 def merge_candidates(
-    triangulation: Triangulation, quad_measure: str, active: NDArray[np.uint8] | None = None
+    triangulation: Triangulation, quad_measure: str, active: NDArray[np.uint8] | None = None,
+    scores: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
     """Half-edges (one per edge) whose elimination has a positive gain, and the gains.
 
     With ``active`` (one flag per triangle), only diagonals between two active
-    triangles are candidates.
+    triangles are candidates.  ``scores``: every triangle's score under the
+    triangle measure paired with ``quad_measure``, when the caller has them
+    (:attr:`meshcore.flip.FlipRounds.scores` of flips under that measure).
     """
     if active is None:
         active = np.ones(triangulation.triangles.shape[0] // 3, dtype=np.uint8)
@@ -170,7 +173,13 @@ def merge_candidates(
         active,
         _PAIRED_TRIANGLE_MEASURE[quad_measure],
         _QUAD_CODE[quad_measure],
+        np.empty(0) if scores is None else scores,
     )
+
+
+def paired_triangle_measure(quad_measure: str) -> str:
+    """The triangle measure a quad measure's gains compare with ("s1" for "s2", "s3" for "s4")."""
+    return f"s{_PAIRED_TRIANGLE_MEASURE[quad_measure]}"
 
 
 def _optimal_partner(he: NDArray[np.int32], edges: NDArray[np.int32], gains, nt: int) -> NDArray[np.int32]:
