@@ -693,10 +693,7 @@ def _survey_hull(x: np.ndarray, y: np.ndarray, hull: ArrayLike | None) -> np.nda
         return out
     from .validate import convex_hull
 
-    if x.shape[0] < 3:
-        return np.empty((0, 2))
-    # chosen in local coordinates, its corners as given
-    return np.column_stack([x, y])[convex_hull(x - x.min(), y - y.min())]
+    return np.column_stack([x, y])[convex_hull(x, y)]  # exact predicates, in the caller's coordinates
 
 
 def _meets_hull(hull: np.ndarray, x: np.ndarray, y: np.ndarray, size: float, pad: int,

@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, larger, njit, njit_helper
+from ._jit import empty, larger, njit
 from .errors import InvalidInputError, InvalidMeshError
+from .predicates import lex_before
 
 if TYPE_CHECKING:
     from .certificate import WindowCertificate
@@ -199,13 +200,14 @@ def _bounded_kernel(vertices, triangles, max_edge):
     k = 0
     for t in range(n):
         i0, i1, i2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-        if _first(vertices, i1, i0) and _first(vertices, i1, i2):
-            i0, i1, i2 = i1, i2, i0
-        elif _first(vertices, i2, i0) and _first(vertices, i2, i1):
-            i0, i1, i2 = i2, i0, i1
         ax, ay = vertices[i0, 0], vertices[i0, 1]
         bx, by = vertices[i1, 0], vertices[i1, 1]
         cx, cy = vertices[i2, 0], vertices[i2, 1]
+        # from the corner first by x, then y, turning as given
+        if lex_before(bx, by, ax, ay) and lex_before(bx, by, cx, cy):
+            i0, i1, i2, ax, ay, bx, by, cx, cy = i1, i2, i0, bx, by, cx, cy, ax, ay
+        elif lex_before(cx, cy, ax, ay) and lex_before(cx, cy, bx, by):
+            i0, i1, i2, ax, ay, bx, by, cx, cy = i2, i0, i1, cx, cy, ax, ay, bx, by
         ab = (bx - ax) ** 2 + (by - ay) ** 2
         bc = (cx - bx) ** 2 + (cy - by) ** 2
         ca = (ax - cx) ** 2 + (ay - cy) ** 2
@@ -219,8 +221,3 @@ def _bounded_kernel(vertices, triangles, max_edge):
             k += 1
     return out[:k].copy()
 
-
-@njit_helper
-def _first(vertices, i: int, j: int) -> bool:
-    """Whether vertex ``i`` comes before vertex ``j`` by x, then y."""
-    return vertices[i, 0] < vertices[j, 0] or (vertices[i, 0] == vertices[j, 0] and vertices[i, 1] < vertices[j, 1])

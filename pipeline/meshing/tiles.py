@@ -453,7 +453,7 @@ def _slanted_bands(hull: NDArray[np.float64] | None, box, depth: float, reach, e
     p, q = hull, np.roll(hull, -1, axis=0)
     on_side = np.zeros(p.shape[0], dtype=bool)
     for axis, side in ((0, x0), (0, x1), (1, y0), (1, y1)):
-        on_side |= (np.abs(p[:, axis] - side) <= depth) & (np.abs(q[:, axis] - side) <= depth)
+        on_side |= _along_side(p, q, axis, side, depth)
     near = (box[0] - depth, box[1] - depth, box[2] + depth, box[3] + depth)
     _, _, meets = _clip_segments(p, q, near)
     rows = np.flatnonzero(meets & ~on_side)
@@ -522,11 +522,17 @@ def _along_hull(hull: NDArray[np.float64] | None, axis: int, side: float, depth:
     if hull is None or hull.shape[0] < 2:
         return lo, hi
     p, q = hull, np.roll(hull, -1, axis=0)
-    on_side = (np.abs(p[:, axis] - side) <= depth) & (np.abs(q[:, axis] - side) <= depth)
+    on_side = _along_side(p, q, axis, side, depth)
     a, b = np.minimum(p[:, 1 - axis], q[:, 1 - axis])[on_side], np.maximum(p[:, 1 - axis], q[:, 1 - axis])[on_side]
     meets = (b >= lo) & (a <= hi)  # (the edges they then reach run on along the side: not taken)
     # and ``depth`` past the ends: a sliver's lens is known to its rounding, not to the end's bits
     return (min(lo, float(a[meets].min(initial=lo)) - depth), max(hi, float(b[meets].max(initial=hi)) + depth))
+
+
+def _along_side(p: NDArray[np.float64], q: NDArray[np.float64], axis: int, side: float, depth: float) -> NDArray[np.bool_]:
+    """Whether each edge ``p -> q`` runs within ``depth`` of the extent's side ``axis = side``
+    (the edges whose strip the extent's side bands hold)."""
+    return (np.abs(p[:, axis] - side) <= depth) & (np.abs(q[:, axis] - side) <= depth)
 
 
 class _HeldRegion(meshcore.tiles.KnownRegion):

@@ -34,7 +34,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from meshcore import GroundParameters, convex_hull
+from meshcore import GroundParameters
 
 from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
@@ -626,11 +626,7 @@ def routed_hull(routed: Routed) -> np.ndarray:
     """The convex hull ``(h, 2)`` of the points routed (every class but noise when
     classifying), from each input's hull candidates: the same whatever the tiling."""
     parts = [np.asarray(c.hull).reshape(-1, 3) for c in routed.results if c.hull is not None]
-    points = np.concatenate(parts)[:, :2] if parts else np.empty((0, 2))
-    if points.shape[0] < 3:
-        return points
-    local = points - points.min(axis=0)  # the hull's choice in local coordinates, its corners as given
-    return points[convex_hull(local[:, 0], local[:, 1])]
+    return hull_candidates(np.concatenate(parts))[:, :2] if parts else np.empty((0, 2))
 
 
 def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bool, report: RunReport,
