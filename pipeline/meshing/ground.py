@@ -163,8 +163,8 @@ def _owned(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64]],
 
 
 def _hashes(rows: NDArray[np.float64]) -> NDArray[np.uint64]:
-    """A 64-bit hash of each row's bytes (FNV-1a over its 8-byte words)."""
-    words = np.ascontiguousarray(rows, dtype=np.float64).view(np.uint64).reshape(rows.shape[0], -1)
+    """A 64-bit hash of each row's bytes (FNV-1a over its 8-byte words); ``rows`` is (n, k), n may be 0."""
+    words = np.ascontiguousarray(rows, dtype=np.float64).view(np.uint64)
     h = np.full(rows.shape[0], 0xCBF29CE484222325, dtype=np.uint64)
     with np.errstate(over="ignore"):
         for k in range(words.shape[1]):

@@ -749,17 +749,12 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
     if report.faces == 0:
         paths = plan.paths
         names = ", ".join(str(p) for p in paths[:3]) + (f" and {len(paths) - 3} more" if len(paths) > 3 else "")
-        if report.filtered_class > 0 and config.classes == DEFAULT_CLASSES and routed.fallback is None:
+        # points of other classes than the DTM's: left out, or read for the products only
+        if report.filtered_class + report.products_only > 0 and config.classes == DEFAULT_CLASSES \
+                and routed.fallback is None:
             return NoDefaultSurface(report.points_kept)
-        if report.points_kept == 0 and report.filtered_class > 0:
-            kept = ("every class but noise" if routed.fallback is not None
-                    else ", ".join(str(c) for c in config.classes or ()))
-            raise PipelineError(f"{names}: no surface: none of the {report.points_read:,} point(s) read is of the "
-                                f"classes kept ({kept})")
-        raise PipelineError(
-            f"{names}: no surface: the {report.vertices:,} distinct kept point(s) are fewer than three "
-            "or all on one line"
-        )
+        kept = "every class but noise" if routed.fallback is not None else ", ".join(str(c) for c in config.classes or ())
+        raise PipelineError(f"{names}: no surface: {_no_surface(report, kept)}")
     uncertified = sorted(key for key, s in summaries.items() if not s.certified)
     if uncertified:  # recorded by an older version that gave up: mesh them again
         raise SeamError(
@@ -767,6 +762,21 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
             "that could not certify their seams; run again with overwrite to mesh every tile again"
         )
     return Meshed(tile_jobs, summaries, pending)
+
+
+def _no_surface(report: RunReport, kept: str) -> str:
+    """Why the kept points made no surface: too few, or none kept, and what left the points read out."""
+    if report.points_kept > 0:
+        return f"the {report.vertices:,} distinct kept point(s) are fewer than three or all on one line"
+    fates = [
+        (report.filtered_class, f"not of the classes kept ({kept})"),
+        (report.products_only, f"read for the layers only (not of the classes kept, {kept}, or of the returns kept)"),
+        (report.filtered_withheld, "withheld (keep_withheld=True keeps them)"),
+        (report.outside_bbox, "outside the bbox"),
+        (report.filtered_returns, "left out by returns"),
+    ]
+    return f"none of the {report.points_read:,} point(s) read is kept: " + ", ".join(
+        f"{count:,} {why}" for count, why in fates if count)
 
 
 def _rounds_unchecked(grid, tile_jobs: list[TileJob], summaries: dict) -> list[TileJob]:

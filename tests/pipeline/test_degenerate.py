@@ -195,6 +195,20 @@ def test_a_survey_never_classified_gives_a_surface_of_its_classified_ground(tmp_
     assert again.points_kept == report["points_kept"]
 
 
+def test_a_survey_never_classified_with_layers_gives_a_surface_of_its_classified_ground(tmp_path, capsys):
+    from pipeline.store import zarr_store as store
+
+    # no noise, so no point is left out by class: the DSM reads every one, and there is still no ground
+    path = _classed(tmp_path / "a.laz", 3000, [0, 1, 1])
+    out = tmp_path / "o.zarr"
+    assert _run(path, out, "--layers", "dsm,chm") == 0
+    assert "no input point(s) of the default classes (2, ground)" in capsys.readouterr().out
+    report = store.read_attrs(out)["report"]
+    assert report["filtered_class"] == 0 and report["points_kept"] + report["not_ground"] == 3000
+    chm = xr.open_zarr(out)["chm"].values
+    assert np.isfinite(chm).sum() > 1000 and np.nanmax(np.abs(chm)) < 0.5  # a bare plane: nothing stands on it
+
+
 def test_ground_anywhere_keeps_only_ground_and_other_chosen_classes_stay_an_error(tmp_path, capsys):
     from pipeline.store import zarr_store as store
 
@@ -211,7 +225,8 @@ def test_ground_anywhere_keeps_only_ground_and_other_chosen_classes_stay_an_erro
     # classes chosen by the user are kept to, even when none of them is there
     assert _run(folder / "unclassified.laz", tmp_path / "b.zarr", "--classes", "6") == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.endswith("unclassified.laz: no surface: none of the 3,000 point(s) read is of the classes kept (6)"), err
+    assert err.endswith("unclassified.laz: no surface: none of the 3,000 point(s) read is kept: 3,000 not of the "
+                        "classes kept (6)"), err
 
 
 def test_a_run_stopped_while_routing_a_survey_without_ground_again_resumes_with_every_class(tmp_path, monkeypatch):
@@ -322,3 +337,22 @@ def test_a_bbox_holding_no_ground_of_a_survey_with_some_says_so_in_its_note(tmp_
                            bbox=(500_990.0, 3_999_990.0, 501_050.0, 4_000_050.0)), progress=False)
     assert report.points_kept + report.not_ground == 2000 and report.outside_bbox == 2000
     assert any(n.startswith("no input point(s) of the default classes (2, ground) inside the bbox:") for n in report.notes)
+
+
+@pytest.mark.parametrize("classify", [False, True])
+def test_a_survey_of_noise_or_withheld_points_names_why_nothing_was_kept(tmp_path, capsys, classify):
+    noise = _classed(tmp_path / "noise.laz", 2000, [7, 18])
+    withheld = _classed(tmp_path / "withheld.laz", 2000, [2, 1], seed=1)
+    las = laspy.read(withheld)
+    las.withheld = np.ones(len(las.points), dtype=bool)
+    las.write(withheld)
+    flags = ("--classify-ground",) if classify else ()
+    assert _run(noise, tmp_path / "a.zarr", "--layers", "dsm,density", *flags) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith("noise.laz: no surface: none of the 2,000 point(s) read is kept: 2,000 not of the classes "
+                        "kept (every class but noise)"), err
+    assert _run(withheld, tmp_path / "b.zarr", *flags) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.endswith("withheld.laz: no surface: none of the 2,000 point(s) read is kept: 2,000 withheld "
+                        "(--keep-withheld keeps them)"), err
+    assert _run(withheld, tmp_path / "c.zarr", "--keep-withheld", *flags) == 0
