@@ -40,7 +40,7 @@ from numba.np.arrayobj import _empty_nd_impl, _parse_shape
 
 __all__ = [
     "njit", "njit_helper", "njit_borrowing", "kernel", "stack_array", "empty", "zeros", "full", "empty_like", "smaller",
-    "larger", "LANES", "lanes_scale", "lanes_subtract_products", "drop_stale_kernels", "compiled_on_disk",
+    "larger", "index", "LANES", "lanes_scale", "lanes_subtract_products", "drop_stale_kernels", "compiled_on_disk",
 ]
 
 _PACKAGE = Path(__file__).resolve().parent
@@ -672,6 +672,17 @@ def _lower_empty_like(context, builder, signature, args):
     source = context.make_array(signature.args[0])(context, builder, value=args[0])
     array = _empty_nd_impl(context, builder, signature.return_type, cgutils.unpack_tuple(builder, source.shape))
     return _new_reference(context, builder, signature, array)
+
+
+index = np.uint64
+"""A value known to be >= 0 (a vertex or half-edge id read from an ``int32``
+array, once checked against -1) as kernels index with it: ``x[index(a)]``.
+
+numba gives a signed index Python's meaning (``a[-1]`` is the last element):
+every load with one adds a test and a select.  In the kernels' loops over
+corners and neighbours that cost 5-10% (the flip rounds, the sweep's
+legalization, the merge candidates); an unsigned index has no such case.
+The values, and so every result, are the same."""
 
 
 # The smaller and the larger of numbers in kernels.  numba compiles ``min``

@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, empty_like, larger, njit, njit_helper, smaller, zeros
+from ._jit import empty, empty_like, index, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation
 from .errors import InvalidInputError
 
@@ -314,9 +314,9 @@ def _renumber_kernel(tri, he, rank):
     after = empty(nt, dtype=np.int32)  # rank of the corner after the lowest
     start = zeros(n + 1, dtype=np.int32)
     for t in range(nt):
-        r0 = rank[tri[3 * t]]
-        r1 = rank[tri[3 * t + 1]]
-        r2 = rank[tri[3 * t + 2]]
+        r0 = rank[index(tri[3 * t])]
+        r1 = rank[index(tri[3 * t + 1])]
+        r2 = rank[index(tri[3 * t + 2])]
         if r0 < r1 and r0 < r2:
             first[t] = 0
             lowest[t] = r0
@@ -358,10 +358,10 @@ def _renumber_kernel(tri, he, rank):
     new_tri = empty_like(tri)
     new_he = empty_like(he)
     for e in range(3 * nt):
-        g = new_of_old[e]
-        new_tri[g] = rank[tri[e]]
+        g = index(new_of_old[e])
+        new_tri[g] = rank[index(tri[e])]
         h = he[e]
-        new_he[g] = -1 if h < 0 else new_of_old[h]
+        new_he[g] = -1 if h < 0 else new_of_old[index(h)]
     return new_tri, new_he
 
 

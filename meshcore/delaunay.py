@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, larger, njit, njit_borrowing, njit_helper, smaller
+from ._jit import empty, full, index, larger, njit, njit_borrowing, njit_helper, smaller
 from .predicates import incircle_sos, orient2d
 
 __all__ = ["delaunay", "Triangulation"]
@@ -223,14 +223,14 @@ def _legalize_sweep(a, tri, he, x, y, hull_start, hull_tri, hull_prev, stack) ->
         b0 = b - b % 3
         al = a0 + (a + 1) % 3
         bl = b0 + (b + 2) % 3
-        p0 = tri[ar]
-        pr = tri[a]
-        pl = tri[al]
-        p1 = tri[bl]
+        p0 = index(tri[ar])
+        pr = index(tri[a])
+        pl = index(tri[al])
+        p1 = index(tri[bl])
         # triangles are clockwise during the sweep: p1 inside <=> incircle < 0
         if incircle_sos(x[p0], y[p0], x[pr], y[pr], x[pl], y[pl], x[p1], y[p1]) < 0:
-            tri[a] = p1
-            tri[b] = p0
+            tri[a] = np.int32(p1)
+            tri[b] = np.int32(p0)
             hbl = he[bl]
             if hbl == -1:
                 e = hull_start
@@ -311,10 +311,10 @@ def _legalize_around(tri, he, x, y, stack, n) -> np.ndarray:
         f = he[e]
         if f == -1:
             continue
-        a = tri[e]
-        b = tri[_next(e)]
-        p = tri[_prev(e)]
-        d = tri[_prev(f)]
+        a = index(tri[e])
+        b = index(tri[_next(e)])
+        p = index(tri[_prev(e)])
+        d = index(tri[_prev(f)])
         if incircle_sos(x[a], y[a], x[b], y[b], x[p], y[p], x[d], y[d]) > 0:
             _flip(tri, he, e)
             # new triangles (a, d, p) at e and (b, p, d) at f: edges opposite p are e and prev(f)
@@ -614,7 +614,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
         e = start
         while True:
             q = hull_next[e]
-            if orient2d(px, py, x[e], y[e], x[q], y[q]) > 0:
+            if orient2d(px, py, x[index(e)], y[index(e)], x[index(q)], y[index(q)]) > 0:
                 break
             e = q
             if e == start:
@@ -635,7 +635,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
         nn = hull_next[e]
         while True:
             q = hull_next[nn]
-            if orient2d(px, py, x[nn], y[nn], x[q], y[q]) <= 0:
+            if orient2d(px, py, x[index(nn)], y[index(nn)], x[index(q)], y[index(q)]) <= 0:
                 break
             t = _add_triangle(tri, he, nt, nn, i, q, hull_tri[i], -1, hull_tri[nn])
             nt += 1
@@ -647,7 +647,7 @@ def _sweep_kernel(xy, ox, oy, order, i0, i1, i2, cx, cy):
         if e == start:
             while True:
                 q = hull_prev[e]
-                if orient2d(px, py, x[q], y[q], x[e], y[e]) <= 0:
+                if orient2d(px, py, x[index(q)], y[index(q)], x[index(e)], y[index(e)]) <= 0:
                     break
                 t = _add_triangle(tri, he, nt, q, i, e, -1, hull_tri[e], hull_tri[q])
                 nt += 1

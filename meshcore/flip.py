@@ -29,7 +29,7 @@ import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-from ._jit import _compiler, empty, full, larger, njit, njit_helper, smaller, zeros
+from ._jit import _compiler, empty, full, index, larger, njit, njit_helper, smaller, zeros
 from .delaunay import Triangulation, _flip, _next, _prev
 from .predicates import lex_before, orient2d
 from .quality import s1_kernel, s3_cubed_below, s3_cubed_kernel
@@ -194,10 +194,10 @@ def _improvement(measure: int, tolerance: float, x, y, tri, he, q, e: int) -> fl
     t1 = e // 3
     t2 = f // 3
     current = smaller(q[t1], q[t2])
-    a = tri[e]
-    b = tri[_next(e)]
-    c = tri[_prev(e)]
-    d = tri[_prev(f)]
+    a = index(tri[e])
+    b = index(tri[_next(e)])
+    c = index(tri[_prev(e)])
+    d = index(tri[_prev(f)])
     # each corner's coordinates read once (scores and the convexity test share them)
     xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
     limit = current * (1.0 + tolerance)
@@ -364,9 +364,9 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
     else:
         w_x_lo = w_y_lo = w_x_hi = w_y_hi = 0.0
     for t in range(nt):
-        a = tri[3 * t]
-        b = tri[3 * t + 1]
-        c = tri[3 * t + 2]
+        a = index(tri[3 * t])
+        b = index(tri[3 * t + 1])
+        c = index(tri[3 * t + 2])
         ax, ay, bx, by, cx, cy = x[a], y[a], x[b], y[b], x[c], y[c]
         q[t] = triangle_score(measure, ax, ay, bx, by, cx, cy)
         if windowed and _meets_box(ax, ay, bx, by, cx, cy, w_x_lo, w_y_lo, w_x_hi, w_y_hi, slack):
@@ -540,10 +540,10 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
             t2 = f // 3
             # a slot that ever held a triangle of the window (a few flips counted too many: only later rounds asked of the rest)
             near = windowed and (zone[t1] != 0 or zone[t2] != 0)
-            a = tri[e]
-            b = tri[_next(e)]
-            c = tri[_prev(e)]
-            d = tri[_prev(f)]
+            a = index(tri[e])
+            b = index(tri[_next(e)])
+            c = index(tri[_prev(e)])
+            d = index(tri[_prev(f)])
             _flip(tri, he, e)
             q[t1] = triangle_score(measure, x[a], y[a], x[d], y[d], x[c], y[c])
             q[t2] = triangle_score(measure, x[b], y[b], x[c], y[c], x[d], y[d])

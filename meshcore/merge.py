@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller
+from ._jit import empty, full, index, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, _next, _prev
 from .flip import edge_before, flippable, triangle_score, triangle_scores
 from .predicates import lex_before
@@ -74,10 +74,10 @@ def _candidates_kernel(x, y, tri, he, active, triangle_measure: int, quad_measur
         f = he[e]
         if f <= e or not (active[e // 3] and active[f // 3]):
             continue
-        a = tri[e]
-        b = tri[_next(e)]
-        c = tri[_prev(e)]
-        d = tri[_prev(f)]
+        a = index(tri[e])
+        b = index(tri[_next(e)])
+        c = index(tri[_prev(e)])
+        d = index(tri[_prev(f)])
         # each corner's coordinates read once (every score and the convexity test share them)
         xa, ya, xb, yb, xc, yc, xd, yd = x[a], y[a], x[b], y[b], x[c], y[c], x[d], y[d]
         sq = _quad_score(quad_measure, xa, ya, xd, yd, xb, yb, xc, yc)

@@ -30,7 +30,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._jit import empty, full, larger, njit, njit_helper, smaller
+from ._jit import empty, full, index, larger, njit, njit_helper, smaller
 from .errors import InvalidInputError
 from .interpolate import (
     _INSIDE_TOL,
@@ -114,7 +114,7 @@ def _gather_chunk(
         f = start + k
         for c in range(4):
             v = faces[f, c]
-            v = v if v >= 0 else faces[f, 0]
+            v = index(v if v >= 0 else faces[f, 0])
             xy[k, 2 * c] = vertices[v, 0]
             xy[k, 2 * c + 1] = vertices[v, 1]
             zs[k, c] = z[v]
