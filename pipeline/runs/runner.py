@@ -774,6 +774,7 @@ def _no_surface(report: RunReport, kept: str) -> str:
         (report.filtered_withheld, "withheld (keep_withheld=True keeps them)"),
         (report.outside_bbox, "outside the bbox"),
         (report.filtered_returns, "left out by returns"),
+        (report.not_ground, "classified not ground"),
     ]
     return f"none of the {report.points_read:,} point(s) read is kept: " + ", ".join(
         f"{count:,} {why}" for count, why in fates if count)

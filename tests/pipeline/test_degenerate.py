@@ -356,3 +356,12 @@ def test_a_survey_of_noise_or_withheld_points_names_why_nothing_was_kept(tmp_pat
     assert err.endswith("withheld.laz: no surface: none of the 2,000 point(s) read is kept: 2,000 withheld "
                         "(--keep-withheld keeps them)"), err
     assert _run(withheld, tmp_path / "c.zarr", "--keep-withheld", *flags) == 0
+
+
+def test_no_surface_names_every_fate_of_the_points_read():
+    from pipeline.runs.runner import RunReport, _no_surface
+
+    # read = kept + every fate: with none kept, the reasons count every point read
+    report = RunReport(points_read=10, filtered_class=3, filtered_withheld=2, not_ground=5)
+    assert _no_surface(report, "2") == ("none of the 10 point(s) read is kept: 3 not of the classes kept (2), "
+                                        "2 withheld (keep_withheld=True keeps them), 5 classified not ground")
