@@ -266,8 +266,11 @@ class _RouteSplit:
             dtm = s.dtm.mask(x.size, attributes)
         if s.reads is not None:
             mine = s.reads.mask(x.size, attributes) if s.reads != self.reading else np.ones(x.size, dtype=bool)
-            self.spill.add_rows(as_columns(x[mine], y[mine], z[mine], {k: v[mine] for k, v in attributes.items()},
-                                           s.columns))
+            if mine.all():  # every point read is the products' (the usual case): no copy
+                self.spill.add_rows(as_columns(x, y, z, attributes, s.columns))
+            else:
+                self.spill.add_rows(as_columns(x[mine], y[mine], z[mine],
+                                               {k: v[mine] for k, v in attributes.items()}, s.columns))
             if dtm is not None:
                 counts["products_only"] += int(np.count_nonzero(mine & ~dtm))
                 neither = ~mine & ~dtm

@@ -190,7 +190,7 @@ class TileSpiller:
         for key, chunks in self._pending.items():
             part = self._parts.get(key, 0)
             folder = f"{tile_dir(*key)}/{self.folder}" if self.folder else tile_dir(*key)
-            files[f"{folder}/{_spill_name(self.source, part)}"] = np.concatenate(chunks)
+            files[f"{folder}/{_spill_name(self.source, part)}"] = chunks[0] if len(chunks) == 1 else np.concatenate(chunks)
             self._parts[key] = part + 1
         self.scratch.save_many(files)
         self._pending.clear()
