@@ -359,6 +359,7 @@ def _certificate(triangulation: Triangulation, taint, source, doubted, start, ca
         certified=reached.size == 0, last_flip_round=last, assumed_rounds=int(rounds),
         rounds=0 if flipped is None else flipped.rounds,
         blocking=doubted[1][np.searchsorted(doubted[0], causes[causes >= 0])], open_edges=bool(np.any(causes == -2)),
+        **({} if flipped is None else {"flip_blocks": flipped.window_blocks, "flip_blocks_box": flipped.blocks_box}),
     )
 
 

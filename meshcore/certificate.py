@@ -71,6 +71,13 @@ class WindowCertificate:
     open_edges: bool = False
     """Whether doubt that reached the window came from a hull edge of the tile's points
     that may not be the survey's (holding a wider box clears it)."""
+    flip_blocks: NDArray[np.int32] = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int32), compare=False)
+    """``last_flip_round`` per block of ``flip_blocks_box`` (the window's part
+    over the points) cut into :data:`meshcore.flip.WINDOW_BLOCKS` blocks a side,
+    row 0 at its lowest y; a flip beyond the box counts in the blocks of its
+    edge.  A tile whose held boxes meet only blocks that stopped flipping by
+    its assumed round needs no later round of this one."""
+    flip_blocks_box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 @njit

@@ -314,6 +314,33 @@ def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
 
 
 @njit_helper
+def _block_of(v: float, lo: float, size: float, n: int) -> int:
+    """The block ``floor((v - lo) / size)`` of ``n``, clamped to the first and the last."""
+    if not size > 0.0:
+        return 0
+    i = (v - lo) / size
+    if i <= 0.0:
+        return 0
+    if i >= n - 1:
+        return n - 1
+    return int(i)
+
+
+@njit_helper
+def _mark_blocks(blocks, k: int, x, y, a, b, c, d, x_lo: float, y_lo: float, block_w: float, block_h: float,
+                 slack: float) -> None:
+    """Round ``k`` in every block that the bounding box of corners ``a, b, c, d`` (grown by ``slack``) meets."""
+    n = blocks.shape[0]
+    i0 = _block_of(smaller(smaller(x[a], x[b]), smaller(x[c], x[d])) - slack, x_lo, block_w, n)
+    i1 = _block_of(larger(larger(x[a], x[b]), larger(x[c], x[d])) + slack, x_lo, block_w, n)
+    j0 = _block_of(smaller(smaller(y[a], y[b]), smaller(y[c], y[d])) - slack, y_lo, block_h, n)
+    j1 = _block_of(larger(larger(y[a], y[b]), larger(y[c], y[d])) + slack, y_lo, block_h, n)
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            blocks[j, i] = k
+
+
+@njit_helper
 def _meets_window(x, y, tri, t: int, ox: float, oy: float, window, slack: float) -> bool:
     """Whether triangle ``t`` meets the closed window, or nearly (see :func:`_meets_box`)."""
     a = tri[3 * t]
@@ -325,10 +352,14 @@ def _meets_window(x, y, tri, t: int, ox: float, oy: float, window, slack: float)
 
 @njit
 def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, taint, source, open_edge,
-                        assume: int, ox: float, oy: float, window):
+                        assume: int, ox: float, oy: float, window, blocks, block_box):
     """The rounds; returns (flips, rounds with a flip, last round whose flips
     touch the window, per triangle slot: whether it ever held a triangle that
-    meets the window).
+    meets the window).  With a window, ``blocks`` (n x n, zeros) is set to the
+    last round whose flips touch the window in each block of ``block_box``
+    (the window's part over the points, local frame): a flip counts in every
+    block that the bounding box of its two triangles meets (a box beyond
+    ``block_box``, in the blocks of its edge next to it).
 
     Every triangle of the global mesh whose centroid lies in the window lies
     on a triangle of this set that meets the window: when those are never
@@ -363,6 +394,9 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
         w_y_hi = window[3] - oy
     else:
         w_x_lo = w_y_lo = w_x_hi = w_y_hi = 0.0
+    n_blocks = blocks.shape[0] if windowed else 0
+    block_w = (block_box[2] - block_box[0]) / n_blocks if n_blocks else 1.0
+    block_h = (block_box[3] - block_box[1]) / n_blocks if n_blocks else 1.0
     for t in range(nt):
         a = index(tri[3 * t])
         b = index(tri[3 * t + 1])
@@ -557,6 +591,8 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
                         near = True
                 if near:
                     last_window = k
+                    if n_blocks:
+                        _mark_blocks(blocks, k, x, y, a, b, c, d, block_box[0], block_box[1], block_w, block_h, slack)
             # the new diagonal (next(e), its twin next(f)) would flip back to the two triangles it replaced,
             # which score below the new ones: it is no candidate
             ne = _next(e)
@@ -590,19 +626,32 @@ def _flip_rounds_kernel(x, y, tri, he, active, measure: int, tolerance: float, t
 class FlipRounds:
     """What :func:`flip_edges` did: ``flips`` made in ``rounds`` rounds; with a
     window, ``last_window_round`` (the last round whose flips touched a
-    triangle meeting the window, 0 for none) and ``zone`` (per triangle slot:
-    it held such a triangle at some round); ``scores``, every triangle's score
-    after the flips (:func:`triangle_scores`, the same bits)."""
+    triangle meeting the window, 0 for none), ``window_blocks`` (the same per
+    block of ``blocks_box``, the window's part over the points, cut into
+    :data:`WINDOW_BLOCKS` x :data:`WINDOW_BLOCKS`, row 0 at its lowest y; a
+    flip beyond the box counts in the blocks of its edge) and ``zone`` (per triangle slot: it held such a
+    triangle at some round); ``scores``, every triangle's score after the flips
+    (:func:`triangle_scores`, the same bits)."""
 
-    __slots__ = ("flips", "rounds", "last_window_round", "zone", "scores")
+    __slots__ = ("flips", "rounds", "last_window_round", "window_blocks", "blocks_box", "zone", "scores")
 
     def __init__(self, flips: int, rounds: int, last_window_round: int, zone: np.ndarray,
-                 scores: np.ndarray) -> None:
+                 scores: np.ndarray, window_blocks: np.ndarray | None = None,
+                 blocks_box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> None:
         self.flips = flips
         self.rounds = rounds
         self.last_window_round = last_window_round
+        self.window_blocks = np.zeros((0, 0), dtype=np.int32) if window_blocks is None else window_blocks
+        self.blocks_box = blocks_box
         self.zone = zone
         self.scores = scores
+
+
+WINDOW_BLOCKS = 16
+"""The blocks per side of a window in which :func:`flip_edges` tells the last
+round of flips apart (:attr:`FlipRounds.window_blocks`): a tiled run asks
+how long the survey flipped inside the boxes a tile held, not in the whole
+windows they meet."""
 
 
 def flip_edges(
@@ -647,6 +696,14 @@ def flip_edges(
         source = np.where(flags != 0, np.arange(flags.shape[0]), _NO_SOURCE).astype(np.int64)
     opened = np.zeros(triangulation.triangles.shape[0], dtype=np.uint8) if open_edges is None else open_edges
     o = triangulation.origin
+    blocks = np.zeros((WINDOW_BLOCKS, WINDOW_BLOCKS) if window is not None else (0, 0), dtype=np.int32)
+    # the blocks cut the window where it meets the points (an outer tile's window is infinite)
+    block_box = np.zeros(4)
+    if window is not None and triangulation.x.shape[0]:
+        w = np.asarray(window, dtype=np.float64) - np.array([o[0], o[1], o[0], o[1]])
+        block_box = np.array([max(w[0], 0.0), max(w[1], 0.0), min(w[2], float(triangulation.x.max())),
+                              min(w[3], float(triangulation.y.max()))])
+        block_box[2:] = np.maximum(block_box[2:], block_box[:2])
     flips, rounds, last, zone, scores = _flip_rounds_kernel(
         triangulation.x,
         triangulation.y,
@@ -662,5 +719,8 @@ def flip_edges(
         float(o[0]),
         float(o[1]),
         np.zeros(0) if window is None else np.asarray(window, dtype=np.float64),
+        blocks,
+        block_box,
     )
-    return FlipRounds(int(flips), int(rounds), int(last), zone, scores)
+    box = tuple(float(v) for v in block_box + np.array([o[0], o[1], o[0], o[1]]))
+    return FlipRounds(int(flips), int(rounds), int(last), zone, scores, blocks, box)

@@ -125,10 +125,39 @@ class TileSummary:
     filtered_class, filtered_withheld, outside_bbox, kept) of the nodes it owns."""
     last_flip_round: int = 0
     """The last flip round whose flips touched the tile's window (0: none)."""
+    flip_blocks: tuple[tuple[int, ...], ...] = ()
+    """The same per block of ``flip_blocks_box`` (rows from its lowest y), so
+    that a tile near this one asks only of the blocks its held boxes meet
+    (empty: a record of an older version, or no flips)."""
+    flip_blocks_box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    """The box the blocks cut: the tile's window where it meets the tile's points."""
     assumed_rounds: int = -1
     """The rounds after which its certificate assumes no flip near it (-1: a record of an older version)."""
     grown: float = 0.0
     """How far beyond its buffer the box it holds whole had to grow for the flips' certificate."""
+
+    def last_flip_round_in(self, boxes: list) -> int:
+        """The last round whose flips touched this tile's window inside the
+        closed ``boxes``: the largest of its blocks that meet one (each grown by
+        1e-8 of its coordinates, for rounding), or of its whole window when a
+        record of an older version has no blocks."""
+        blocks = np.asarray(self.flip_blocks, dtype=np.int64)
+        if blocks.ndim != 2 or blocks.size == 0:
+            return self.last_flip_round
+        n_rows, n_cols = blocks.shape
+        x0, y0, x1, y1 = self.flip_blocks_box
+        xs = x0 + (x1 - x0) * np.arange(n_cols + 1) / n_cols
+        ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
+        slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
+        # the edge blocks stand for everything beyond the box as well
+        xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
+        last = 0
+        for bx0, by0, bx1, by1 in boxes:
+            cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
+            rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
+            if cols.any() and rows.any():
+                last = max(last, int(blocks[np.ix_(rows, cols)].max()))
+        return last
 
 
 def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
@@ -920,6 +949,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         seconds=time.perf_counter() - t0,
         held=tuple(tuple(float(v) for v in box) for box in work.held),
         last_flip_round=work.mesh.certificate.last_flip_round,
+        flip_blocks=tuple(tuple(int(v) for v in row) for row in work.mesh.certificate.flip_blocks),
+        flip_blocks_box=tuple(float(v) for v in work.mesh.certificate.flip_blocks_box),
         assumed_rounds=job.assume_rounds,
         grown=work.grown,
         reach=None if border_v.shape[0] == 0 else (

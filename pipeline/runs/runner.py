@@ -788,14 +788,18 @@ def _rounds_unchecked(grid, tile_jobs: list[TileJob], summaries: dict) -> list[T
     around which a tile flipped later than their certificate assumed.
 
     A tile's flips spread doubt over the triangles it holds only until the
-    round its certificate assumed; the tiles whose windows meet the box it
-    held whole say how long the survey flipped there (``last_flip_round``).
+    round its certificate assumed; the tiles whose windows meet the boxes it
+    held say how long the survey flipped there: each gives the last flip
+    round of every block of its window
+    (:meth:`~pipeline.meshing.tiles.TileSummary.last_flip_round_in`), so a
+    late flip in the middle of a tile makes only the tiles whose held boxes
+    reach it mesh again, not the eight around it.
     """
     out = []
     for job in tile_jobs:
         s = summaries[(job.row, job.col)]
         held = list(s.held) or [grid.window(job.row, job.col)]
-        need = max((summaries[key].last_flip_round for key in grid.tiles_meeting(held) if key in summaries),
+        need = max((summaries[key].last_flip_round_in(held) for key in grid.tiles_meeting(held) if key in summaries),
                    default=0)
         if s.assumed_rounds < need:
             out.append(replace(job, assume_rounds=need))
