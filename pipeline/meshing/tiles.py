@@ -389,24 +389,27 @@ def _clip_to_box(polygon: NDArray[np.float64], box) -> NDArray[np.float64]:
     return pts
 
 
-def _covers_window(xy: NDArray[np.float64], window, hull_xy: NDArray[np.float64]) -> bool:
-    """Whether the convex hull of ``xy`` (a tile's points) covers the part of
-    the tile's window inside the global hull ``hull_xy`` (counter-clockwise),
-    to within rounding.  Where it does not (a tile inside a data void wider
-    than its buffer), its triangulation has no triangle there and so no
-    circle to say that points are missing."""
+def _uncovered_corners(xy: NDArray[np.float64], window, hull_xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The corners of the part of the tile's window inside the global hull
+    ``hull_xy`` (counter-clockwise) that the convex hull of ``xy`` (a tile's
+    points) leaves out, to within rounding (none: it covers that part; both
+    are convex, so it covers it when it holds its corners).  Where it does not
+    (a tile inside a data void wider than its buffer, or a building over a
+    corner of its window), its triangulation has no triangle there and so no
+    circle to say that points are missing: the points are looked for around
+    those corners."""
     if hull_xy.shape[0] < 3:
-        return True
+        return np.empty((0, 2))
     need = _clip_to_box(hull_xy, window)
     if need.shape[0] == 0:
-        return True
+        return np.empty((0, 2))
     if xy.shape[0] < 3:
-        return False
+        return need
     h = meshcore.convex_hull(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]))
     hx, hy = xy[h, 0], xy[h, 1]
     scale = max(float(np.abs(hull_xy).max()), 1.0)
     tol = 1e-9 * scale * np.hypot(np.roll(hx, -1) - hx, np.roll(hy, -1) - hy)[None, :]
-    return bool((_edge_sides(hx, hy, need[:, 0], need[:, 1]) >= -tol).all())
+    return need[~(_edge_sides(hx, hy, need[:, 0], need[:, 1]) >= -tol).all(axis=1)]
 
 
 def _merge_boxes(boxes: list) -> list:
@@ -767,11 +770,19 @@ class _Certifying:
         for i, rest in _open_lenses(wanted, self.hull_xy, ext, held):
             circles.append(tuple(wanted[i]))
             requests.extend(b for b in (intersect_boxes(p, near) for p in rest) if b is not None)
-        self.covered = self.covered or _covers_window(self.meshed[:, :2], self.window, self.hull_xy)
+        corners = np.empty((0, 2)) if self.covered else _uncovered_corners(self.meshed[:, :2], self.window, self.hull_xy)
+        self.covered = corners.shape[0] == 0
         gap = not self.covered
-        if gap:  # points beyond a void: look around, farther each time
-            around = intersect_boxes(near, ext)
+        if gap:
+            # points beyond a void: looked for around the corners left out, a
+            # buffer away, then twice as far each time (a box of a tile's size
+            # around what is held loaded most of a town's survey for one
+            # building over a corner)
+            grow = max(self.job.buffer, g.resolution) * 2.0**self.expansions
+            lo, hi = corners.min(axis=0) - grow, corners.max(axis=0) + grow
+            around = intersect_boxes((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), ext)
             requests.extend([] if around is None else _uncovered(around, held))
+            everywhere = everywhere and around is not None and around == intersect_boxes(ext, ext)
         return circles, requests, gap, everywhere
 
     def hold_doubt(self) -> None:
