@@ -231,7 +231,7 @@ class RunConfig:
     output: str = _param(help="the Zarr store to write (e.g. dem.zarr)", short="-o")
     resolution: float = _param(help="DEM cell size in CRS units")
     tile_size: float | None = _param(
-        None, "tile edge in CRS units, a multiple of the resolution (default: ~0.5M points a tile; the result is "
+        None, "tile edge in CRS units, rounded to whole cells (default: ~0.5M points a tile; the result is "
         "the same at any tile size)")
     buffer: float | None = _param(None, "overlap around each tile in CRS units (default: 12 point spacings)")
     classes: tuple[int, ...] | None = _param(
@@ -307,13 +307,8 @@ class RunConfig:
             raise UsageError("output: give the path of the Zarr store to write")
         object.__setattr__(self, "output", str(self.output))
         object.__setattr__(self, "resolution", _positive("resolution", self.resolution))
+        # not a whole number of cells: the plan rounds it, and says so (tiles never change the results)
         tile = _positive("tile_size", self.tile_size, allow_none=True)
-        if tile is not None:
-            cells = tile / self.resolution
-            if abs(cells - round(cells)) > 1e-9 * cells or round(cells) < 1:
-                raise UsageError(
-                    f"tile_size={tile:g} must be a whole multiple of the resolution {self.resolution:g}"
-                )
         object.__setattr__(self, "tile_size", tile)
         object.__setattr__(self, "buffer", _positive("buffer", self.buffer, allow_none=True, allow_zero=True))
         object.__setattr__(self, "max_edge", _positive("max_edge", self.max_edge, allow_none=True))

@@ -111,11 +111,19 @@ class RunPlan:
     @property
     def notes(self) -> list[str]:
         """What the plan's readers should know: the headers' notes, the CRS
-        plan's, sizes kept from the store, and tiles given too small."""
+        plan's, sizes kept from the store, a tile size rounded to whole cells,
+        and tiles given too small."""
         notes = [f"{p}: {note}" for p, info in zip(self.paths, self.infos) for note in info.notes] + list(self.crs.notes)
         if self.kept:
             sizes = " and ".join(f"{name}={value:g}" for name, value in self.kept.items())
             notes.append(f"{sizes} kept from the store, which derived them from the point density in its first run")
+        c = self.config
+        if c.tile_size is not None and not math.isclose(given_tile_cells(c) * c.resolution, c.tile_size, rel_tol=1e-9):
+            cells = given_tile_cells(c)
+            notes.append(
+                f"tile_size={c.tile_size:g} is not a whole multiple of resolution={c.resolution:g}: the tiles are "
+                f"{cells:,} cells ({cells * c.resolution:g}) a side (the results do not depend on the tiles)"
+            )
         tiles = self.grid.n_tiles
         points = sum(info.point_count for info in self.infos)
         if self.config.tile_size is not None and tiles > 1 and points < SMALL_TILE_POINTS * tiles:
@@ -418,7 +426,7 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
     density = max(n_points, 1) / area
     spacing = 1.0 / math.sqrt(density)
     if config.tile_size is not None:
-        tile_cells = int(round(config.tile_size / config.resolution))
+        tile_cells = given_tile_cells(config)
         if tile_cells > LARGEST_TILE_CELLS:
             raise UsageError(
                 f"tile_size {config.tile_size:g} at resolution {config.resolution:g} gives tiles of {tile_cells:,} x "
@@ -437,6 +445,14 @@ def _auto_sizes(config: RunConfig, bounds, n_points: int) -> tuple[int, float]:
         tile_cells = min(max(16, -(-even // 16) * 16), MAX_AUTO_TILE_CELLS)
     buffer = config.buffer if config.buffer is not None else max(12.0 * spacing, 2.0 * config.resolution)
     return tile_cells, float(buffer)
+
+
+def given_tile_cells(config: RunConfig) -> int:
+    """The cells a side of the tiles ``config.tile_size`` asks for: the nearest
+    whole number, at least one (a size that is not a whole multiple of the
+    resolution is rounded, with a note; tiles never change the results)."""
+    assert config.tile_size is not None
+    return max(1, math.floor(config.tile_size / config.resolution + 0.5))
 
 
 def _version() -> str:

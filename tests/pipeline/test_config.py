@@ -29,7 +29,6 @@ def test_defaults_and_round_trip(tmp_path):
     "kw, match",
     [
         ({"resolution": 0}, "resolution must be a positive number"),
-        ({"tile_size": 2.5}, "multiple of the resolution"),
         ({"duplicates": "median"}, "duplicates='median' is not valid; expected one of 'lowest', 'highest', 'mean', 'first'"),
         ({"triangle_measure": "s4"}, "triangle_measure='s4' is not valid"),
         ({"merge": "GREEDY"}, "merge='GREEDY' is not valid; expected one of 'greedy', 'optimal'"),  # exact text

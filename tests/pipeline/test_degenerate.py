@@ -147,6 +147,28 @@ def test_a_tile_size_far_too_small_for_the_points_gets_a_note_in_the_words_of_ea
     assert notes(None)[1] == []  # a size chosen from the density is never too small
 
 
+def test_a_tile_size_that_is_no_whole_multiple_of_the_resolution_is_rounded_with_a_note(tmp_path):
+    from pipeline.cli import as_flags
+    from pipeline.config import RunConfig
+    from pipeline.runs.plan import plan_run
+    from pipeline.tools.synthetic import SurveySpec, write_survey
+
+    write_survey(tmp_path / "survey", SurveySpec(points=12_000, files=2, width=120.0, height=80.0, seed=3))
+
+    def planned(tile_size):
+        plan = plan_run(RunConfig(inputs=(str(tmp_path / "survey"),), output=str(tmp_path / "o.zarr"), resolution=2.0,
+                                  tile_size=tile_size))
+        return plan.grid.tile_cells, [n for n in plan.notes if "whole multiple" in n]
+
+    cells, notes = planned(37.0)  # 18.5 cells: 19
+    assert cells == 19 and len(notes) == 1
+    assert notes[0] == ("tile_size=37 is not a whole multiple of resolution=2: the tiles are 19 cells (38) a side "
+                        "(the results do not depend on the tiles)")
+    assert as_flags(notes[0]).startswith("--tile-size 37 is not a whole multiple of --resolution 2: ")
+    assert planned(0.4) == (1, [planned(0.4)[1][0]]) and "1 cells (2)" in planned(0.4)[1][0]  # at least one cell
+    assert planned(38.0) == (19, [])  # a whole multiple: no note
+
+
 def _classed(path, n, classes, seed=0):
     """``n`` points of a gentle slope on 40 x 40 m, cut at the LAS scale, of ``classes`` drawn in turn."""
     rng = np.random.default_rng(seed)
