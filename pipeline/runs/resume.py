@@ -150,6 +150,8 @@ class ClassFallback:
     classes: tuple[int, ...]
     default_points: int
     """The points the default classes kept (none, or too few or all on one line for a surface)."""
+    default_left_by_returns: int = 0
+    """The points of the default classes that the run's ``returns`` left out (0 in records of an older version)."""
 
 
 def class_fallback(work: WorkDir) -> ClassFallback | None:
@@ -160,13 +162,15 @@ def class_fallback(work: WorkDir) -> ClassFallback | None:
     recorded = work.recorded(Ledger.SURVEY, "classes")
     if recorded is None:
         return None
-    return ClassFallback(tuple(recorded["classes"]), int(recorded["default_points"]))
+    return ClassFallback(tuple(recorded["classes"]), int(recorded["default_points"]),
+                         int(recorded.get("default_left_by_returns", 0)))
 
 
-def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
+def keep_all_but_noise(work: WorkDir, output: str, default_points: int, left_by_returns: int = 0) -> None:
     """Start the job over classifying the ground from every class but noise:
     its inputs' points of the default classes (ground), ``default_points`` of
-    them, made no surface.
+    them kept and ``left_by_returns`` left out by the run's ``returns``, made
+    no surface.
 
     A survey that was never classified (class 0 or 1 throughout), or holds a
     ground point or two, is valid input; its ground is classified by the
@@ -175,7 +179,8 @@ def keep_all_but_noise(work: WorkDir, output: str, default_points: int) -> None:
     store forgets any tile it marked written.
     """
     _start_over(work, output)
-    work.record(Ledger.SURVEY, "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points)})
+    work.record(Ledger.SURVEY, "classes", {"classes": list(ALL_BUT_NOISE), "default_points": int(default_points),
+                                           "default_left_by_returns": int(left_by_returns)})
 
 
 def _start_over(work: WorkDir, output: str) -> None:

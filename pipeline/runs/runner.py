@@ -416,7 +416,7 @@ def _execute(
         if isinstance(meshed, NoDefaultSurface):
             # the default classes made no surface (a survey never classified, or a ground point or
             # two): the ground classified from every point but noise, rather than no surface
-            resume.keep_all_but_noise(work, config.output, meshed.points)
+            resume.keep_all_but_noise(work, config.output, meshed.points, meshed.left_by_returns)
             report = before
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
             assert isinstance(meshed, Meshed)  # the fallback's classes are not the default ones
@@ -468,6 +468,8 @@ class NoDefaultSurface:
 
     points: int
     """The points of the default classes that were kept."""
+    left_by_returns: int = 0
+    """The points of the default classes that ``returns`` left out."""
 
 
 def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompile, show: bool, report: RunReport,
@@ -484,10 +486,11 @@ def _route_and_mesh(plan: RunPlan, work: WorkDir, client, compiling: KernelCompi
         report.stages["ground"] = time.perf_counter() - t0
         provenance["ground_classification"] = ground_provenance(parameters.to_dict())
     if routed.fallback is not None:
-        found = routed.fallback.default_points
+        found, left = routed.fallback.default_points, routed.fallback.default_left_by_returns
         default = ", ".join(str(c) for c in DEFAULT_CLASSES)
         why = (f"{'no' if found == 0 else f'only {found:,}'} input point(s) of the default classes ({default}, ground)"
-               f"{'' if config.bbox is None else ' inside the bbox'}")
+               f"{'' if config.bbox is None else ' inside the bbox'}"
+               f"{f' kept, {left:,} more left out by returns={config.returns.value}' if left else ''}")
         provenance["classes_kept"] = {"classes": routed.fallback.classes, "why": why}
         noise = " and ".join(str(c) for c in resume.NOISE_CLASSES)
         report.notes.append(
@@ -755,7 +758,7 @@ def _mesh_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, variogram,
         # points of other classes than the DTM's: left out, or read for the products only
         if report.filtered_class + report.products_only > 0 and config.classes == DEFAULT_CLASSES \
                 and routed.fallback is None:
-            return NoDefaultSurface(report.points_kept)
+            return NoDefaultSurface(report.points_kept, report.filtered_returns)
         kept = "every class but noise" if routed.fallback is not None else ", ".join(str(c) for c in config.classes or ())
         raise PipelineError(f"{names}: no surface: {_no_surface(report, kept)}")
     uncertified = sorted(key for key, s in summaries.items() if not s.certified)

@@ -217,6 +217,26 @@ def test_a_survey_never_classified_gives_a_surface_of_its_classified_ground(tmp_
     assert again.points_kept == report["points_kept"]
 
 
+def test_the_fallback_note_counts_the_ground_points_that_returns_left_out(tmp_path, capsys):
+    from pipeline.store import zarr_store as store
+
+    # ground only as the last of two returns, low vegetation (on the plane) as single returns:
+    # --returns first keeps no point of class 2, and the ground is classified from the others
+    path = _classed(tmp_path / "a.laz", 3000, [2, 3])
+    las = laspy.read(path)
+    ground = np.asarray(las.classification) == 2
+    las.number_of_returns = np.where(ground, 2, 1).astype(np.uint8)
+    las.return_number = np.where(ground, 2, 1).astype(np.uint8)
+    las.write(path)
+    out = tmp_path / "o.zarr"
+    assert _run(path, out, "--returns", "first") == 0
+    said = capsys.readouterr().out
+    assert ("no input point(s) of the default classes (2, ground) kept, 1,500 more left out by --returns first: "
+            "the ground was classified") in said, said
+    why = store.read_attrs(out)["provenance"]["classes_kept"]["why"]
+    assert why == "no input point(s) of the default classes (2, ground) kept, 1,500 more left out by returns=first"
+
+
 def test_a_survey_never_classified_with_layers_gives_a_surface_of_its_classified_ground(tmp_path, capsys):
     from pipeline.store import zarr_store as store
 
