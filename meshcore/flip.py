@@ -315,9 +315,10 @@ def _meets_box(ax, ay, bx, by, cx, cy, x_lo, y_lo, x_hi, y_hi, slack) -> bool:
 
 @njit_helper
 def _block_of(v: float, lo: float, size: float, n: int) -> int:
-    """The block ``floor((v - lo) / size)`` of ``n``, clamped to the first and the last."""
+    """The block ``floor((v - lo) / size)`` of ``n``, clamped to the first and the last (blocks of no
+    width: the first up to ``lo``, the last beyond it)."""
     if not size > 0.0:
-        return 0
+        return 0 if v <= lo else n - 1
     i = (v - lo) / size
     if i <= 0.0:
         return 0

@@ -73,6 +73,23 @@ def test_an_outer_window_has_blocks_over_its_points(rng):
     assert summary.last_flip_round_in([(0.0, 0.0, 1.0, 1.0)]) == int(np.asarray(certificate.flip_blocks)[0, 0])
 
 
+@pytest.mark.parametrize("box", [(100.0, 0.0, 200.0, 100.0), (100.0, 0.0, 100.0, 100.0), (100.0, 50.0, 200.0, 50.0)])
+def test_a_flip_marked_in_a_block_is_found_by_a_box_at_its_place(box):
+    """The flip kernel's block of a coordinate and the summary's block geometry agree, blocks of no
+    width (a window that only touches the points) too."""
+    from meshcore.flip import _block_of
+
+    block_of = _block_of.py_func  # the kernel's helper, as Python
+    x0, y0, x1, y1 = box
+    for x, y in [(100.0, 0.0), (150.3, 49.9), (199.99, 100.0), (250.0, 120.0), (60.0, -5.0), (100.0, 50.0)]:
+        blocks = np.zeros((16, 16), dtype=int)
+        blocks[block_of(y, y0, (y1 - y0) / 16, 16), block_of(x, x0, (x1 - x0) / 16, 16)] = 9
+        summary = TileSummary(row=0, col=0, points_owned=0, vertices_owned=0, duplicates=0, faces=0, quads=0,
+                              expansions=0, certified=True, seconds=0.0, last_flip_round=9,
+                              flip_blocks=tuple(map(tuple, blocks.tolist())), flip_blocks_box=box)
+        assert summary.last_flip_round_in([(x, y, x, y)]) == 9, (x, y)
+
+
 def test_a_late_flip_far_from_a_neighbours_held_box_leaves_it_as_it_is():
     grid = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=100, nx=300, ny=100)
     blocks = np.full((16, 16), 5, dtype=int)
