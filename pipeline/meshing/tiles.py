@@ -778,11 +778,11 @@ class _Certifying:
             # buffer away, then twice as far each time (a box of a tile's size
             # around what is held loaded most of a town's survey for one
             # building over a corner)
-            grow = max(self.job.buffer, g.resolution) * 2.0**self.expansions
-            lo, hi = corners.min(axis=0) - grow, corners.max(axis=0) + grow
-            around = intersect_boxes((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])), ext)
-            requests.extend([] if around is None else _uncovered(around, held))
-            everywhere = everywhere and around is not None and around == intersect_boxes(ext, ext)
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            around = _grown_box((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])),
+                                max(self.job.buffer, g.resolution) * 2.0**self.expansions, ext)
+            requests.extend(_uncovered(around, held))
+            everywhere = everywhere and all(math.isinf(v) for v in around)
         return circles, requests, gap, everywhere
 
     def hold_doubt(self) -> None:

@@ -118,8 +118,8 @@ class RunPlan:
             sizes = " and ".join(f"{name}={value:g}" for name, value in self.kept.items())
             notes.append(f"{sizes} kept from the store, which derived them from the point density in its first run")
         c = self.config
-        if c.tile_size is not None and not math.isclose(given_tile_cells(c) * c.resolution, c.tile_size, rel_tol=1e-9):
-            cells = given_tile_cells(c)
+        cells = None if c.tile_size is None else given_tile_cells(c)
+        if cells is not None and not math.isclose(cells * c.resolution, c.tile_size, rel_tol=1e-9):
             notes.append(
                 f"tile_size={c.tile_size:g} is not a whole multiple of resolution={c.resolution:g}: the tiles are "
                 f"{cells:,} cells ({cells * c.resolution:g}) a side (the results do not depend on the tiles)"
