@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._jit import empty, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, circumcenter_terms
@@ -78,6 +78,28 @@ class WindowCertificate:
     edge.  A tile whose held boxes meet only blocks that stopped flipping by
     its assumed round needs no later round of this one."""
     flip_blocks_box: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+
+
+def last_flip_round_in(flip_blocks: ArrayLike, flip_blocks_box: tuple[float, float, float, float], boxes) -> int:
+    """The last round whose flips touched a window inside the closed ``boxes``,
+    from its certificate's :attr:`~WindowCertificate.flip_blocks` and
+    :attr:`~WindowCertificate.flip_blocks_box`: the largest of its blocks that
+    meet one (each grown by 1e-8 of its coordinates, for rounding; the edge
+    blocks stand for everything beyond the box, as the flips mark them)."""
+    blocks = np.asarray(flip_blocks, dtype=np.int64)
+    n_rows, n_cols = blocks.shape
+    x0, y0, x1, y1 = flip_blocks_box
+    xs = x0 + (x1 - x0) * np.arange(n_cols + 1) / n_cols
+    ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
+    slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
+    xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
+    last = 0
+    for bx0, by0, bx1, by1 in boxes:
+        cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
+        rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
+        if cols.any() and rows.any():
+            last = max(last, int(blocks[np.ix_(rows, cols)].max()))
+    return last
 
 
 @njit

@@ -7,7 +7,8 @@ depend on the points it did not load:
 * :class:`KnownRegion` says which parts of the plane the tile vouches for
   (held boxes, the survey's hull), and :class:`WindowCertificate` is what
   :func:`meshcore.build_mesh` answers with a window: the faces that stay
-  doubtful, the circles that leave the held region;
+  doubtful, the circles that leave the held region, and the last flip round
+  per block of the window (:func:`last_flip_round_in` reads it for a box);
 * :func:`bounded_triangles` keeps the triangles whose circumcircle a margin
   holds (a surface drawn with a maximum edge is then the same in every tile);
 * :func:`with_vertices` adds points that no face uses (a smooth surface's
@@ -34,7 +35,7 @@ from __future__ import annotations
 
 from ._order import block_order, lexicographic_order
 from .build import KERNEL_STAGES, load_kernels
-from .certificate import KnownRegion, WindowCertificate
+from .certificate import KnownRegion, WindowCertificate, last_flip_round_in
 from .mesh import bounded_triangles, with_vertices
 from .natural import NaturalCoordinates, natural_coordinates, natural_values
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
@@ -47,6 +48,7 @@ from .voids import VoidFill
 __all__ = [
     "KnownRegion",
     "WindowCertificate",
+    "last_flip_round_in",
     "with_vertices",
     "bounded_triangles",
     "lexicographic_order",

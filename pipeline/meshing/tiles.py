@@ -138,26 +138,11 @@ class TileSummary:
 
     def last_flip_round_in(self, boxes: list) -> int:
         """The last round whose flips touched this tile's window inside the
-        closed ``boxes``: the largest of its blocks that meet one (each grown by
-        1e-8 of its coordinates, for rounding), or of its whole window when a
-        record of an older version has no blocks."""
-        blocks = np.asarray(self.flip_blocks, dtype=np.int64)
-        if blocks.ndim != 2 or blocks.size == 0:
+        closed ``boxes`` (:func:`meshcore.tiles.last_flip_round_in`), or in its
+        whole window when a record of an older version has no blocks."""
+        if not self.flip_blocks:
             return self.last_flip_round
-        n_rows, n_cols = blocks.shape
-        x0, y0, x1, y1 = self.flip_blocks_box
-        xs = x0 + (x1 - x0) * np.arange(n_cols + 1) / n_cols
-        ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
-        slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
-        # the edge blocks stand for everything beyond the box as well
-        xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
-        last = 0
-        for bx0, by0, bx1, by1 in boxes:
-            cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
-            rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
-            if cols.any() and rows.any():
-                last = max(last, int(blocks[np.ix_(rows, cols)].max()))
-        return last
+        return meshcore.tiles.last_flip_round_in(self.flip_blocks, self.flip_blocks_box, boxes)
 
 
 def reached_tiles(grid: TileGrid, reach: tuple[float, float, float, float] | None, row: int, col: int) -> list[tuple[int, int]]:
