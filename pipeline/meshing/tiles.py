@@ -66,6 +66,16 @@ tiles around which a tile flipped later.  Fewer made more tiles mesh twice."""
 
 
 @dataclass(frozen=True)
+class HeldBefore:
+    """What a tile held when it was meshed before: its boxes (the first held
+    whole) and how far that first box had grown beyond its buffer
+    (:attr:`TileSummary.held`, :attr:`TileSummary.grown`)."""
+
+    boxes: tuple[tuple[float, float, float, float], ...]
+    grown: float = 0.0
+
+
+@dataclass(frozen=True)
 class TileJob:
     """A small, picklable recipe for one tile's work (no open files)."""
 
@@ -94,6 +104,11 @@ class TileJob:
     """The flip rounds the certificate allows the tiles around this one (see :func:`mesh_tile`)."""
     products: ProductSettings | None = None
     """The run's products (:mod:`pipeline.products`); None: ``layers`` of the DTM's mesh alone."""
+    held_before: HeldBefore | None = None
+    """A tile meshed again (assuming more flip rounds): what it held the first
+    time.  It starts from those points rather than from its buffer: its piece
+    is the same whatever it holds once certified, and the builds that found
+    them are spared."""
 
 
 @dataclass(frozen=True)
@@ -397,6 +412,11 @@ def _uncovered_corners(xy: NDArray[np.float64], window, hull_xy: NDArray[np.floa
     return need[~(_edge_sides(hx, hy, need[:, 0], need[:, 1]) >= -tol).all(axis=1)]
 
 
+def _box_inside(box, outer) -> bool:
+    """Whether ``box`` lies inside ``outer`` (sides may be infinite)."""
+    return box[0] >= outer[0] and box[1] >= outer[1] and box[2] <= outer[2] and box[3] <= outer[3]
+
+
 def _merge_boxes(boxes: list) -> list:
     """Boxes whose union holds ``boxes``: overlapping ones become their bounding
     box, until none overlap.  The circles of a data void ask for hundreds of
@@ -697,7 +717,7 @@ class _Certifying:
     the others were loaded since, and lie in no circle of its faces.
     """
 
-    def __init__(self, job: TileJob, held: list, points: NDArray[np.float64], loaded: int) -> None:
+    def __init__(self, job: TileJob, held: list, points: NDArray[np.float64], loaded: int, grown: float = 0.0) -> None:
         self.job = job
         self.window = job.grid.window(job.row, job.col)
         self.held = held
@@ -715,7 +735,7 @@ class _Certifying:
         # what stays true while the mesh grows: its points' hull covering the
         # window (points are only ever added)
         self.covered = False
-        self.grown = 0.0  # how far the box held whole grew beyond the buffer, for the certificate
+        self.grown = grown  # how far the box held whole grew beyond the buffer, for the certificate
 
     def _build(self):
         """The mesh of ``points``, and the points in the order it was given them."""
@@ -933,7 +953,19 @@ def mesh_tile(job: TileJob) -> TileSummary:
     t0 = time.perf_counter()
     held = [held_box(job.grid, job.row, job.col, job.buffer)]
     own, counted, points, loaded = _start_points(job, held)
-    work = _Certifying(job, held, points, loaded)
+    grown = 0.0
+    if job.held_before is not None and job.held_before.boxes:
+        first = tuple(job.held_before.boxes[0])
+        # merged, so that a tile meshed again and again does not pile up the boxes of every time
+        before = [first, *(b for b in _merge_boxes([tuple(b) for b in job.held_before.boxes[1:]])
+                          if not _box_inside(b, first))]
+        extra = _load_boxes(job, before, held)
+        loaded += extra.shape[0]
+        points = np.concatenate([points, extra])
+        held.extend(before)
+        held[0] = before[0]  # it grew from the box held first, so holds it; every point in it is loaded now
+        grown = job.held_before.grown
+    work = _Certifying(job, held, points, loaded, grown)
     _certify(work)
     tables = _piece_tables(job, work.mesh, work.meshed, own)
     border_v = _save_piece_and_border(job, work, tables, own)

@@ -48,7 +48,9 @@ from ..store.catalog import write_stac_item
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, hull_copies, survey_hull
 from .. import urls
-from ..meshing.tiles import TileJob, TileSummary, dem_tile, load_kernels, load_surface_kernels, mesh_tile, reached_tiles
+from ..meshing.tiles import (
+    HeldBefore, TileJob, TileSummary, dem_tile, load_kernels, load_surface_kernels, mesh_tile, reached_tiles,
+)
 from .compiling import KernelCompile, compile_aside
 from . import resume
 from .changes import forget_tiles, tiles_whose_hull_moved
@@ -805,7 +807,7 @@ def _rounds_unchecked(grid, tile_jobs: list[TileJob], summaries: dict) -> list[T
         need = max((summaries[key].last_flip_round_in(held) for key in grid.tiles_meeting(held) if key in summaries),
                    default=0)
         if s.assumed_rounds < need:
-            out.append(replace(job, assume_rounds=need))
+            out.append(replace(job, assume_rounds=need, held_before=HeldBefore(s.held, s.grown)))
     return out
 
 

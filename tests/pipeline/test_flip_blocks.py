@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import meshcore
-from pipeline.meshing.tiles import TileJob, TileSummary
+from pipeline.meshing.tiles import HeldBefore, TileJob, TileSummary
 from pipeline.runs.runner import _rounds_unchecked
 from pipeline.tiling.grid import TileGrid
 
@@ -103,8 +103,10 @@ def test_a_late_flip_far_from_a_neighbours_held_box_leaves_it_as_it_is():
         (0, 2): TileSummary(row=0, col=2, held=((140.0, -10.0, 310.0, 110.0),), **base),  # grown into the late block
     }
     jobs = [TileJob(0, c, None, grid, 10.0, (0.0, 0.0, 300.0, 100.0), None) for c in range(3)]
-    again = {(job.row, job.col): job.assume_rounds for job in _rounds_unchecked(grid, jobs, summaries)}
-    assert again == {(0, 1): 11, (0, 2): 11}
+    again = {(job.row, job.col): job for job in _rounds_unchecked(grid, jobs, summaries)}
+    assert {key: job.assume_rounds for key, job in again.items()} == {(0, 1): 11, (0, 2): 11}
+    # each starts from the boxes it held the first time
+    assert again[(0, 2)].held_before == HeldBefore(((140.0, -10.0, 310.0, 110.0),), 0.0)
     # a record of an older version, without blocks: its whole window counts, as before
     summaries[(0, 1)] = replace(summaries[(0, 1)], flip_blocks=())
     again = {(job.row, job.col): job.assume_rounds for job in _rounds_unchecked(grid, jobs, summaries)}
