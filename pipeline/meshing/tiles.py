@@ -412,6 +412,51 @@ def _uncovered_corners(xy: NDArray[np.float64], window, hull_xy: NDArray[np.floa
     return need[~(_edge_sides(hx, hy, need[:, 0], need[:, 1]) >= -tol).all(axis=1)]
 
 
+def _sparse_rim(job: TileJob, own: NDArray[np.float64], box) -> list:
+    """Boxes beyond the finite sides of ``box`` (the tile's window plus
+    buffer) where its own points along that side are so sparse that the
+    flips' doubt from the rim would cross the buffer into the window.
+
+    Doubt spreads about one ring of triangles a round for the rounds a tile
+    assumes (and the merges read two more); a ring is about
+    :data:`_RING_SPACINGS` local point spacings wide.  The buffer is 12 of the
+    survey's mean spacings, which holds that where the points are as dense as
+    the mean, but not beside the trees and buildings of a town, whose ground
+    is sparse: there nearly every tile meshed twice, for a few hundred points
+    a search then found at its rim.  Each cell of a buffer's side along the
+    rim whose spacing says the doubt reaches farther than the buffer gets a
+    box that far beyond it (at most :data:`_RIM_BUFFERS` buffers): held from
+    the first build, as a later search would have held them."""
+    g = job.grid
+    step = max(job.buffer, g.resolution)
+    ext = job.extent
+    lo = np.array([max(box[0], ext[0]), max(box[1], ext[1])])
+    hi = np.array([min(box[2], ext[2]), min(box[3], ext[3])])
+    if own.shape[0] == 0 or np.any(hi <= lo):
+        return []
+    n = np.maximum(1, np.ceil((hi - lo) / step).astype(np.int64))
+    ij = np.clip(((own[:, :2] - lo) / step).astype(np.int64), 0, n - 1)
+    counts = np.bincount(ij[:, 1] * n[0] + ij[:, 0], minlength=int(n[0] * n[1])).reshape(n[1], n[0])
+    spacing = step / np.sqrt(np.maximum(counts, 1))
+    beyond = np.minimum((job.assume_rounds + 2) * _RING_SPACINGS * spacing, _RIM_BUFFERS * step) - step
+    out = []
+    for side, finite, cells in ((0, box[0] > ext[0], beyond[:, 0]), (1, box[1] > ext[1], beyond[0, :]),
+                                (2, box[2] < ext[2], beyond[:, -1]), (3, box[3] < ext[3], beyond[-1, :])):
+        if not finite:
+            continue
+        boxes = []
+        for m in np.flatnonzero(cells > 0).tolist():
+            d = float(cells[m])
+            if side in (0, 2):
+                y0, y1 = float(lo[1] + m * step), float(min(lo[1] + (m + 1) * step, hi[1]))
+                boxes.append((box[0] - d, y0, box[0], y1) if side == 0 else (box[2], y0, box[2] + d, y1))
+            else:
+                x0, x1 = float(lo[0] + m * step), float(min(lo[0] + (m + 1) * step, hi[0]))
+                boxes.append((x0, box[1] - d, x1, box[1]) if side == 1 else (x0, box[3], x1, box[3] + d))
+        out.extend(_merge_boxes(boxes))  # side by side along one side: a strip as deep as its deepest cell
+    return out
+
+
 def _box_inside(box, outer) -> bool:
     """Whether ``box`` lies inside ``outer`` (sides may be infinite)."""
     return box[0] >= outer[0] and box[1] >= outer[1] and box[2] <= outer[2] and box[3] <= outer[3]
@@ -626,6 +671,13 @@ _BLOCK_SPACINGS = 4.0
 
 #: points of other tiles' files tested together by :func:`_load_boxes` (bounds its memory)
 _LOAD_BATCH = 1_000_000
+
+_RING_SPACINGS = 0.6
+"""How far a ring of Delaunay triangles reaches, in local point spacings
+(one over the square root of the density); see :func:`_sparse_rim`."""
+
+_RIM_BUFFERS = 4.0
+"""The farthest a sparse rim is held from the first build, in buffers."""
 
 _FIRST_REACH_BUFFERS = 8.0
 """How far beyond the box held whole (in buffers, at most a tile) a tile
@@ -953,6 +1005,13 @@ def mesh_tile(job: TileJob) -> TileSummary:
     t0 = time.perf_counter()
     held = [held_box(job.grid, job.row, job.col, job.buffer)]
     own, counted, points, loaded = _start_points(job, held)
+    if job.held_before is None:
+        rim = _sparse_rim(job, own, held[0])
+        if rim:
+            extra = _load_boxes(job, rim, held)
+            loaded += extra.shape[0]
+            points = np.concatenate([points, extra])
+            held.extend(rim)
     grown = 0.0
     if job.held_before is not None and job.held_before.boxes:
         first = tuple(job.held_before.boxes[0])
