@@ -60,3 +60,17 @@ def record_tiles(monkeypatch, change=None) -> list:
 
     monkeypatch.setattr(runner, "mesh_tile", mesh_tile)
     return out
+
+
+def middle_tiles_of_a_delaunay_run(tmp_path, monkeypatch, path, tile_size: float, buffer: float) -> tuple[list, bool]:
+    """The summaries of the four middle tiles of a 4 x 4 run of the Delaunay
+    mesh of ``path`` (their corner in the survey's middle), and whether that
+    run's mesh is the untiled one."""
+    from pipeline import RunConfig, run
+
+    meshed = record_tiles(monkeypatch)
+    common = dict(inputs=(str(path),), resolution=1.0, triangle_measure="delaunay", quad_measure="none", workers=1)
+    run(RunConfig(output=str(tmp_path / "tiled.zarr"), tile_size=tile_size, buffer=buffer, **common), progress=False)
+    middle = [s for _, s in meshed if (s.row, s.col) in {(1, 1), (1, 2), (2, 1), (2, 2)}]
+    run(RunConfig(output=str(tmp_path / "whole.zarr"), tile_size=4096.0, **common), progress=False)
+    return middle, same_mesh(tmp_path / "tiled.zarr", tmp_path / "whole.zarr")

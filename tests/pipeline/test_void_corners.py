@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import RunConfig, run
-
-from .ground_surveys import ground_with_void, record_tiles, same_mesh
+from .ground_surveys import ground_with_void, middle_tiles_of_a_delaunay_run
 
 
 def _survey(path, rng):
@@ -21,13 +19,9 @@ def _survey(path, rng):
 
 def test_a_void_over_a_window_corner_is_searched_near_that_corner(tmp_path, rng, monkeypatch):
     path = _survey(tmp_path / "survey.laz", rng)
-    meshed = record_tiles(monkeypatch)
-    common = dict(inputs=(str(path),), resolution=1.0, triangle_measure="delaunay", quad_measure="none", workers=1)
-    run(RunConfig(output=str(tmp_path / "tiled.zarr"), tile_size=100.0, buffer=5.0, **common), progress=False)
-    middle = [s for _, s in meshed if (s.row, s.col) in {(1, 1), (1, 2), (2, 1), (2, 2)}]
+    middle, same = middle_tiles_of_a_delaunay_run(tmp_path, monkeypatch, path, tile_size=100.0, buffer=5.0)
     assert len(middle) >= 4
     # each holds about 110 x 110 m; the void reaches 13 m past that (a tile-wide search read seven times as much)
     for s in middle:
         assert s.points_loaded < s.points_held, (s.row, s.col, s.points_loaded, s.points_held)
-    run(RunConfig(output=str(tmp_path / "whole.zarr"), tile_size=4096.0, **common), progress=False)
-    assert same_mesh(tmp_path / "tiled.zarr", tmp_path / "whole.zarr")
+    assert same
