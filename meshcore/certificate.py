@@ -93,13 +93,25 @@ def last_flip_round_in(flip_blocks: ArrayLike, flip_blocks_box: tuple[float, flo
     ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
     slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
     xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
-    last = 0
-    for bx0, by0, bx1, by1 in boxes:
-        cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
-        rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
-        if cols.any() and rows.any():
-            last = max(last, int(blocks[np.ix_(rows, cols)].max()))
-    return last
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    # each box meets a run of columns and a run of rows: the first whose far
+    # side reaches its near side, to the last whose near side its far side reaches
+    c0 = np.searchsorted(xs[1:], b[:, 0] - slack, side="left")
+    c1 = np.searchsorted(xs[:-1], b[:, 2] + slack, side="right") - 1
+    r0 = np.searchsorted(ys[1:], b[:, 1] - slack, side="left")
+    r1 = np.searchsorted(ys[:-1], b[:, 3] + slack, side="right") - 1
+    meet = (c0 <= c1) & (r0 <= r1)
+    if not meet.any():
+        return 0
+    c0, c1, r0, r1 = c0[meet], c1[meet] + 1, r0[meet], r1[meet] + 1
+    # the blocks any box meets: a summed-area mark of their rectangles
+    marks = np.zeros((n_rows + 1, n_cols + 1), dtype=np.int64)
+    np.add.at(marks, (r0, c0), 1)
+    np.add.at(marks, (r0, c1), -1)
+    np.add.at(marks, (r1, c0), -1)
+    np.add.at(marks, (r1, c1), 1)
+    met = marks.cumsum(axis=0).cumsum(axis=1)[:n_rows, :n_cols] > 0
+    return max(0, int(blocks[met].max()))
 
 
 @njit

@@ -78,3 +78,45 @@ def test_a_certified_piece_of_part_of_the_points_is_the_whole_meshs(rng, measure
     tight = meshcore.build_mesh(xy[strip], *measures, window=window,
                                 known=(651_029.0, -math.inf, 651_071.0, math.inf), assume_rounds=whole_rounds)
     assert tight.certificate.certified is False or _faces(tight) <= faces_whole
+
+
+def _last_flip_round_box_by_box(blocks, box, boxes) -> int:
+    """The rule of ``last_flip_round_in``, one box at a time: the largest block any closed box meets."""
+    n_rows, n_cols = blocks.shape
+    x0, y0, x1, y1 = box
+    xs = x0 + (x1 - x0) * np.arange(n_cols + 1) / n_cols
+    ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
+    slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
+    xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
+    last = 0
+    for bx0, by0, bx1, by1 in boxes:
+        cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
+        rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
+        if cols.any() and rows.any():
+            last = max(last, int(blocks[np.ix_(rows, cols)].max()))
+    return last
+
+
+def test_the_last_flip_round_of_many_boxes_is_the_largest_block_any_of_them_meets(rng):
+    """Hundreds of boxes (a void's circles) at once, at survey offsets: boxes of no width on block
+    edges, boxes beyond the blocks, unbounded and inverted ones."""
+    box = (651_000.0, 6_861_000.0, 651_160.0, 6_861_100.0)
+    edges_x = np.linspace(box[0], box[2], 17)
+    edges_y = np.linspace(box[1], box[3], 17)
+    for _ in range(60):
+        blocks = rng.integers(0, 12, (16, 16)) * (rng.random((16, 16)) < 0.3)
+        n = int(rng.integers(0, 300))
+        lo = np.c_[rng.uniform(box[0] - 40, box[2] + 40, n), rng.uniform(box[1] - 40, box[3] + 40, n)]
+        size = rng.exponential(8.0, (n, 2)) * (rng.random((n, 1)) < 0.8)
+        boxes = np.c_[lo, lo + size]
+        on_edge = rng.random(n) < 0.2  # a box of no width on a block's edge
+        boxes[on_edge, 0] = boxes[on_edge, 2] = rng.choice(edges_x, int(on_edge.sum()))
+        on_edge = rng.random(n) < 0.2
+        boxes[on_edge, 1] = boxes[on_edge, 3] = rng.choice(edges_y, int(on_edge.sum()))
+        boxes[rng.random(n) < 0.05, 0] = -math.inf
+        boxes[rng.random(n) < 0.05, 3] = math.inf
+        boxes[rng.random(n) < 0.05, 2] -= 30.0  # inverted
+        boxes = [tuple(b) for b in boxes.tolist()]
+        expected = _last_flip_round_box_by_box(blocks, box, boxes)
+        assert meshcore.tiles.last_flip_round_in(blocks, box, boxes) == expected
+        assert meshcore.tiles.last_flip_round_in(blocks, box, boxes[:1]) == _last_flip_round_box_by_box(blocks, box, boxes[:1])
