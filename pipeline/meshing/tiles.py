@@ -151,6 +151,12 @@ class TileSummary:
     grown: float = 0.0
     """How far beyond its buffer the box it holds whole had to grow for the flips' certificate."""
 
+    @property
+    def latest_flip_round(self) -> int:
+        """The last round whose flips touched this tile's window anywhere: no
+        box gets a later one from :meth:`last_flip_round_in`."""
+        return max([self.last_flip_round, *(max(row) for row in self.flip_blocks if row)])
+
     def last_flip_round_in(self, boxes: list) -> int:
         """The last round whose flips touched this tile's window inside the
         closed ``boxes`` (:func:`meshcore.tiles.last_flip_round_in`), or in its

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import errno
+import itertools
 import math
 import sys
 import time
@@ -800,12 +801,18 @@ def _rounds_unchecked(grid, tile_jobs: list[TileJob], summaries: dict) -> list[T
     late flip in the middle of a tile makes only the tiles whose held boxes
     reach it mesh again, not the eight around it.
     """
+    # only the tiles that flipped later than a tile assumed can make it mesh
+    # again: a survey of thousands of tiles holding boxes across hundreds of
+    # others asks a few of them, not every tile its boxes span
+    latest = sorted(((s.latest_flip_round, key) for key, s in summaries.items()), reverse=True)
     out = []
     for job in tile_jobs:
         s = summaries[(job.row, job.col)]
+        late = [key for round_, key in itertools.takewhile(lambda rk: rk[0] > s.assumed_rounds, latest)]
+        if not late:
+            continue
         held = list(s.held) or [grid.window(job.row, job.col)]
-        need = max((summaries[key].last_flip_round_in(held) for key in grid.tiles_meeting(held) if key in summaries),
-                   default=0)
+        need = max((summaries[key].last_flip_round_in(held) for key in grid.tiles_meeting(held, among=late)), default=0)
         if s.assumed_rounds < need:
             out.append(replace(job, assume_rounds=need, held_before=HeldBefore(s.held, s.grown)))
     return out

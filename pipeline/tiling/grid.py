@@ -190,12 +190,23 @@ class TileGrid:
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.n_rows) for c in range(self.n_cols)]
 
-    def tiles_meeting(self, boxes) -> list[tuple[int, int]]:
+    def tiles_meeting(self, boxes, among: list[tuple[int, int]] | None = None) -> list[tuple[int, int]]:
         """The tiles (row, col), in order, whose windows hold a point of any of
-        the closed ``boxes`` (x_min, y_min, x_max, y_max)."""
+        the closed ``boxes`` (x_min, y_min, x_max, y_max); only those of
+        ``among`` when given (without listing every tile the boxes span)."""
         corners = np.array(boxes, dtype=np.float64).reshape(-1, 4)
         row_lo, col_lo = self.owner(corners[:, 0], corners[:, 1])
         row_hi, col_hi = self.owner(corners[:, 2], corners[:, 3])
+        # the outer tiles' windows reach to infinity: a box beyond the grid meets them
+        row_lo, row_hi = np.clip(row_lo, 0, self.n_rows - 1), np.clip(row_hi, 0, self.n_rows - 1)
+        col_lo, col_hi = np.clip(col_lo, 0, self.n_cols - 1), np.clip(col_hi, 0, self.n_cols - 1)
+        if among is not None:
+            if not among:
+                return []
+            rc = np.array(among, dtype=np.int64).reshape(-1, 2)
+            r, c = rc[:, :1], rc[:, 1:]
+            meet = ((r >= row_lo) & (r <= row_hi) & (c >= col_lo) & (c <= col_hi)).any(axis=1)
+            return sorted(map(tuple, rc[meet].tolist()))
         found = set()
         for r0, c0, r1, c1 in zip(row_lo.tolist(), col_lo.tolist(), row_hi.tolist(), col_hi.tolist()):
             found.update((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1))

@@ -87,6 +87,19 @@ def test_one_tile_never_outgrows_the_grid():
     assert g.tile_cells == 500 and (g.nx, g.ny) == (500, 300)  # the data's rows: no padding to a whole tile
 
 
+def test_the_tiles_among_some_that_boxes_meet_are_those_of_all_the_tiles_they_meet(rng):
+    g = TileGrid(x0=651_000.0, y0=6_861_000.0, resolution=0.5, tile_cells=40, nx=400, ny=300)
+    tiles = [(r, c) for r in range(g.n_rows) for c in range(g.n_cols)]
+    for _ in range(50):
+        lo = rng.uniform([650_980.0, 6_860_980.0], [651_210.0, 6_861_160.0], (int(rng.integers(1, 30)), 2))
+        boxes = np.c_[lo, lo + rng.exponential(15.0, lo.shape) * (rng.random((lo.shape[0], 1)) < 0.7)]
+        boxes[rng.random(lo.shape[0]) < 0.1, 2] = math.inf
+        among = [tiles[i] for i in rng.choice(len(tiles), int(rng.integers(0, 40)), replace=False)]
+        every = g.tiles_meeting(boxes)
+        assert g.tiles_meeting(boxes, among=among) == sorted(set(every) & set(among))
+        assert g.tiles_meeting(boxes, among=tiles) == every
+
+
 @pytest.mark.parametrize("cells", [1, 7, 16, 25, 1000])
 def test_the_grid_is_the_datas_whatever_the_tile_size(cells):
     bounds = (651000.37, 6861000.9, 651049.2, 6861030.1)
