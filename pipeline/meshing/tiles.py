@@ -696,6 +696,9 @@ _RING_SPACINGS = 0.6
 _RIM_BUFFERS = 4.0
 """The farthest a sparse rim is held from the first build, in buffers."""
 
+_STEP_SPACINGS = 2.0
+"""The least a tile's searches grow by, in mean spacings of the points it holds (see :attr:`_Certifying.step`)."""
+
 _FIRST_REACH_BUFFERS = 8.0
 """How far beyond the box held whole (in buffers, at most a tile) a tile
 first loads the points of the circles it cannot vouch for; twice as far each
@@ -806,6 +809,19 @@ class _Certifying:
         self.covered = False
         self.grown = grown  # how far the box held whole grew beyond the buffer, for the certificate
 
+    @property
+    def step(self) -> float:
+        """How far the searches grow at a time: the buffer (at least a cell),
+        or :data:`_STEP_SPACINGS` mean spacings of the points held where that
+        is more (a buffer set below a sparse survey's spacing): growing by a
+        buffer at a time, a tile of a survey whose points lie 40 buffers
+        apart meshed again dozens of times before it held a neighbour."""
+        job, ext, box = self.job, self.job.extent, self.held[0]
+        w = min(box[2], ext[2]) - max(box[0], ext[0])
+        h = min(box[3], ext[3]) - max(box[1], ext[1])
+        spacing = math.sqrt(max(w, 0.0) * max(h, 0.0) / max(self.points.shape[0], 1))
+        return max(job.buffer, job.grid.resolution, _STEP_SPACINGS * spacing)
+
     def _build(self):
         """The mesh of ``points``, and the points in the order it was given them."""
         job, points = self.job, self.points
@@ -844,7 +860,7 @@ class _Certifying:
         # points usually break it)
         circles = []
         requests = []
-        reach = min(g.tile_size, _FIRST_REACH_BUFFERS * max(self.job.buffer, g.resolution)) * 2.0**self.expansions
+        reach = min(g.tile_size, _FIRST_REACH_BUFFERS * self.step) * 2.0**self.expansions
         near = (held[0][0] - reach, held[0][1] - reach, held[0][2] + reach, held[0][3] + reach)
         everywhere = near[0] <= ext[0] and near[1] <= ext[1] and near[2] >= ext[2] and near[3] >= ext[3]
         wanted = self.mesh.window_escapes
@@ -863,19 +879,19 @@ class _Certifying:
             # building over a corner)
             lo, hi = corners.min(axis=0), corners.max(axis=0)
             around = _grown_box((float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])),
-                                max(self.job.buffer, g.resolution) * 2.0**self.expansions, ext)
+                                self.step * 2.0**self.expansions, ext)
             requests.extend(_uncovered(around, held))
             everywhere = everywhere and all(math.isinf(v) for v in around)
         return circles, requests, gap, everywhere
 
     def hold_doubt(self) -> None:
         """The flips and merges of the window's faces read triangles the tile may not have as the
-        survey has them: hold the circles their doubt came from, with a buffer around each (doubt
+        survey has them: hold the circles their doubt came from, with a :attr:`step` around each (doubt
         from the rim of what is held spreads a few rings a round), and a wider box where it came
         from a hull edge of the tile's points; then mesh again."""
-        job, g, ext, held = self.job, self.job.grid, self.job.extent, self.held
+        job, ext, held = self.job, self.job.extent, self.held
         cert = self.mesh.certificate
-        step = max(job.buffer, g.resolution)
+        step = self.step
         margin = step * 2.0 ** min(self.expansions, 4)  # a chain of voids: ever more margin
         wants = [] if cert.open_edges else [
             (max(ext[0], b[0] - margin), max(ext[1], b[1] - margin), min(ext[2], b[2] + margin),
