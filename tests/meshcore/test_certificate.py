@@ -80,20 +80,22 @@ def test_a_certified_piece_of_part_of_the_points_is_the_whole_meshs(rng, measure
     assert tight.certificate.certified is False or _faces(tight) <= faces_whole
 
 
-def _last_flip_round_box_by_box(blocks, box, boxes) -> int:
-    """The rule of ``last_flip_round_in``, one box at a time: the largest block any closed box meets."""
+def _last_flip_round_block_by_block(blocks, box, boxes) -> int:
+    """The rule of ``last_flip_round_in`` block by block: the largest block that a closed box meets, the
+    outer blocks reaching to infinity, every edge given 1e-8 of the box's coordinates."""
     n_rows, n_cols = blocks.shape
-    x0, y0, x1, y1 = box
-    xs = x0 + (x1 - x0) * np.arange(n_cols + 1) / n_cols
-    ys = y0 + (y1 - y0) * np.arange(n_rows + 1) / n_rows
-    slack = 1e-8 * (abs(x0) + abs(y0) + 1.0)
-    xs[0], xs[-1], ys[0], ys[-1] = -np.inf, np.inf, -np.inf, np.inf
+    slack = 1e-8 * (abs(box[0]) + abs(box[1]) + 1.0)
+    width, height = (box[2] - box[0]) / n_cols, (box[3] - box[1]) / n_rows
     last = 0
-    for bx0, by0, bx1, by1 in boxes:
-        cols = (xs[1:] >= bx0 - slack) & (xs[:-1] <= bx1 + slack)
-        rows = (ys[1:] >= by0 - slack) & (ys[:-1] <= by1 + slack)
-        if cols.any() and rows.any():
-            last = max(last, int(blocks[np.ix_(rows, cols)].max()))
+    for row in range(n_rows):
+        low = -math.inf if row == 0 else box[1] + height * row
+        high = math.inf if row == n_rows - 1 else box[1] + height * (row + 1)
+        for col in range(n_cols):
+            left = -math.inf if col == 0 else box[0] + width * col
+            right = math.inf if col == n_cols - 1 else box[0] + width * (col + 1)
+            if any(b[0] - slack <= right and left <= b[2] + slack and b[1] - slack <= high and low <= b[3] + slack
+                   for b in boxes):
+                last = max(last, int(blocks[row, col]))
     return last
 
 
@@ -117,6 +119,6 @@ def test_the_last_flip_round_of_many_boxes_is_the_largest_block_any_of_them_meet
         boxes[rng.random(n) < 0.05, 3] = math.inf
         boxes[rng.random(n) < 0.05, 2] -= 30.0  # inverted
         boxes = [tuple(b) for b in boxes.tolist()]
-        expected = _last_flip_round_box_by_box(blocks, box, boxes)
+        expected = _last_flip_round_block_by_block(blocks, box, boxes)
         assert meshcore.tiles.last_flip_round_in(blocks, box, boxes) == expected
-        assert meshcore.tiles.last_flip_round_in(blocks, box, boxes[:1]) == _last_flip_round_box_by_box(blocks, box, boxes[:1])
+        assert meshcore.tiles.last_flip_round_in(blocks, box, boxes[:1]) == _last_flip_round_block_by_block(blocks, box, boxes[:1])
