@@ -1,7 +1,7 @@
 """Accuracy of the surfaces: predicting withheld ground points, one at a time and in voids (run by hand).
 
     python bench/bench_accuracy.py [--samples ../shared/data] [--lidr-sets 20] [--repeats 3]
-                                   [--tests point,5,10,20,40] [--only ign_semis,autzen_trim]
+                                   [--tests point,5,10,20,40] [--only ign_semis,autzen_trim] [--seed 0]
 
 Two tests on each survey's ground points (class 2, exact x, y duplicates
 merged, the lowest z kept), ``--repeats`` draws each:
@@ -228,9 +228,9 @@ def one_split(fit: np.ndarray, test: np.ndarray, voids: tuple[np.ndarray, float]
     return rmse, worst, variogram
 
 
-def point_splits(points: np.ndarray, repeats: int):
+def point_splits(points: np.ndarray, repeats: int, seed: int = 11):
     """Point cross-validation: a random 10% withheld, ``repeats`` draws."""
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(seed)
     n = points.shape[0]
     n_test = n // 10
     for _ in range(repeats):
@@ -249,12 +249,12 @@ def void_centres(points: np.ndarray, radius: float, rng: np.random.Generator, mo
     return points[rng.choice(np.flatnonzero(fits), min(count, int(fits.sum())), replace=False), :2]
 
 
-def block_splits(points: np.ndarray, radius: float, repeats: int):
+def block_splits(points: np.ndarray, radius: float, repeats: int, seed: int = 100):
     """Block cross-validation: every point inside the disks of :func:`void_centres` withheld, ``repeats`` draws."""
     from scipy.spatial import cKDTree
 
     for draw in range(repeats):
-        centres = void_centres(points, radius, np.random.default_rng(100 + draw))
+        centres = void_centres(points, radius, np.random.default_rng(seed + draw))
         if centres is None:
             return
         out = cKDTree(centres).query(points[:, :2])[0] <= radius
@@ -278,6 +278,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tests", default="point,5,10,20,40", help="point and/or void radii (CRS units), comma-separated")
     ap.add_argument("--only", default="", help="sample names (without extension) to run, comma-separated")
+    ap.add_argument("--seed", type=int, default=0, help="added to the draws' seeds (11 and 100 + d): other draws")
     args = ap.parse_args(argv)
     tests = [t.strip() for t in args.tests.split(",") if t.strip()]
     only = {o.strip() for o in args.only.split(",") if o.strip()}
@@ -294,10 +295,10 @@ def main(argv: list[str] | None = None) -> None:
         pts = ground_points(path)
         for test in tests:
             if test == "point":
-                runs = [one_split(fit, withheld) for fit, withheld in point_splits(pts, args.repeats)]
+                runs = [one_split(fit, withheld) for fit, withheld in point_splits(pts, args.repeats, 11 + args.seed)]
             else:
                 runs = [one_split(fit, withheld, (centres, float(test)))
-                        for fit, withheld, centres in block_splits(pts, float(test), args.repeats)]
+                        for fit, withheld, centres in block_splits(pts, float(test), args.repeats, 100 + args.seed)]
             rows.append((label, f"{pts.shape[0]:,}", "point" if test == "point" else f"r={float(test):g}",
                          scores(runs) if runs else None))
     lidr = []
