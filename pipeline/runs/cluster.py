@@ -181,8 +181,16 @@ def map_tasks(
 
     futures = client.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
-    for future in as_completed_on_cluster(futures, loop=client.loop):
-        _take(future.result(), index[future.key], items, results, finished, progress, points)
+    pending = as_completed_on_cluster(futures, loop=client.loop)
+    del futures
+    for future in pending:
+        key, result = future.key, future.result()
+        # let go of a task once its result is here: a result lives on the worker that made it, and
+        # while the future is held, losing that worker runs the task again, whose files (a route's
+        # spills, a tile's piece) a later stage may be reading as it rewrites them
+        future.release()
+        del future
+        _take(result, index[key], items, results, finished, progress, points)
     return results
 
 

@@ -186,3 +186,45 @@ def test_a_smooth_run_on_the_cluster_and_s3_gives_the_local_store(server, machin
     fs.invalidate_cache()
     fs.get("smooth/dem/survey.zarr", str(tmp_path / "fetched.zarr"), recursive=True)
     assert_same_store(tmp_path / "fetched.zarr", reference)
+
+
+def test_a_finished_task_is_not_run_again_when_the_worker_that_ran_it_is_lost(tmp_path):
+    """A task's result lives on the worker that made it.  Held on to, its future
+    made a lost worker's finished tasks run again, rewriting their files (a
+    route's spills) while the run read them on; each is let go once taken."""
+    from distributed import Client
+
+    from pipeline.runs.cluster import Progress, map_tasks
+
+    def logged_task(item: tuple[str, str]) -> int:
+        """Note one run of the task in the log, take a while if it is the slow one, and say which worker
+        ran it (nested: shipped by value, as the workers cannot import the tests)."""
+        name, log = item
+        with open(log, "a") as f:
+            f.write(name + "\n")
+        if name == "slow":
+            time.sleep(3.0)
+        return os.getpid()
+
+    m = Machines(tmp_path)
+    try:
+        m.start_scheduler()
+        for _ in range(3):  # one for each task, and one idle that would run a lost one again at once
+            m.add_worker()
+        m.wait_for_workers(3)
+        log = str(tmp_path / "runs.log")
+
+        def finished(item, pid):
+            if item[0] == "fast":  # the slow one still runs: lose the machine that ran this one
+                os.kill(pid, signal.SIGKILL)
+
+        with Client(m.address, timeout="30s", set_as_default=False) as client:
+            pids = map_tasks(client, logged_task, [("fast", log), ("slow", log)], Progress("tasks", 2, False),
+                             lambda result: 1, finished)
+            assert pids[0] != pids[1]
+            time.sleep(1.0)  # a task run again would have logged by now
+        runs = Path(log).read_text().split()
+        assert runs.count("fast") == 1, runs
+        assert runs.count("slow") == 1, runs
+    finally:
+        m.stop()
