@@ -52,7 +52,7 @@ from .patches import quad_patch, triangle_patch
 from .smooth import SmoothSurface
 from .variogram import Variogram
 
-__all__ = ["rasterize", "sampled_faces"]
+__all__ = ["rasterize", "sampled_faces", "highest_per_cell"]
 
 
 _CHUNK = 512
@@ -249,6 +249,96 @@ def _sampled_faces_kernel(vertices: np.ndarray, faces: np.ndarray, x0: float, y0
                     break
             if out[f]:
                 break
+
+
+def highest_per_cell(x: ArrayLike, y: ArrayLike, z: ArrayLike, x0: float, y0: float, cell: float) -> NDArray[np.int64]:
+    """The indices (ascending) of the highest point of every cell of side
+    ``cell`` on the grid whose corner is ``(x0, y0)``: a point's cell is
+    ``(floor((x - x0) / cell), floor((y - y0) / cell))``, the rule of this
+    module's grids.  Of points equally high, the one first by x, then y is
+    kept (of exact copies, the first given).
+
+    The answer depends on the points' values only, not on their order, and
+    a cell's point on that cell's points only: a caller holding every point
+    of a cell gets the same point for it whatever else it holds.
+
+    >>> highest_per_cell([0.2, 0.7, 1.5, 0.4], [0.1, 0.3, 0.5, 0.9], [1.0, 3.0, 2.0, 3.0], 0.0, 0.0, 1.0).tolist()
+    [2, 3]
+    """
+    xs = np.ascontiguousarray(x, dtype=np.float64)
+    ys = np.ascontiguousarray(y, dtype=np.float64)
+    zs = np.ascontiguousarray(z, dtype=np.float64)
+    if not (xs.ndim == ys.ndim == zs.ndim == 1 and xs.shape == ys.shape == zs.shape):
+        raise InvalidInputError(f"x, y and z must be 1-D arrays of one length, got {xs.shape}, {ys.shape}, {zs.shape}")
+    if not (isinstance(cell, numbers.Real) and math.isfinite(cell) and cell > 0.0):
+        raise InvalidInputError(f"cell must be a finite number > 0, got {cell!r}")
+    if not (np.isfinite(xs).all() and np.isfinite(ys).all() and np.isfinite(zs).all()):
+        raise InvalidInputError("x, y and z must be finite")
+    if xs.size == 0:
+        return np.empty(0, dtype=np.int64)
+    col = np.floor((xs - x0) / cell).astype(np.int64)
+    row = np.floor((ys - y0) / cell).astype(np.int64)
+    col -= col.min()
+    row -= row.min()
+    n_cols = int(col.max()) + 1
+    key = row * n_cols + col
+    n_cells = int(key.max()) + 1
+    if n_cells <= max(4 * xs.size, 1 << 16):  # few cells: one slot each
+        return _highest_dense(xs, ys, zs, key, n_cells)
+    order = np.argsort(key, kind="stable")  # sparse points over many cells: by cell
+    return np.sort(_highest_sorted(xs, ys, zs, key, order))
+
+
+@njit_helper
+def _higher(x, y, z, p, q) -> bool:
+    """Whether point ``p`` wins over ``q`` for its cell: higher, then first by x, then y."""
+    if z[p] != z[q]:
+        return z[p] > z[q]
+    if x[p] != x[q]:
+        return x[p] < x[q]
+    return y[p] < y[q]
+
+
+@njit
+def _highest_dense(x, y, z, key, n_cells):
+    best = full(n_cells, -1, dtype=np.int64)
+    for p in range(x.shape[0]):
+        k = key[p]
+        q = best[k]
+        if q < 0 or _higher(x, y, z, p, q):
+            best[k] = p
+    count = 0
+    for k in range(n_cells):
+        if best[k] >= 0:
+            count += 1
+    out = empty(count, dtype=np.int64)
+    m = 0
+    for k in range(n_cells):
+        if best[k] >= 0:
+            out[m] = best[k]
+            m += 1
+    out.sort()
+    return out
+
+
+@njit
+def _highest_sorted(x, y, z, key, order):
+    n = order.shape[0]
+    out = empty(n, dtype=np.int64)
+    m = 0
+    s = 0
+    while s < n:
+        q = order[s]
+        e = s + 1
+        while e < n and key[order[e]] == key[q]:
+            p = order[e]
+            if _higher(x, y, z, p, q):
+                q = p
+            e += 1
+        out[m] = q
+        m += 1
+        s = e
+    return out[:m].copy()
 
 
 def sampled_faces(mesh: Mesh, x0: float, y0: float, resolution: float, nx: int, ny: int) -> NDArray[np.bool_]:

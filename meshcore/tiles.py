@@ -10,7 +10,9 @@ depend on the points it did not load:
   doubtful, the circles that leave the held region, and the last flip round
   per block of the window (:func:`last_flip_round_in` reads it for a box);
 * :func:`bounded_triangles` keeps the triangles whose circumcircle a margin
-  holds (a surface drawn with a maximum edge is then the same in every tile);
+  holds (a surface drawn with a maximum edge is then the same in every tile),
+  and :func:`highest_per_cell` the highest point of each grid cell (a DSM's
+  points, the same in every tile that holds the cell);
 * :func:`with_vertices` adds points that no face uses (a smooth surface's
   kriging neighbours loaded after the faces were certified);
 * :func:`lexicographic_order` and :func:`block_order` sort points and
@@ -39,7 +41,7 @@ from .certificate import KnownRegion, WindowCertificate, last_flip_round_in
 from .mesh import bounded_triangles, with_vertices
 from .natural import NaturalCoordinates, natural_coordinates, natural_values
 from .patches import NODES_PER_FACE, linear_nodes, node_deviations, nodes_from_deviations
-from .rasterize import sampled_faces
+from .rasterize import highest_per_cell, sampled_faces
 from .refine import cut_face_rows, with_cut_faces
 from .kriging import DEFAULT_NEIGHBOURS
 from .smooth import AddedPoints, Neighbourhoods, SmoothPlan, smooth_neighbourhoods, smooth_plan
@@ -51,6 +53,7 @@ __all__ = [
     "last_flip_round_in",
     "with_vertices",
     "bounded_triangles",
+    "highest_per_cell",
     "lexicographic_order",
     "block_order",
     "sampled_faces",

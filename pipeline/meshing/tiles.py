@@ -1241,7 +1241,7 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
     """The DEM layers of one tile's cells (south-up), from the stitched faces
     around it and, for the products that read points, the points routed to it."""
     mesh, z, kinds, smooth = _local_mesh(job)
-    settings = job.products or ProductSettings.for_run(job.options.layers, None, "all")
+    settings = job.products or ProductSettings.for_run(job.options.layers, None, "all", cell=job.grid.resolution)
     ctx = TileContext(
         job.grid, job.row, job.col, settings, mesh=mesh, z=z, kinds=kinds,
         surface={"surface": job.options.surface if smooth is None else smooth}, height_scale=job.height_scale,

@@ -24,6 +24,11 @@ TIN bridges the gaps between them on roofs and crowns, and leaves open the
 wider voids of water and occlusions."""
 
 
+DSM_CELLS_PER_EDGE = 4.0
+"""The DSM keeps the highest first return of cells at most its maximum edge
+over this wide (the grid's cells when they are finer)."""
+
+
 def layers_needed(layers: tuple[str, ...]) -> tuple[str, ...]:
     """``layers`` and every layer they are computed from, in registry order."""
     wanted = set(layers)
@@ -55,15 +60,17 @@ class ProductSettings:
     classified: bool = False
     """The DTM's points are the ground stage's (:mod:`pipeline.meshing.ground`), not a class of the files:
     :attr:`dtm` selects the points it classified, and the tiles read its ground points for the DTM's."""
+    cell: float = 0.0
+    """The side of the grid's cells."""
 
     @classmethod
     def for_run(cls, layers: tuple[str, ...], classes: tuple[int, ...] | None, returns: str,
                 dsm_max_edge: float | None = None, keep_withheld: bool = False,
-                classified: bool = False) -> ProductSettings:
+                classified: bool = False, cell: float = 0.0) -> ProductSettings:
         computed = layers_needed(layers)
         dtm = Selection(None if classes is None else frozenset(classes), Returns.parse(returns))
         partial = cls(tuple(layers), computed, dtm, None, (), math.inf if dsm_max_edge is None else dsm_max_edge,
-                      keep_withheld, classified)
+                      keep_withheld, classified, cell)
         selections = [s for s in (p.points(partial) for p in map(product, computed) if p.points is not None)
                       if s is not None]
         if not selections:
@@ -79,7 +86,7 @@ class ProductSettings:
                 wanted.extend(selection.attributes_to_split(reads))
             wanted.extend(p.attributes)
         columns = tuple(a.value for a in Attribute if a in wanted)
-        return cls(tuple(layers), computed, dtm, reads, columns, partial.dsm_max_edge, keep_withheld, classified)
+        return cls(tuple(layers), computed, dtm, reads, columns, partial.dsm_max_edge, keep_withheld, classified, cell)
 
     @property
     def reads_points(self) -> bool:
@@ -90,8 +97,18 @@ class ProductSettings:
     def margin(self) -> float:
         """How far beyond a tile's box the products need every point of their
         selections (the DSM's: twice its maximum edge, which holds the
-        circumcircle of every triangle it draws over the tile's cells)."""
-        return 2.0 * self.dsm_max_edge if "dsm" in self.computed else 0.0
+        circumcircle of every triangle it draws over the tile's cells, and
+        one and a half of its cells, which hold the whole cell of each corner,
+        whose highest return it is)."""
+        return 2.0 * self.dsm_max_edge + 1.5 * self.dsm_cell if "dsm" in self.computed else 0.0
+
+    @property
+    def dsm_cell(self) -> float:
+        """The side of the cells whose highest first return the DSM keeps: the
+        grid's, or :data:`DSM_CELLS_PER_EDGE` of them along its maximum edge
+        when the grid's cells are coarser (the returns kept lie about a cell
+        apart, and the TIN must still join them)."""
+        return min(self.cell, self.dsm_max_edge / DSM_CELLS_PER_EDGE)
 
     def spill_buffer(self, buffer: float) -> float:
         """The buffer of the products' spill files, for tiles of ``buffer``: at

@@ -106,7 +106,8 @@ class RunPlan:
         from ..products import ProductSettings
 
         c = self.config
-        return ProductSettings.for_run(c.layers, classes, c.returns, self.dsm_max_edge, c.keep_withheld, classified)
+        return ProductSettings.for_run(c.layers, classes, c.returns, self.dsm_max_edge, c.keep_withheld, classified,
+                                       c.resolution)
 
     @property
     def notes(self) -> list[str]:

@@ -374,3 +374,53 @@ def test_bounded_triangles_keep_those_of_short_edges_and_small_circles_from_thei
         shuffled = np.roll(tri, 1, axis=1)[::-1]
         again = bounded_triangles(mesh.vertices, shuffled, max_edge)
         assert sorted(map(tuple, again.tolist())) == sorted(map(tuple, kept.tolist()))
+
+
+def _highest_by_sorting(x, y, z, x0, y0, cell):
+    """The rule of highest_per_cell written with numpy's lexsort: per cell, the highest, then first by x, then y."""
+    col = np.floor((x - x0) / cell).astype(np.int64)
+    row = np.floor((y - y0) / cell).astype(np.int64)
+    order = np.lexsort((np.arange(x.size), y, x, -z, col, row))
+    cells = np.column_stack([row, col])[order]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = (cells[1:] != cells[:-1]).any(axis=1)
+    return np.sort(order[first])
+
+
+@pytest.mark.parametrize("extent", [20.0, 5e4])  # cells enough for a slot each, and far more cells than points
+def test_highest_per_cell_keeps_the_highest_point_of_each_cell_whatever_the_order(rng, extent):
+    from meshcore.tiles import highest_per_cell
+
+    n = 4000
+    # survey-like: coordinates on a 1 cm lattice at an offset, heights on 1 cm, so that ties happen
+    x = 651_000.0 + np.round(rng.uniform(0, extent, n), 2)
+    y = 6_862_000.0 + np.round(rng.uniform(0, extent, n), 2)
+    z = np.round(rng.uniform(100, 100.2, n), 2)
+    x[:200], y[:200] = x[200:400], y[200:400]  # points sharing x and y, some of one height
+    z[:100] = z[200:300]
+    cell = 0.5 if extent < 100 else 300.0
+    x0, y0 = 650_999.75, 6_861_999.25
+    kept = highest_per_cell(x, y, z, x0, y0, cell)
+    assert_array_equal(kept, _highest_by_sorting(x, y, z, x0, y0, cell))
+    assert np.unique(np.column_stack([np.floor((x[kept] - x0) / cell), np.floor((y[kept] - y0) / cell)]), axis=0).shape[0] == kept.size
+    # shuffled, the same points (exact copies aside: the same values)
+    perm = rng.permutation(n)
+    again = perm[highest_per_cell(x[perm], y[perm], z[perm], x0, y0, cell)]
+    assert_array_equal(np.sort(np.column_stack([x, y, z])[again], axis=0), np.sort(np.column_stack([x, y, z])[kept], axis=0))
+    # a caller holding whole cells only gets their points
+    col = np.floor((x - x0) / cell)
+    held = col < np.median(col)
+    sub = np.flatnonzero(held)[highest_per_cell(x[held], y[held], z[held], x0, y0, cell)]
+    assert set(sub.tolist()) == set(kept[held[kept]].tolist())
+
+
+def test_highest_per_cell_rejects_what_it_cannot_grid():
+    from meshcore.tiles import highest_per_cell
+
+    assert highest_per_cell([], [], [], 0.0, 0.0, 1.0).shape == (0,)
+    with pytest.raises(InvalidInputError, match="cell"):
+        highest_per_cell([0.0], [0.0], [0.0], 0.0, 0.0, 0.0)
+    with pytest.raises(InvalidInputError, match="finite"):
+        highest_per_cell([np.nan], [0.0], [0.0], 0.0, 0.0, 1.0)
+    with pytest.raises(InvalidInputError, match="one length"):
+        highest_per_cell([0.0, 1.0], [0.0], [0.0], 0.0, 0.0, 1.0)

@@ -87,8 +87,8 @@ def scene(tmp_path_factory):
 
 
 def _run(inputs, out: Path, **kw):
-    config = RunConfig(inputs=tuple(str(i) for i in inputs), output=str(out), resolution=1.0, workers=2,
-                       **({"layers": NEW} | kw))
+    config = RunConfig(inputs=tuple(str(i) for i in inputs), output=str(out), workers=2,
+                       **({"layers": NEW, "resolution": 1.0} | kw))
     return run(config, progress=False)
 
 
@@ -284,6 +284,29 @@ def test_a_buffer_smaller_than_the_dsms_margin_gives_the_same_layers(scene, tmp_
         for layer in ("elevation", *NEW):
             assert np.array_equal(a[layer].values, b[layer].values, equal_nan=True), layer
         assert np.isfinite(a["dsm"].values).any()
+
+
+def test_the_dsms_highest_returns_in_cells_wider_than_its_maximum_edge_are_joined_the_same_in_every_tile(tmp_path):
+    # a rough canopy of first returns over ground, in cells of 3 m with a DSM edge of 2 m: the returns kept are
+    # those of cells of 0.5 m, close enough to be joined, and a tile holds the whole cell of each
+    rng = np.random.default_rng(7)
+    x, y = _lattice(rng, 48.0)
+    n = x.size
+    canopy = np.round(GROUND + 8.0 + 3.0 * np.sin(x / 3.0) * np.cos(y / 4.0) + rng.uniform(0, 2.0, n), 2)
+    first = rng.random(n) < 0.6
+    pts = {"x": x, "y": y, "z": np.where(first, canopy, GROUND), "cls": np.where(first, 5, 2),
+           "rn": np.where(first, 1, 2), "nr": np.full(n, 2), "intensity": np.full(n, 100), "withheld": np.zeros(n, bool)}
+    path = _write(tmp_path / "canopy.las", pts)
+    common = dict(layers=("dsm",), resolution=3.0, dsm_max_edge=2.0, buffer=0.5)
+    tiled = _run([path], tmp_path / "tiled.zarr", tile_size=9.0, **common)
+    _run([path], tmp_path / "whole.zarr", tile_size=60.0, **common)
+    assert tiled.tiles > 1
+    with xr.open_zarr(tmp_path / "tiled.zarr") as a, xr.open_zarr(tmp_path / "whole.zarr") as b:
+        dsm = b["dsm"].values
+        assert np.array_equal(a["dsm"].values, dsm, equal_nan=True)
+        # the canopy's top, drawn between its highest returns, not the ground of voids
+        inner = dsm[1:-1, 1:-1]
+        assert inner.min() > GROUND + 5.0 and inner.max() <= canopy.max() + 1e-3
 
 
 def test_the_dsm_draws_no_triangle_beyond_its_maximum_edge_or_circumradius():
