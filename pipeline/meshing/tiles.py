@@ -1043,9 +1043,8 @@ def mesh_tile(job: TileJob) -> TileSummary:
         extra = _load_boxes(job, more, held)
         loaded += extra.shape[0]
         points = np.concatenate([points, extra])
-        held.extend(more)
-        if job.held_before is not None:
-            held[0] = more[0]  # it grew from the box held first, so holds it; every point in it is loaded now
+        # meshed again: the box held first grew from this tile's box, so holds it (every point in it is loaded now)
+        held = list(more) if job.held_before is not None else [*held, *more]
     work = _Certifying(job, held, points, loaded, grown)
     _certify(work)
     tables = _piece_tables(job, work.mesh, work.meshed, own)

@@ -1,4 +1,4 @@
-"""``dsm``: the surface of the highest returns, a TIN of first returns with a maximum edge.
+"""``dsm``: the surface of the highest returns, a TIN of the highest first return of each cell with a maximum edge.
 
 Method: lidR's ``dsmtin`` with its default ``highest = TRUE``: the highest
 first return of every cell (of every class but noise, 7 and 18, withheld
