@@ -309,6 +309,24 @@ def test_the_dsms_highest_returns_in_cells_wider_than_its_maximum_edge_are_joine
         assert inner.min() > GROUND + 5.0 and inner.max() <= canopy.max() + 1e-3
 
 
+def test_the_dsm_keeps_the_crowns_top_where_a_first_return_went_through_a_gap_in_every_cell(tmp_path):
+    # a closed canopy at 117.5 m over ground at 100 m, four first returns a cell: one of each cell's four went
+    # through a gap to the ground.  The highest return of each cell is the crown's: no pit at any cell centre
+    rng = np.random.default_rng(11)
+    x, y = _lattice(rng, 30.0)
+    n = x.size
+    gap = (np.floor(2 * x) + 2 * np.floor(2 * y)) % 4 == 0  # one lattice point in each 1 m cell
+    pts = {"x": x, "y": y, "z": np.where(gap, GROUND, GROUND + TREE_HEIGHT), "cls": np.where(gap, 2, 5),
+           "rn": np.ones(n, int), "nr": np.ones(n, int), "intensity": np.full(n, 100), "withheld": np.zeros(n, bool)}
+    path = _write(tmp_path / "canopy.las", pts)
+    # an edge of 4 m: the returns kept are those of the grid's cells of 1 m (a quarter of the edge)
+    _run([path], tmp_path / "canopy.zarr", layers=("dsm", "chm"), tile_size=12.0, dsm_max_edge=4.0)
+    with xr.open_zarr(tmp_path / "canopy.zarr") as ds:
+        dsm, chm = ds["dsm"].values[1:-1, 1:-1], ds["chm"].values[1:-1, 1:-1]
+    assert np.all(dsm == np.float32(GROUND + TREE_HEIGHT))
+    assert np.allclose(chm, TREE_HEIGHT)
+
+
 def test_the_dsm_draws_no_triangle_beyond_its_maximum_edge_or_circumradius():
     # a sliver: every edge under 2, but its circumcircle about 25 across
     vertices = np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.04], [1.0, 1.5]])
