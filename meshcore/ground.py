@@ -89,6 +89,7 @@ from ._jit import larger, njit, njit_helper, smaller
 from .delaunay import _locate, _next, _prev, _walk, delaunay
 from .predicates import orient2d
 from .errors import InvalidInputError
+from .mesh import point_columns
 
 __all__ = ["GroundParameters", "GroundResult", "classify_ground"]
 
@@ -675,15 +676,6 @@ def _tin_kernel(tri, he, lx, ly, ax, ay, vz, live, tri_radius, plx, ply, px, py,
 # --- public --------------------------------------------------------------------------------------------------
 
 
-def _checked(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    arrays = [np.asarray(a, dtype=np.float64) for a in (x, y, z)]
-    if any(a.ndim != 1 for a in arrays) or len({a.shape[0] for a in arrays}) != 1:
-        raise InvalidInputError(f"x, y and z must be 1-D arrays of one length, not of shapes {[a.shape for a in arrays]}")
-    if not all(np.isfinite(a).all() for a in arrays):
-        raise InvalidInputError("x, y and z must be finite")
-    return arrays[0], arrays[1], arrays[2]
-
-
 def _survey_hull(x: np.ndarray, y: np.ndarray, hull: ArrayLike | None) -> np.ndarray:
     """The hull given, checked, or the convex hull of the points (counter-clockwise, ``(h, 2)``)."""
     if hull is not None:
@@ -797,7 +789,7 @@ def classify_ground(
         When the arrays differ in length, are not finite, or ``unit`` is not
         a positive number.
     """
-    x, y, z = _checked(x, y, z)
+    x, y, z = point_columns(x, y, z)
     if not (isinstance(unit, (int, float)) and math.isfinite(unit) and unit > 0):
         raise InvalidInputError(f"unit must be a positive number of metres, not {unit!r}")
     p = parameters or GroundParameters()

@@ -15,7 +15,7 @@ from .predicates import lex_before
 if TYPE_CHECKING:
     from .certificate import WindowCertificate
 
-__all__ = ["Mesh", "mesh_arrays", "vertex_values", "with_vertices", "bounded_triangles"]
+__all__ = ["Mesh", "mesh_arrays", "point_columns", "vertex_values", "with_vertices", "bounded_triangles"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,6 +154,16 @@ def with_vertices(mesh: Mesh, points: ArrayLike) -> Mesh:
     grown = np.concatenate([vertices, pts[first[fresh]]])
     mapped = np.concatenate([np.asarray(mesh.input_to_vertex, dtype=np.int64), vertex[inverse.ravel()]])
     return replace(mesh, vertices=grown, input_to_vertex=mapped)
+
+
+def point_columns(x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[NDArray[np.float64], ...]:
+    """``x``, ``y`` and ``z`` as contiguous float64 arrays, checked: 1-D, of one length, finite."""
+    arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (x, y, z)]
+    if any(a.ndim != 1 for a in arrays) or len({a.shape[0] for a in arrays}) != 1:
+        raise InvalidInputError(f"x, y and z must be 1-D arrays of one length, not of shapes {[a.shape for a in arrays]}")
+    if not all(np.isfinite(a).all() for a in arrays):
+        raise InvalidInputError("x, y and z must be finite")
+    return tuple(arrays)
 
 
 def vertex_values(z: ArrayLike, n_vertices: int) -> NDArray[np.float64]:

@@ -46,7 +46,7 @@ from .interpolate import (
     face_after,
     surface_arrays,
 )
-from .mesh import Mesh, mesh_arrays, vertex_values
+from .mesh import Mesh, mesh_arrays, point_columns, vertex_values
 from .options import Surface
 from .patches import quad_patch, triangle_patch
 from .smooth import SmoothSurface
@@ -265,15 +265,9 @@ def highest_per_cell(x: ArrayLike, y: ArrayLike, z: ArrayLike, x0: float, y0: fl
     >>> highest_per_cell([0.2, 0.7, 1.5, 0.4], [0.1, 0.3, 0.5, 0.9], [1.0, 3.0, 2.0, 3.0], 0.0, 0.0, 1.0).tolist()
     [2, 3]
     """
-    xs = np.ascontiguousarray(x, dtype=np.float64)
-    ys = np.ascontiguousarray(y, dtype=np.float64)
-    zs = np.ascontiguousarray(z, dtype=np.float64)
-    if not (xs.ndim == ys.ndim == zs.ndim == 1 and xs.shape == ys.shape == zs.shape):
-        raise InvalidInputError(f"x, y and z must be 1-D arrays of one length, got {xs.shape}, {ys.shape}, {zs.shape}")
+    xs, ys, zs = point_columns(x, y, z)
     if not (isinstance(cell, numbers.Real) and math.isfinite(cell) and cell > 0.0):
         raise InvalidInputError(f"cell must be a finite number > 0, got {cell!r}")
-    if not (np.isfinite(xs).all() and np.isfinite(ys).all() and np.isfinite(zs).all()):
-        raise InvalidInputError("x, y and z must be finite")
     if xs.size == 0:
         return np.empty(0, dtype=np.int64)
     col = np.floor((xs - x0) / cell).astype(np.int64)
