@@ -278,7 +278,8 @@ def highest_per_cell(x: ArrayLike, y: ArrayLike, z: ArrayLike, x0: float, y0: fl
     key = row * n_cols + col
     n_cells = int(key.max()) + 1
     if n_cells <= max(4 * xs.size, 1 << 16):  # few cells: one slot each
-        return _highest_dense(xs, ys, zs, key, n_cells)
+        best = _highest_dense(xs, ys, zs, key, n_cells)
+        return np.sort(best[best >= 0])
     order = np.argsort(key, kind="stable")  # sparse points over many cells: by cell
     return np.sort(_highest_sorted(xs, ys, zs, key, order))
 
@@ -295,24 +296,14 @@ def _higher(x, y, z, p, q) -> bool:
 
 @njit
 def _highest_dense(x, y, z, key, n_cells):
+    """Each cell's point (-1: none), by a slot per cell."""
     best = full(n_cells, -1, dtype=np.int64)
     for p in range(x.shape[0]):
         k = key[p]
         q = best[k]
         if q < 0 or _higher(x, y, z, p, q):
             best[k] = p
-    count = 0
-    for k in range(n_cells):
-        if best[k] >= 0:
-            count += 1
-    out = empty(count, dtype=np.int64)
-    m = 0
-    for k in range(n_cells):
-        if best[k] >= 0:
-            out[m] = best[k]
-            m += 1
-    out.sort()
-    return out
+    return best
 
 
 @njit
