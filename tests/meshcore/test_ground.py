@@ -239,6 +239,30 @@ def test_a_hedge_on_the_rim_is_not_ground_and_a_slope_up_to_it_is(rise):
     np.testing.assert_array_equal(again.ground[settled], result.ground[part][settled])
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_roof_that_opens_down_in_two_steps_is_not_ground(seed):
+    """A block 56 m across whose upper floors stand 7.6 m high, set back 1 m
+    from a base 3.8 m high: the openings drop 3.8 m at the radius that no
+    longer fits the top, and 3.8 m more one radius later.  Each step is under
+    ``object_height`` (4 m), so Pingel's one-step test alone keeps nine
+    tenths of the top as ground; the drop over two radii finds it.  The
+    ground around it, on a gentle slope, stays ground."""
+    rng = np.random.default_rng(seed)
+    size, n = 160.0, 2 * 160 * 160
+    x = rng.uniform(0.0, size, n)
+    y = rng.uniform(0.0, size, n)
+    z = 100.0 + 0.02 * x + 0.01 * y + rng.normal(0.0, 0.03, n)
+    base = (np.abs(x - 80.0) < 29.0) & (np.abs(y - 80.0) < 29.0)
+    top = (np.abs(x - 80.0) < 28.0) & (np.abs(y - 80.0) < 28.0)
+    z[base] = 102.4 + 3.8
+    z[top] = 102.4 + 7.6
+    x, y, z = np.round((x + X0) * 100) / 100, np.round((y + Y0) * 100) / 100, np.round(z * 100) / 100
+    ground = classify_ground(x, y, z).ground
+    assert top.sum() > 5000
+    assert ground[top].mean() < 0.01
+    assert ground[~base].mean() > 0.99
+
+
 def test_order_does_not_matter(scene):
     """Shuffled input gives every point the same class (ties go by coordinates)."""
     x, y, z, label, truth, result = scene
