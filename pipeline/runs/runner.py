@@ -393,6 +393,9 @@ def _execute(
         return _already_complete(config, decision, work, report, say)
     # the cluster first: an unreachable scheduler leaves no store and no work folder behind
     client, cluster = connect(config)
+    # the digest that stamps the work folder, read before a thread loads the kernels: its ~90 source
+    # files take 10 ms alone, and ten times that read one by one behind a thread running Python
+    resume.sources_digest()
     compiling = KernelCompile(None)
     if isinstance(client, LocalThreads):
         # the tiles' kernels are loaded (from the compiled cache) by a thread
