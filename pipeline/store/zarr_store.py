@@ -233,13 +233,13 @@ def create_store(
             layer,
             shape=(grid.ny, grid.nx),
             chunks=(grid.tile_cells, grid.tile_cells),
-            dtype=_spec(layer).dtype,
-            fill=_spec(layer).fill,
-            masked=_spec(layer).masked,
+            dtype=spec.dtype,
+            fill=spec.fill,
+            masked=spec.masked,
             dims=("y", "x"),
-            attrs=_layer_attrs(_spec(layer), z_units, xy_unit)
+            attrs=_layer_attrs(spec, z_units, xy_unit)
             | {"grid_mapping": GRID_MAPPING, "coordinates": GRID_MAPPING} | gdal_crs,
-        ) for layer in wanted),
+        ) for layer, spec in ((layer, _spec(layer)) for layer in wanted)),
         _NewArray(
             TILE_DONE,  # in the status group
             shape=(-(-grid.ny // grid.tile_cells), -(-grid.nx // grid.tile_cells)),
@@ -499,7 +499,8 @@ class MeshWriter:
         }
         node = {"shape": (self.n_nodes,), "chunks": (_chunk(self.n_nodes),), "dims": ("nNodes",)}
         xy = [(name, {k: v for k, v in attrs.items() if k in ("standard_name", "units")}
-               | {"long_name": f"{name[-1]} of the mesh nodes"}) for name, attrs in (("node_x", x_attrs), ("node_y", y_attrs))]
+               | {"long_name": f"{name[-1]} of the mesh nodes"})
+              for name, attrs in (("node_x", x_attrs), ("node_y", y_attrs))]
         z_attrs = {k: v for k, v in elevation_attrs.items() if k in ("long_name", "units")}
         _create_arrays(group, [
             _NewArray(TOPOLOGY, data=np.int32(0), dims=(), attrs=topology),
@@ -976,7 +977,8 @@ def _array_arguments(new: _NewArray, zarr_format: int) -> tuple[dict[str, Any], 
         kwargs["compressors"] = numcodecs.Blosc(cname="zstd", clevel=1, shuffle=shuffle)
     else:
         kwargs["dimension_names"] = new.dims
-        kwargs["compressors"] = BloscCodec(cname="zstd", clevel=1, shuffle="bitshuffle" if new.bit_shuffle else "shuffle")
+        shuffle = "bitshuffle" if new.bit_shuffle else "shuffle"
+        kwargs["compressors"] = BloscCodec(cname="zstd", clevel=1, shuffle=shuffle)
         fill_value = 0 if fill is None else fill
         if masked and dtype.kind in "iu":
             attrs["_FillValue"] = int(fill)
