@@ -424,10 +424,11 @@ radii brought the DTM from 0.66 to 0.55 m RMS of the survey's own (three
 radii: 0.58 m, four: 0.66 m, five: 0.69 m, cutting the crests of steep
 ground).  Terrain drops that far over two radii only where it is steeper
 than ``object_height / (2 cell)`` (a slope of 2 with the defaults), and
-Pingel's test already flags such ground at the small radii.  On coarse cells (those
-of a sparse survey, :meth:`GroundParameters.for_spacing`) the drop must
-also exceed ``2 cell``, ground as steep as 45 degrees: on ``no_crs_color``'s
-cells of 60 m the cap alone took gentle slopes for objects (4.6 to 5.0 m RMS)."""
+Pingel's test already flags such ground at the small radii.  On coarse
+cells (those of a sparse survey, :meth:`GroundParameters.for_spacing`) the
+drop must also exceed ``2 cell``, ground as steep as 45 degrees: on
+``no_crs_color``'s cells of 60 m the cap alone took gentle slopes for
+objects (4.6 to 5.0 m RMS)."""
 
 
 @njit

@@ -298,9 +298,8 @@ def grow_store(path: StorePath, before: TileGrid, after: TileGrid) -> None:
         array.resize((after.ny, after.nx))
         if not whole:
             _shift_rows(path, layer, before, after)
-    for name, values in (("x", after.x), ("y", after.y)):
-        old = root[name]
-        _create_array(root, name, data=values, dims=(name,), attrs=_user_attrs(old), overwrite=True)
+    _create_arrays(root, [_NewArray(name, data=values, dims=(name,), attrs=_user_attrs(root[name]), overwrite=True)
+                          for name, values in (("x", after.x), ("y", after.y))])
     mapping = root[GRID_MAPPING]
     mapping.attrs.update({"GeoTransform": " ".join(repr(v) for v in after.geotransform)})
     _open_array(path, TILE_DONE).resize((after.n_rows, after.n_cols))  # rows from the south: none move
@@ -579,16 +578,17 @@ class MeshWriter:
         col = np.asarray(tile_col, dtype=np.int64)
         if row.ndim != 1 or col.shape != row.shape:
             raise UsageError(f"set_tiles: tile_row, tile_col must be 1-D of one length, got {row.shape} {col.shape}")
-        for name, values, dim, long_name in (
-            ("tile_row", row, "nTiles", "tile row, counted from the south"),
-            ("tile_col", col, "nTiles", "tile column, counted from the west"),
-            ("tile_node_offset", _offsets("node", node_offsets, row.size, self.n_nodes), "nTileOffsets",
-             "tile t owns nodes [off[t], off[t+1])"),
-            ("tile_face_offset", _offsets("face", face_offsets, row.size, self.n_faces), "nTileOffsets",
-             "tile t owns faces [off[t], off[t+1])"),
-        ):
-            attrs = {"long_name": long_name}
-            _create_array(self._group, name, data=values, dims=(dim,), attrs=attrs, overwrite=True)
+        _create_arrays(self._group, [
+            _NewArray(name, data=values, dims=(dim,), attrs={"long_name": long_name}, overwrite=True)
+            for name, values, dim, long_name in (
+                ("tile_row", row, "nTiles", "tile row, counted from the south"),
+                ("tile_col", col, "nTiles", "tile column, counted from the west"),
+                ("tile_node_offset", _offsets("node", node_offsets, row.size, self.n_nodes), "nTileOffsets",
+                 "tile t owns nodes [off[t], off[t+1])"),
+                ("tile_face_offset", _offsets("face", face_offsets, row.size, self.n_faces), "nTileOffsets",
+                 "tile t owns faces [off[t], off[t+1])"),
+            )
+        ])
         self._tiles_set = True
 
     def close(self) -> None:
@@ -902,23 +902,7 @@ def _open_array_of_run(path: str, name: str, run: str) -> zarr.Array:
 
 @dataclass(frozen=True)
 class _NewArray:
-    """One array for :func:`_create_arrays` to create (the parameters of :func:`_create_array`)."""
-
-    name: str
-    dims: tuple[str, ...]
-    attrs: Mapping[str, Any]
-    data: ArrayLike | None = None
-    shape: tuple[int, ...] | None = None
-    chunks: tuple[int, ...] | None = None
-    dtype: Any = None
-    fill: float | int | None = None
-    masked: bool = False
-    overwrite: bool = False
-    bit_shuffle: bool = False
-
-
-def _create_array(group: zarr.Group, name: str, **spec: Any) -> zarr.Array:
-    """An array readable by xarray and GDAL in either Zarr format.
+    """An array for :func:`_create_arrays` to create, readable by xarray and GDAL in either Zarr format.
 
     Chunks are compressed with Blosc (zstd level 1), byte shuffle by default.
     ``bit_shuffle`` suits node ids and survey heights (few significant bits
@@ -933,12 +917,22 @@ def _create_array(group: zarr.Group, name: str, **spec: Any) -> zarr.Array:
     ``_FillValue`` attribute, floats base64-encoded (so both formats give
     ``encoding["_FillValue"]``, the nodata value rioxarray exports).
     """
-    (array,) = _create_arrays(group, [_NewArray(name, **spec)])
-    return array
+
+    name: str
+    dims: tuple[str, ...]
+    attrs: Mapping[str, Any]
+    data: ArrayLike | None = None
+    shape: tuple[int, ...] | None = None
+    chunks: tuple[int, ...] | None = None
+    dtype: Any = None
+    fill: float | int | None = None
+    masked: bool = False
+    overwrite: bool = False
+    bit_shuffle: bool = False
 
 
 def _create_arrays(group: zarr.Group, arrays: Sequence[_NewArray]) -> list[zarr.Array]:
-    """The arrays of :func:`_create_array`, created together: one trip through
+    """The ``arrays`` in ``group``, created together: one trip through
     Zarr's event loop rather than one per array.  Each trip waits for the GIL
     behind any thread that runs Python (a run loads its kernels meanwhile):
     a store's eleven arrays took 0.3 s one by one beside the kernels' loading,
