@@ -165,9 +165,10 @@ class TileContext:
         size = (r1 - r0) * (c1 - c0)
         if weights is None:
             return np.bincount(flat, minlength=size).reshape(r1 - r0, c1 - c0)
-        sums = np.zeros(size, dtype=np.int64)
-        np.add.at(sums, flat, np.asarray(weights)[ok].astype(np.int64))
-        return sums.reshape(r1 - r0, c1 - c0)
+        # whole numbers summed as float64 are exact below 2**53 (1e11 returns of
+        # 16-bit intensity a cell): bincount's sums, 10x faster than np.add.at
+        sums = np.bincount(flat, weights=np.asarray(weights, dtype=np.float64)[ok], minlength=size)
+        return np.rint(sums).astype(np.int64).reshape(r1 - r0, c1 - c0)
 
 
 @dataclass(frozen=True)

@@ -427,8 +427,14 @@ def write_tile(
         if not np.can_cast(values.dtype, dtype, casting="same_kind"):
             raise UsageError(f"layer {layer.value!r}: cannot store {values.dtype} values as {dtype}")
         checked.append((layer, values[::-1].astype(dtype, copy=False)))
-    for layer, north_up in checked:
-        _open_array(path, layer, run)[rows, cols] = north_up
+    arrays = [(_open_array(path, layer, run).async_array, north_up) for layer, north_up in checked]
+
+    async def write_all() -> None:
+        # one trip through Zarr's event loop for the tile's layers, not one
+        # per layer (see _create_arrays)
+        await asyncio.gather(*(array.setitem((rows, cols), north_up) for array, north_up in arrays))
+
+    zarr_sync(write_all())
 
 
 def face_index_dtype(n_nodes: int) -> np.dtype:
