@@ -589,6 +589,22 @@ def _epsg_unit_name(code: int) -> str:
 
 _CLASS_SELECTION = DecompressionSelection.base().decompress_classification()
 _POINT_SELECTION = DecompressionSelection.base().decompress_z().decompress_classification().decompress_flags()
+# what _POINT_SELECTION decompresses past x, y, z and the flags (point_index is no dimension)
+_IN_POINT_SELECTION = frozenset({"classification", "return_number", "number_of_returns", "point_index"})
+# the LAZ layer (point formats 6 to 10) of each other attribute: a layer left compressed
+# does not read as zeros but as the first value of its chunk, over and over
+_ATTRIBUTE_LAYERS = {"intensity": DecompressionSelection.INTENSITY}
+
+
+def _point_selection(attributes: Sequence[str]) -> DecompressionSelection:
+    """The layers of a LAS 1.4 LAZ file to decompress for x, y, z, the
+    classes, the flags and ``attributes`` (every layer for a name not known
+    here); files of other point formats decompress every field anyway."""
+    selection = _POINT_SELECTION
+    for name in attributes:
+        if name not in _IN_POINT_SELECTION:
+            selection |= _ATTRIBUTE_LAYERS.get(name, DecompressionSelection.all())
+    return selection
 
 
 def class_counts(path: str | os.PathLike[str], chunk_size: int = 2_000_000) -> dict[int, int]:
@@ -854,12 +870,12 @@ def _iter_points(
         keep_class = np.zeros(256, dtype=bool)
         keep_class[sorted(point_filter.classes)] = True
     if window is not None:
-        windowed = _window_chunks(path, chunk_size, window)
+        windowed = _window_chunks(path, chunk_size, window, attributes)
         header = next(windowed)  # None: not a COPC file
         if header is not None:
             yield from _kept_chunks(path, header, windowed, keep_class, point_filter, attributes)
             return
-    with _open(path, _POINT_SELECTION, streaming=True) as (reader, size):
+    with _open(path, _point_selection(attributes), streaming=True) as (reader, size):
         chunks = ((chunk, 0) for chunk in _chunks(path, reader, size, chunk_size))
         yield from _kept_chunks(path, reader.header, chunks, keep_class, point_filter, attributes)
 
@@ -876,7 +892,8 @@ def _kept_chunks(path: Location, header: laspy.LasHeader, chunks: Iterator[tuple
     for chunk, unread in chunks:
         if unread:
             yield PointChunk(x=np.empty(0), y=np.empty(0), z=np.empty(0), read=unread, filtered_class=0,
-                             filtered_withheld=0, outside_window=unread)
+                             filtered_withheld=0, outside_window=unread,
+                             attributes={name: np.empty(0) for name in attributes})
             start += unread
             continue
         yield _kept(path, header, chunk, decoders, keep_class, point_filter.keep_withheld, point_filter.returns,
@@ -932,7 +949,8 @@ def _declares_copc(path: Location) -> bool:
         return _is_copc(reader.header)
 
 
-def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, float, float]) -> Iterator[Any]:
+def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, float, float],
+                   attributes: Sequence[str] = ()) -> Iterator[Any]:
     """For a COPC file: its header, then ``(None, n)`` with the ``n`` points of
     the octree nodes that miss ``window`` (closed, x and y; never read), then
     the records of the nodes that meet it, in file order, in chunks of about
@@ -944,7 +962,7 @@ def _window_chunks(path: Location, chunk_size: int, window: tuple[float, float, 
     try:
         with _remote_errors(path):
             try:
-                reader = CopcReader(stream, close_fd=False, decompression_selection=_POINT_SELECTION)
+                reader = CopcReader(stream, close_fd=False, decompression_selection=_point_selection(attributes))
             except Exception as exc:
                 # laspy: the first VLR is not COPC's info, or there is no VLR at all
                 if "copc" in one_line(exc).lower() or not _declares_copc(path):

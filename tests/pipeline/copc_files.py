@@ -15,7 +15,7 @@ from pyproj import CRS
 
 
 def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", depth: int = 4,
-               scale: float = 0.01, page_level: int = 2) -> Path:
+               scale: float = 0.01, page_level: int = 2, intensity=None) -> Path:
     import copclib as cl
 
     x, y, z = (np.asarray(v, dtype=np.float64) for v in (x, y, z))
@@ -28,6 +28,8 @@ def write_copc(path: Path, x, y, z, classification, *, crs: str = "EPSG:2154", d
     records.classification = np.asarray(classification, dtype=np.uint8)
     records.return_number = np.ones(n, np.uint8)
     records.number_of_returns = np.ones(n, np.uint8)
+    if intensity is not None:
+        records.intensity = np.asarray(intensity, dtype=np.uint16)
     raw = records.array
     # the coordinates as stored: what the cube and the nodes must hold
     xs, ys, zs = (np.asarray(getattr(records, a)) for a in "xyz")

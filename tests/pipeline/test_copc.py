@@ -32,7 +32,8 @@ def survey(tmp_path_factory):
     x, y = x[keep], y[keep]
     ground = rng.random(x.size) < 0.35
     z = np.round(terrain_height(x, y, ORIGIN) + np.where(ground, 0.0, rng.random(x.size) * 15.0 + 1.0), 2)
-    copc = write_copc(folder / "survey.copc.laz", x, y, z, np.where(ground, 2, 5), depth=5)
+    copc = write_copc(folder / "survey.copc.laz", x, y, z, np.where(ground, 2, 5), depth=5,
+                      intensity=rng.integers(0, 65536, x.size))
     return copc, plain_twin(copc, folder / "twin.laz")
 
 
@@ -52,6 +53,48 @@ def test_a_window_run_over_copc_is_the_plain_laz_run(survey, tmp_path):
     copc_counts, twin_counts = counts["copc"], counts["twin"]
     assert copc_counts["kept"] == twin_counts["kept"] and copc_counts["read"] == twin_counts["read"]
     assert copc_counts["outside_bbox"] > twin_counts["outside_bbox"]
+
+
+def test_a_window_run_over_copc_with_every_product_is_the_plain_laz_run(survey, tmp_path):
+    """Products read their points with attributes in a routing pass, which
+    reads a COPC file by window too: the nodes outside the bbox come as a
+    chunk of points none kept, with no attribute."""
+    copc, twin = survey
+    bbox = (ORIGIN[0] + 130.0, ORIGIN[1] + 90.0, ORIGIN[0] + 420.0, ORIGIN[1] + 310.0)
+    stores = {}
+    for name, path in (("copc", copc), ("twin", twin)):
+        stores[name] = tmp_path / f"{name}.zarr"
+        report = run(RunConfig(inputs=(str(path),), output=str(stores[name]), resolution=1.0, tile_size=64.0,
+                               bbox=bbox, layers=("dsm", "chm", "intensity", "density", "ground_density"),
+                               workers=2), progress=False)
+        (f,) = report.files
+        assert f["products_only"] > 0
+        assert f["read"] == (f["kept"] + f["filtered_class"] + f["filtered_withheld"] + f["outside_bbox"]
+                             + f["products_only"]), f
+    assert_same_store(stores["copc"], stores["twin"])
+
+
+def test_a_copc_read_by_window_gives_each_point_its_own_intensity(tmp_path):
+    """COPC is LAS 1.4 LAZ: intensity is a layer of its own, which a reader
+    that leaves it compressed reads as each node's first intensity."""
+    rng = np.random.default_rng(5)
+    x, y = ORIGIN[0] + rng.random(20_000) * 200.0, ORIGIN[1] + rng.random(20_000) * 200.0
+    intensity = rng.integers(0, 65536, x.size)
+    copc = write_copc(tmp_path / "i.copc.laz", x, y, terrain_height(x, y, ORIGIN), np.full(x.size, 2), depth=3,
+                      intensity=intensity)
+    window = (ORIGIN[0] + 50.0, ORIGIN[1] + 50.0, ORIGIN[0] + 120.0, ORIGIN[1] + 150.0)
+    chunks = list(iter_points(copc, PointFilter(), window=window, attributes=("intensity",)))
+    got_x = np.concatenate([c.x for c in chunks])
+    got_y = np.concatenate([c.y for c in chunks])
+    got = np.concatenate([c.attributes["intensity"] for c in chunks])  # none for the nodes left unread
+    assert sum(c.outside_window for c in chunks) > 0 and got.size > 1000
+    # the points as written (rounded to the file's centimetre), matched by their coordinates
+    keys = np.round(x * 100).astype(np.int64) * 10**9 + np.round(y * 100).astype(np.int64)
+    order = np.argsort(keys)
+    where = order[np.searchsorted(keys, np.round(got_x * 100).astype(np.int64) * 10**9
+                                  + np.round(got_y * 100).astype(np.int64), sorter=order)]
+    assert np.allclose(x[where], got_x, atol=0.006) and np.allclose(y[where], got_y, atol=0.006)
+    assert np.array_equal(got, intensity[where].astype(np.float64))
 
 
 def test_a_copc_on_s3_fetches_only_the_nodes_its_window_needs(survey, tmp_path, monkeypatch):

@@ -210,6 +210,29 @@ def test_return_filters_choose_the_dtm_points(scene, tmp_path, returns):
         assert ds["density"].values.sum() == ((pts["cls"] != 7) & ~pts["withheld"]).sum()
 
 
+def test_the_intensity_of_a_laz_file_of_point_format_6_is_each_points_own(scene, tmp_path):
+    """LAS 1.4 LAZ keeps intensity in a layer of its own: a reader that leaves
+    it compressed gets every point of a chunk the first one's intensity."""
+    _, pts = scene
+    varied = dict(pts, intensity=np.random.default_rng(7).integers(0, 65536, pts["x"].size))
+    path = _write(tmp_path / "varied.laz", varied)
+    _run([path], tmp_path / "varied.zarr", layers=("intensity",), tile_size=32.0)
+    ds = _cells(tmp_path / "varied.zarr")
+    first = (varied["rn"] <= 1) & (varied["cls"] != 7) & ~varied["withheld"]
+    # a point's cell: the lattice keeps its points 0.05 m from every cell edge
+    col, row = np.floor(varied["x"][first]).astype(int), np.floor(varied["y"][first]).astype(int)
+    counts, sums = np.zeros((60, 60), np.int64), np.zeros((60, 60), np.int64)
+    np.add.at(counts, (row, col), 1)
+    np.add.at(sums, (row, col), varied["intensity"][first])
+    with np.errstate(invalid="ignore"):
+        expected = (sums / counts).astype(np.float32)
+    cols = np.floor(ds["x"].values - X0).astype(int)
+    rows = np.floor(ds["y"].values - Y0).astype(int)
+    assert cols.min() >= 0 and rows.min() >= 0 and cols.max() < 60 and rows.max() < 60
+    assert np.array_equal(ds["intensity"].values, expected[rows[:, None], cols[None, :]], equal_nan=True)
+    assert np.count_nonzero(counts) > 3000
+
+
 def test_a_file_of_first_returns_without_intensity_is_valid_input(scene, tmp_path):
     _, pts = scene
     plain = {k: v.copy() for k, v in pts.items()}
