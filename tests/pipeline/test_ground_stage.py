@@ -84,20 +84,28 @@ def test_an_unclassified_survey_gets_a_terrain_model_of_its_ground(tmp_path, sur
     assert set(prov["ground_classification"]["parameters"]) >= {"cell", "max_window", "slope", "threshold"}
 
 
+_CLASSIFIED = dict(classify_ground=True, layers=("elevation", "ground_density"))
+
+
+@pytest.fixture(scope="module")
+def whole(survey, tmp_path_factory):
+    """The survey classified in one tile: its report and store."""
+    out = tmp_path_factory.mktemp("whole") / "whole.zarr"
+    return _run(survey[0], out, tile_size=400.0, **_CLASSIFIED), out
+
+
 @pytest.mark.parametrize("tile_size,buffer", [(40.0, 0.0), (60.0, 6.0), (100.0, 20.0)])
-def test_the_ground_is_the_same_at_any_tiling(tmp_path, survey, tile_size, buffer):
-    path = survey[0]
-    common = dict(classify_ground=True, layers=("elevation", "ground_density"))
-    tiled = _run(path, tmp_path / "tiled.zarr", tile_size=tile_size, buffer=buffer, **common)
-    whole = _run(path, tmp_path / "whole.zarr", tile_size=400.0, **common)
+def test_the_ground_is_the_same_at_any_tiling(tmp_path, survey, whole, tile_size, buffer):
+    tiled = _run(survey[0], tmp_path / "tiled.zarr", tile_size=tile_size, buffer=buffer, **_CLASSIFIED)
+    whole, whole_store = whole
     assert tiled.tiles > 4 and whole.tiles == 1
     assert (tiled.points_kept, tiled.not_ground, tiled.low_outliers) == (whole.points_kept, whole.not_ground,
                                                                           whole.low_outliers)
-    a, b = xr.open_zarr(tmp_path / "tiled.zarr"), xr.open_zarr(tmp_path / "whole.zarr")
+    a, b = xr.open_zarr(tmp_path / "tiled.zarr"), xr.open_zarr(whole_store)
     for name in ("x", "y", "elevation", "ground_density"):
         assert np.array_equal(a[name].values, b[name].values, equal_nan=True), name
     node_a, _, faces_a = store.read_mesh(tmp_path / "tiled.zarr")
-    node_b, _, faces_b = store.read_mesh(tmp_path / "whole.zarr")
+    node_b, _, faces_b = store.read_mesh(whole_store)
     assert face_set(np.asarray(node_a), faces_a) == face_set(np.asarray(node_b), faces_b)
 
 
