@@ -45,11 +45,22 @@ def assert_same_store(path: Path, reference: Path, changed: tuple[str, ...] = ()
 
 
 def face_set(node_xy, faces) -> set:
-    """A mesh's faces as tuples of corner coordinates, each from its smallest
-    corner: the same set for the same mesh whatever its vertex numbering."""
-    out = set()
-    for row in np.asarray(faces).tolist():
-        pts = [tuple(node_xy[v]) for v in row if v >= 0]
-        k = pts.index(min(pts))
-        out.add(tuple(pts[k:] + pts[:k]))
+    """A mesh's faces, each as the bytes of its corners' coordinates (x0, y0,
+    x1, y1, ...) from its smallest corner (by x, then y): the same set for the
+    same mesh whatever its vertex numbering.  Built with numpy, face lengths
+    one at a time (a tuple per corner in Python took 6 s for 1.15M faces)."""
+    xy = np.asarray(node_xy, dtype=np.float64)[:, :2] + 0.0  # -0.0 as 0.0: the same bytes for equal values
+    faces = np.asarray(faces).reshape(len(faces), -1)
+    sizes = (faces >= 0).sum(axis=1)
+    # the corners of each face in their order, the -1 of padding after them
+    corners = np.take_along_axis(faces, np.argsort(faces < 0, axis=1, kind="stable"), axis=1)
+    out: set = set()
+    for k in np.unique(sizes).tolist():
+        points = xy[corners[sizes == k, :k]]  # (n, k, 2)
+        x, y = points[..., 0], points[..., 1]
+        # the first smallest corner: least x, of those least y
+        first = np.argmin(np.where(x == x.min(axis=1, keepdims=True), y, np.inf), axis=1)
+        turn = (first[:, None] + np.arange(k)) % k
+        rows = np.ascontiguousarray(np.take_along_axis(points, turn[..., None], axis=1).reshape(-1, 2 * k))
+        out.update(rows.view(np.dtype((np.void, rows.itemsize * 2 * k))).ravel().tolist())  # a face: its bytes
     return out
