@@ -152,14 +152,20 @@ def _tile_range(grid: TileGrid, points: NDArray[np.float64], reach: NDArray[np.f
             int(grid.bins(x - reach, 0).min()), int(grid.bins(x + reach, 0).max()))
 
 
-def _owned(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64]], width: int) -> NDArray[np.float64]:
-    """The points of a tile's ground spill files (``parts``) that its window owns (each point of the survey
-    in one tile only)."""
-    pts = np.concatenate(parts) if parts else np.empty((0, width))
-    if pts.shape[0] == 0:
-        return pts
-    rows, cols = grid.owner(pts[:, 0], pts[:, 1])
-    return pts[(rows == row) & (cols == col)]
+def _own_rows(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64]]) -> list[NDArray[np.bool_]]:
+    """Which points of each of a tile's ground spill files (``parts``) its window owns (each point of the
+    survey in one tile only)."""
+    out = []
+    for part in parts:
+        rows, cols = grid.owner(part[:, 0], part[:, 1])
+        out.append((rows == row) & (cols == col))
+    return out
+
+
+def _owned(parts: list[NDArray[np.float64]], own: list[NDArray[np.bool_]], width: int) -> NDArray[np.float64]:
+    """The points of a tile's ground spill files that its window owns (``own``: :func:`_own_rows`), in order."""
+    kept = [part[mine] for part, mine in zip(parts, own)]
+    return np.concatenate(kept) if kept else np.empty((0, width))
 
 
 def _hashes(rows: NDArray[np.float64]) -> NDArray[np.uint64]:
@@ -176,15 +182,20 @@ def _hashes(rows: NDArray[np.float64]) -> NDArray[np.uint64]:
 class _RowIndex:
     """Finds rows among the rows of ``cloud`` (each row sought is one of them):
     by hash, every match checked, and rows whose hash another row shares
-    found byte for byte."""
+    found byte for byte.  ``among`` (optional): the only rows of ``cloud`` the
+    index holds; a row sought that is not among them is found as -1."""
 
-    def __init__(self, cloud: NDArray[np.float64]) -> None:
+    def __init__(self, cloud: NDArray[np.float64], among: NDArray[np.int64] | None = None) -> None:
         self.cloud = cloud
-        hashes = _hashes(cloud)
-        self.order = np.argsort(hashes, kind="stable")
-        self.sorted = hashes[self.order]
+        self.rows = np.arange(cloud.shape[0]) if among is None else among
+        hashes = _hashes(cloud[self.rows])
+        order = np.argsort(hashes, kind="stable")
+        self.order = self.rows[order]
+        self.sorted = hashes[order]
 
     def find(self, rows: NDArray[np.float64]) -> NDArray[np.int64]:
+        if self.sorted.shape[0] == 0:
+            return np.full(rows.shape[0], -1, dtype=np.int64)
         hashes = _hashes(rows)
         at = self.order[np.minimum(np.searchsorted(self.sorted, hashes), self.sorted.shape[0] - 1)]
         wrong = np.flatnonzero(~(self.cloud[at] == rows).all(axis=1))
@@ -192,8 +203,53 @@ class _RowIndex:
             lo, hi = np.searchsorted(self.sorted, hashes[i : i + 1], side="left")[0], \
                 np.searchsorted(self.sorted, hashes[i : i + 1], side="right")[0]
             candidates = self.order[lo:hi]
-            at[i] = candidates[(self.cloud[candidates] == rows[i]).all(axis=1)][0]
+            equal = candidates[(self.cloud[candidates] == rows[i]).all(axis=1)]
+            at[i] = equal[0] if equal.shape[0] else -1
         return at
+
+
+class _CloudRows:
+    """Where each row of a tile's spill files lies in the block's cloud.
+
+    A tile's own points (those its window owns) are the cloud's rows of that
+    tile, in the same order (:func:`_owned`); the others, copies of a
+    neighbour's points within the route's buffer, are found by hash among the
+    rows near a tile edge (every point any tile holds as a copy lies there;
+    any other row, were there one, among all rows).  Every row of the cloud is
+    owned once, and a point's class depends on its coordinates alone
+    (:func:`meshcore.classify_ground`), so a copy gets its original's class."""
+
+    def __init__(self, grid: TileGrid, cloud: NDArray[np.float64], starts: dict[tuple[int, int], int],
+                 slack: float) -> None:
+        self.cloud = cloud
+        self.starts = starts
+        x, y = cloud[:, 0], cloud[:, 1]
+        near = (grid.bins(x - slack, 0) != grid.bins(x + slack, 0)) | (grid.bins(y - slack, 1) != grid.bins(y + slack, 1))
+        self.near_edges = _RowIndex(cloud, np.flatnonzero(near))
+        self.everywhere: _RowIndex | None = None
+
+    def rows(self, key: tuple[int, int], parts: list[NDArray[np.float64]],
+             own: list[NDArray[np.bool_]]) -> list[NDArray[np.int64]]:
+        """The cloud's row of each row of the tile ``key``'s spill ``parts``
+        (``own``: which of them its window owns)."""
+        out = []
+        start = self.starts[key]
+        for part, mine in zip(parts, own):
+            at = np.empty(part.shape[0], dtype=np.int64)
+            count = int(np.count_nonzero(mine))
+            at[mine] = np.arange(start, start + count)
+            start += count
+            copies = np.flatnonzero(~mine)
+            found = self.near_edges.find(part[copies])
+            missing = found < 0
+            if missing.any():
+                self.everywhere = self.everywhere or _RowIndex(self.cloud)
+                found[missing] = self.everywhere.find(part[copies[missing]])
+                if (found < 0).any():  # the block loads every tile within the buffer of its own
+                    raise RuntimeError(f"tile {key}: a point of its buffer is in no tile the block loaded")
+            at[copies] = found
+            out.append(at)
+        return out
 
 
 def classify_block(job: GroundJob) -> list[GroundSummary]:
@@ -216,6 +272,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
     block = _tile_range(grid, corners, np.full(2, parameters.margin(job.unit) + 2 * parameters.cell / job.unit))
     loaded: dict[tuple[int, int], NDArray[np.float64]] = {}
     spilled = {key: _load(scratch, *key, width) for key in job.tiles()}  # the block's own files, written below
+    owned_rows = {key: _own_rows(grid, *key, parts) for key, (_, parts) in spilled.items()}
     rounds = 0
     while True:
         rounds += 1
@@ -223,8 +280,10 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
         for key in ((r, c) for r in range(r0, r1 + 1) for c in range(c0, c1 + 1)):
             if key not in loaded:
                 parts = spilled[key][1] if key in spilled else _load(scratch, *key, width)[1]
-                loaded[key] = _owned(grid, *key, parts, width)
-        cloud = np.concatenate([loaded[k] for k in sorted(loaded)])
+                mine = owned_rows[key] if key in owned_rows else _own_rows(grid, *key, parts)
+                loaded[key] = _owned(parts, mine, width)
+        keys = sorted(loaded)
+        cloud = np.concatenate([loaded[k] for k in keys])
         result = classify_ground(
             cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
             return_number=cloud[:, 3], number_of_returns=cloud[:, 4], hull=job.hull,
@@ -236,15 +295,15 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
             break
         block = grown
     # each tile's spill files, point by point: a point and its exact copies get one class
-    lookup = _RowIndex(cloud)
+    sizes = np.cumsum([0] + [loaded[k].shape[0] for k in keys])
+    lookup = _CloudRows(grid, cloud, {k: int(sizes[i]) for i, k in enumerate(keys)}, slack)
     summaries = []
     owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
     for row, col in job.tiles():
         names, parts = spilled[(row, col)]
         files = {}
         positions: dict[str, list[NDArray]] = {}
-        for name, part in zip(names, parts):
-            at = lookup.find(part)
+        for name, part, at in zip(names, parts, lookup.rows((row, col), parts, owned_rows[(row, col)])):
             files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
             if "point_index" in job.columns:
                 mine = result.ground[at] & (owner_rows[at] == row) & (owner_cols[at] == col)
