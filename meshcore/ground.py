@@ -234,13 +234,37 @@ class GroundResult:
 
 def _cells(x: np.ndarray, y: np.ndarray, size: float) -> tuple[np.ndarray, int, int]:
     """Cell of each point on the grid aligned on multiples of ``size``, as one id ``row * nx + column``."""
-    ix = np.floor(x / size).astype(np.int64)
-    iy = np.floor(y / size).astype(np.int64)
-    ix -= ix.min()
-    iy -= iy.min()
-    nx = int(ix.max()) + 1
-    ny = int(iy.max()) + 1
-    return iy * nx + ix, nx, ny
+    cell, nx, ny = _cells_kernel(x, y, float(size))
+    return cell, int(nx), int(ny)
+
+
+@njit
+def _cells_kernel(x, y, size):
+    """:func:`_cells` in two passes, without the five temporary arrays of numpy's
+    (``floor(x / size)``: the same division and rounding)."""
+    n = x.shape[0]
+    cell = np.empty(n, dtype=np.int64)
+    x_lo = np.int64(0)
+    y_lo = np.int64(0)
+    x_hi = np.int64(0)
+    y_hi = np.int64(0)
+    for i in range(n):
+        ix = np.int64(math.floor(x[i] / size))
+        iy = np.int64(math.floor(y[i] / size))
+        if i == 0 or ix < x_lo:
+            x_lo = ix
+        if i == 0 or ix > x_hi:
+            x_hi = ix
+        if i == 0 or iy < y_lo:
+            y_lo = iy
+        if i == 0 or iy > y_hi:
+            y_hi = iy
+    nx = x_hi - x_lo + 1
+    for i in range(n):
+        ix = np.int64(math.floor(x[i] / size))
+        iy = np.int64(math.floor(y[i] / size))
+        cell[i] = (iy - y_lo) * nx + (ix - x_lo)
+    return cell, nx, y_hi - y_lo + 1
 
 
 def _grouped(cell: np.ndarray, z: np.ndarray, ncells: int) -> tuple[np.ndarray, np.ndarray]:

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..tiling.grid import TileGrid, tile_dir
-from ..tiling.routing import GROUND_SPILL, grow_hull, points_in_box
+from ..tiling.routing import GROUND_SPILL, grow_hull
 from ..tiling.scratch import Scratch
 
 __all__ = ["GROUND_COLUMNS", "CLASSIFIED", "GroundJob", "GroundSummary", "classify_block", "ground_blocks", "tile_done",
@@ -145,11 +145,18 @@ def _load(scratch: Scratch, row: int, col: int, width: int) -> tuple[list[str], 
     return names, arrays
 
 
-def _tile_range(grid: TileGrid, points: NDArray[np.float64], reach: NDArray[np.float64]) -> tuple[int, int, int, int]:
-    """Rows and columns (inclusive) of the tiles the squares of half-side ``reach`` around ``points`` meet."""
-    x, y = points[:, 0], points[:, 1]
-    return (int(grid.bins(y - reach, 1).min()), int(grid.bins(y + reach, 1).max()),
-            int(grid.bins(x - reach, 0).min()), int(grid.bins(x + reach, 0).max()))
+def _tile_range(grid: TileGrid, x: NDArray[np.float64], y: NDArray[np.float64], reach: NDArray[np.float64],
+                where: NDArray[np.bool_] | None = None) -> tuple[int, int, int, int]:
+    """Rows and columns (inclusive) of the tiles the squares of half-side ``reach`` around the points ``x, y``
+    (those of ``where``, when given; at least one) meet: the bins of the squares' extreme sides, as the bins
+    rise with the coordinate."""
+    def extreme(values: NDArray[np.float64], axis: int, low: bool) -> int:
+        kept = True if where is None else where
+        value = np.min(values, where=kept, initial=np.inf) if low else np.max(values, where=kept, initial=-np.inf)
+        return int(grid.bins(np.array([value]), axis)[0])
+
+    return (extreme(y - reach, 1, True), extreme(y + reach, 1, False),
+            extreme(x - reach, 0, True), extreme(x + reach, 0, False))
 
 
 def _own_rows(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64]]) -> list[NDArray[np.bool_]]:
@@ -163,9 +170,16 @@ def _own_rows(grid: TileGrid, row: int, col: int, parts: list[NDArray[np.float64
 
 
 def _owned(parts: list[NDArray[np.float64]], own: list[NDArray[np.bool_]], width: int) -> NDArray[np.float64]:
-    """The points of a tile's ground spill files that its window owns (``own``: :func:`_own_rows`), in order."""
-    kept = [part[mine] for part, mine in zip(parts, own)]
-    return np.concatenate(kept) if kept else np.empty((0, width))
+    """The points of a tile's ground spill files that its window owns (``own``: :func:`_own_rows`), in order,
+    as columns ``(width, n)``: classified from contiguous x, y and z."""
+    out = np.empty((width, sum(int(np.count_nonzero(mine)) for mine in own)))
+    at = 0
+    for part, mine in zip(parts, own):
+        count = int(np.count_nonzero(mine))
+        for k in range(width):
+            np.compress(mine, part[:, k], out=out[k, at:at + count])
+        at += count
+    return out
 
 
 def _hashes(rows: NDArray[np.float64]) -> NDArray[np.uint64]:
@@ -269,7 +283,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
     # the outer tiles also hold the points beyond the grid (a stale header): every one of theirs
     held = (-math.inf if job.cols[0] == 0 else held[0], -math.inf if job.rows[0] == 0 else held[1],
             math.inf if job.cols[1] == grid.n_cols - 1 else held[2], math.inf if job.rows[1] == grid.n_rows - 1 else held[3])
-    block = _tile_range(grid, corners, np.full(2, parameters.margin(job.unit) + 2 * parameters.cell / job.unit))
+    block = _tile_range(grid, corners[:, 0], corners[:, 1], np.full(2, parameters.margin(job.unit) + 2 * parameters.cell / job.unit))
     loaded: dict[tuple[int, int], NDArray[np.float64]] = {}
     spilled = {key: _load(scratch, *key, width) for key in job.tiles()}  # the block's own files, written below
     owned_rows = {key: _own_rows(grid, *key, parts) for key, (_, parts) in spilled.items()}
@@ -283,42 +297,43 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
                 mine = owned_rows[key] if key in owned_rows else _own_rows(grid, *key, parts)
                 loaded[key] = _owned(parts, mine, width)
         keys = sorted(loaded)
-        cloud = np.concatenate([loaded[k] for k in keys])
+        columns = np.concatenate([loaded[k] for k in keys], axis=1)  # (width, n): x, y, z, ...
+        x, y = columns[0], columns[1]
         result = classify_ground(
-            cloud[:, 0], cloud[:, 1], cloud[:, 2], unit=job.unit, parameters=parameters,
-            return_number=cloud[:, 3], number_of_returns=cloud[:, 4], hull=job.hull,
+            x, y, columns[2], unit=job.unit, parameters=parameters,
+            return_number=columns[3], number_of_returns=columns[4], hull=job.hull,
         )
-        mine = points_in_box(cloud, held)
-        needed = _tile_range(grid, cloud[mine], result.reach[mine]) if mine.any() else block
+        mine = (x >= held[0]) & (x <= held[2]) & (y >= held[1]) & (y <= held[3])
+        needed = _tile_range(grid, x, y, result.reach, mine) if mine.any() else block
         grown = (min(needed[0], r0), max(needed[1], r1), min(needed[2], c0), max(needed[3], c1))
         if grown == block:
             break
         block = grown
     # each tile's spill files, point by point: a point and its exact copies get one class
-    sizes = np.cumsum([0] + [loaded[k].shape[0] for k in keys])
-    lookup = _CloudRows(grid, cloud, {k: int(sizes[i]) for i, k in enumerate(keys)}, slack)
+    sizes = np.cumsum([0] + [loaded[k].shape[1] for k in keys])
+    starts = {k: int(sizes[i]) for i, k in enumerate(keys)}
+    lookup = _CloudRows(grid, columns.T, starts, slack)
     summaries = []
-    owner_rows, owner_cols = grid.owner(cloud[:, 0], cloud[:, 1])
     for row, col in job.tiles():
         names, parts = spilled[(row, col)]
+        start, stop = starts[(row, col)], starts[(row, col)] + loaded[(row, col)].shape[1]  # the tile's own rows
         files = {}
         positions: dict[str, list[NDArray]] = {}
         for name, part, at in zip(names, parts, lookup.rows((row, col), parts, owned_rows[(row, col)])):
             files[f"{tile_dir(row, col)}/{name}"] = np.ascontiguousarray(part[result.ground[at], :3])
             if "point_index" in job.columns:
-                mine = result.ground[at] & (owner_rows[at] == row) & (owner_cols[at] == col)
+                mine = result.ground[at] & (at >= start) & (at < stop)
                 index = part[mine, 3 + job.columns.index("point_index")].astype(np.int64)
                 positions.setdefault(name.split("_", 1)[0], []).append(index)
         files.update({f"{tile_dir(row, col)}/{CLASSIFIED}/{source}.npy": np.concatenate(found)
                       for source, found in positions.items()})
         scratch.save_many(files)
-        own = (owner_rows == row) & (owner_cols == col)
-        ground = own & result.ground
-        kept = cloud[ground]
+        ground = result.ground[start:stop]
+        kept = columns[:3, start:stop][:, ground]
         summaries.append(GroundSummary(
-            row, col, ground=int(np.count_nonzero(ground)), not_ground=int(np.count_nonzero(own & ~result.ground)),
-            low_outliers=int(np.count_nonzero(own & result.low_outlier)),
+            row, col, ground=int(np.count_nonzero(ground)), not_ground=int(np.count_nonzero(~ground)),
+            low_outliers=int(np.count_nonzero(result.low_outlier[start:stop])),
             tiles_read=(block[1] - block[0] + 1) * (block[3] - block[2] + 1), rounds=rounds,
-            seconds=time.perf_counter() - t0, hull=grow_hull(np.empty((0, 3)), kept[:, 0], kept[:, 1], kept[:, 2]),
+            seconds=time.perf_counter() - t0, hull=grow_hull(np.empty((0, 3)), kept[0], kept[1], kept[2]),
         ))
     return summaries
