@@ -1,7 +1,7 @@
 """Ground classification of unclassified clouds against the surveys' own, and
 against two peers (run by hand; ``pip install -e ".[bench]"``).
 
-    python bench/bench_ground.py [--samples NAME ...] [--peers csf whitebox] [--cache DIR]
+    python bench/bench_ground.py [--samples NAME ...] [--peers csf whitebox] [--cache DIR] [--pipeline REPEAT [--forest N]]
 
 Every shared sample with a ground class has its classes removed (the points
 of every class but noise, 7 and 18, are classified) and is classified by
@@ -26,6 +26,12 @@ Each is compared with the survey's class 2:
 
 The peers are slow (CSF takes minutes on ign_semis): ``--cache DIR`` keeps
 their flags per sample and reuses them.
+
+``--pipeline REPEAT`` also times whole runs, the files' own classes against
+``--classify-ground``; ``--forest N`` adds to that table a synthetic forest of
+``N`` points (:func:`bench_products.forest`: trees over most of it, a few
+buildings, ground a small share of the returns), a survey larger than the
+samples, classified in one block.
 """
 
 from __future__ import annotations
@@ -245,6 +251,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cache", type=Path, help="folder keeping the peers' flags between runs")
     parser.add_argument("--pipeline", type=int, metavar="REPEAT", default=0,
                         help="also time whole runs, own classes against --classify-ground (medians of REPEAT)")
+    parser.add_argument("--forest", type=int, metavar="N", default=0,
+                        help="with --pipeline: also a synthetic forest of N points")
     args = parser.parse_args(argv)
 
     classify_ground(*np.random.default_rng(0).uniform(0, 50, (3, 500)))  # compile outside the timings
@@ -292,7 +300,14 @@ def main(argv: list[str] | None = None) -> None:
     for line in skipped:
         print(line)
     if args.pipeline:
-        pipeline_table(samples(args.samples), args.pipeline, args.cache)
+        with tempfile.TemporaryDirectory() as tmp:
+            from bench_products import forest
+
+            extra = []
+            if args.forest:
+                written = forest(Path(tmp), args.forest)
+                extra = [written.rename(written.with_name(f"synthetic_forest_{args.forest}.laz"))]
+            pipeline_table(samples(args.samples) + extra, args.pipeline, args.cache)
 
 
 if __name__ == "__main__":
