@@ -277,3 +277,34 @@ def test_terrain_classify_refuses_to_overwrite_or_to_write_over_its_input(tmp_pa
     assert "the output folder is the input's own" in capsys.readouterr().err
     assert main(["classify", str(path), "-o", str(tmp_path / "out"), "--overwrite", "--quiet"]) == 0
     assert len(laspy.read(tmp_path / "out" / "scene.laz").points) == len(laspy.read(path).points)
+
+
+def test_a_tiles_spill_rows_are_found_in_the_blocks_cloud():
+    """The ground stage finds each row of a tile's spill files in the block's
+    cloud: its own rows by position, its buffer's copies (near an edge, or,
+    were one elsewhere, anywhere) by value; a row in no tile loaded is an error."""
+    from pipeline.meshing.ground import _CloudRows, _own_rows, _owned
+    from pipeline.tiling.grid import TileGrid
+
+    grid = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=100, nx=200, ny=100)
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(0, 200, 3000).round(2), rng.uniform(0, 100, 3000).round(2),
+                              rng.uniform(0, 9, 3000).round(2), np.ones(3000), np.ones(3000)])
+    points[:10] = points[10:20]  # exact copies
+    left, right = points[points[:, 0] < 100.0], points[points[:, 0] >= 100.0]
+    buffer = 5.0
+    # tile (0, 0)'s spill in two parts: its own points and the copies of (0, 1)'s within the buffer; one
+    # more copy from deep inside (0, 1), where no buffer reaches (only found by the search of every row)
+    deep = right[right[:, 0] > 150.0][:1]
+    parts = [left[: len(left) // 2], np.concatenate([left[len(left) // 2:], right[right[:, 0] < 100.0 + buffer], deep])]
+    rng.shuffle(parts[1])
+    own = {(0, 0): _own_rows(grid, 0, 0, parts), (0, 1): _own_rows(grid, 0, 1, [right])}
+    loaded = {(0, 0): _owned(parts, own[(0, 0)], 5), (0, 1): _owned([right], own[(0, 1)], 5)}
+    columns = np.concatenate([loaded[(0, 0)], loaded[(0, 1)]], axis=1)
+    lookup = _CloudRows(grid, columns.T, {(0, 0): 0, (0, 1): loaded[(0, 0)].shape[1]}, buffer + 1e-6)
+    for part, at in zip(parts, lookup.rows((0, 0), parts, own[(0, 0)])):
+        assert (at >= 0).all() and np.array_equal(columns.T[at], part)
+    assert lookup.everywhere is not None  # the deep copy was searched for among every row
+    stray = [np.array([[500.0, 50.0, 1.0, 1.0, 1.0]])]  # in no tile of the cloud
+    with pytest.raises(RuntimeError, match="no tile the block loaded"):
+        _CloudRows(grid, columns.T, {(0, 0): 0}, buffer).rows((0, 0), stray, [np.array([False])])
