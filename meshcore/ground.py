@@ -856,6 +856,7 @@ def classify_ground(
     return_number: ArrayLike | None = None,
     number_of_returns: ArrayLike | None = None,
     hull: ArrayLike | None = None,
+    threads: int = 1,
 ) -> GroundResult:
     """The ground points of a cloud (see the module docstring for the method).
 
@@ -875,6 +876,9 @@ def classify_ground(
         cell outside it.  By default the hull of the points given; a caller
         that classifies a survey in parts gives every part the whole
         survey's hull, so that each part reads the same cells.
+    threads : int
+        How many threads the openings and the TIN's test may use (their
+        kernels run without the GIL): the answer is the same with any.
 
     Returns
     -------
@@ -925,14 +929,14 @@ def classify_ground(
     first_read = read & _meets_hull(_survey_hull(x, y, hull), x, y, size, pad, padded.shape)
     cap = p.object_height / unit
     # over DROP_RADII radii: the cap, or ground as steep as 45 degrees on coarse cells (a sparse survey's)
-    _object_kernel(padded, read, first_read, radii, p.slope * size, cap, max(cap, DROP_RADII * size), objects)
+    _objects(padded, read, first_read, radii, p.slope * size, cap, max(cap, DROP_RADII * size), objects, threads)
     objects = objects[pad:-pad, pad:-pad]
     seeds = lowest[~objects.ravel()[cell[lowest]]]
 
     # 3. the ground TIN
     tin = delaunay(np.column_stack([x[seeds], y[seeds]])) if seeds.shape[0] >= 3 else None
     if tin is not None and tin.triangles.shape[0] > 0:  # collinear seeds make no triangle
-        _tin_pass(tin, x[seeds], y[seeds], z[seeds], x, y, z, p, unit, ground, reach)
+        _tin_pass(tin, x[seeds], y[seeds], z[seeds], x, y, z, p, unit, ground, reach, threads)
     reach += margin
     # a seed is ground, and so is each of its exact copies (one class per position, whichever copy is the seed)
     seed_of = np.full(nx * ny, -1, dtype=np.int64)
@@ -946,8 +950,53 @@ def classify_ground(
     return GroundResult(ground, outlier, reach)
 
 
-def _tin_pass(tin, sx, sy, sz, x, y, z, p: GroundParameters, unit: float, ground, reach) -> None:
-    """Step 3 of :func:`classify_ground` over the seeds' triangulation ``tin``."""
+def _in_threads(threads: int, calls: list) -> None:
+    """Run the argument-free ``calls`` (kernels without the GIL) on up to ``threads`` threads."""
+    if threads <= 1 or len(calls) <= 1:
+        for call in calls:
+            call()
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(min(threads, len(calls))) as pool:
+        for future in [pool.submit(call) for call in calls]:
+            future.result()
+
+
+_BAND_ROWS = 64
+"""The fewest rows of cells a band of the openings computes for itself (a grid of fewer: one band)."""
+
+
+def _objects(padded, read, first_read, radii: int, slope_cell: float, cap: float, steps_cap: float, objects,
+             threads: int) -> None:
+    """:func:`_object_kernel` over ``padded``, in bands of rows on ``threads``
+    threads.  A cell's flag reads the cells within ``2 radii`` rows of it (an
+    erosion of ``radii``, then a dilation as wide), so each band computes its
+    rows with that many more on each side, and keeps its own: the flags are
+    the whole grid's, bit for bit."""
+    rows = padded.shape[0]
+    bands = max(1, min(threads, rows // _BAND_ROWS))
+    if bands == 1:
+        _object_kernel(padded, read, first_read, radii, slope_cell, cap, steps_cap, objects)
+        return
+    halo = 2 * radii + 1
+    cuts = np.linspace(0, rows, bands + 1).round().astype(np.int64)
+
+    def band(lo: int, hi: int):
+        def call() -> None:
+            a, b = max(lo - halo, 0), min(hi + halo, rows)
+            flags = np.zeros((b - a, padded.shape[1]), dtype=np.bool_)
+            _object_kernel(padded[a:b], read[a:b], first_read[a:b], radii, slope_cell, cap, steps_cap, flags)
+            objects[lo:hi] = flags[lo - a:hi - a]
+        return call
+
+    _in_threads(threads, [band(int(lo), int(hi)) for lo, hi in zip(cuts[:-1], cuts[1:])])
+
+
+def _tin_pass(tin, sx, sy, sz, x, y, z, p: GroundParameters, unit: float, ground, reach, threads: int = 1) -> None:
+    """Step 3 of :func:`classify_ground` over the seeds' triangulation ``tin``,
+    the points in ``threads`` runs of their visit order (a point's answer is
+    its own, whatever walk found its triangles)."""
     tri, he = tin.triangles, tin.halfedges
     ax, ay, vz = sx[tin.order], sy[tin.order], sz[tin.order]
     tri_radius = np.empty(tri.shape[0] // 3)
@@ -961,6 +1010,13 @@ def _tin_pass(tin, sx, sy, sz, x, y, z, p: GroundParameters, unit: float, ground
     ny = int((float(y.max()) - y0) // size) + 1
     starts, rim_edges = _rim_index(tri, he, live, ax, ay, x0, y0, size, nx, ny, rim)
     visit = np.lexsort((np.floor((y - y0) / rim), np.floor((x - x0) / rim)))  # neighbours one after another
-    _tin_kernel(tri, he, tin.x, tin.y, ax, ay, vz, live, tri_radius, x - tin.origin[0], y - tin.origin[1],
-                x, y, z, visit, p.threshold / unit, p.scalar / unit, rim, cap, x0, y0, size, nx, ny,
-                starts, rim_edges, ground, reach)
+    plx, ply = x - tin.origin[0], y - tin.origin[1]
+
+    def run(part):
+        def call() -> None:
+            _tin_kernel(tri, he, tin.x, tin.y, ax, ay, vz, live, tri_radius, plx, ply, x, y, z, part,
+                        p.threshold / unit, p.scalar / unit, rim, cap, x0, y0, size, nx, ny, starts, rim_edges,
+                        ground, reach)
+        return call
+
+    _in_threads(threads, [run(part) for part in np.array_split(visit, max(1, threads))])

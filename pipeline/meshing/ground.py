@@ -78,6 +78,9 @@ class GroundJob:
     hull: NDArray[np.float64] | None = None
     """The convex hull ``(h, 2)`` of the survey's points: the openings read no cell beyond it, in
     every block alike (None: each block's own points' hull)."""
+    threads: int = 1
+    """Threads the block's filter may use (:func:`meshcore.classify_ground`): the run's threads left
+    idle by fewer blocks than threads (a survey of one block on one of two cores)."""
 
     def tiles(self) -> list[tuple[int, int]]:
         return [(r, c) for r in range(self.rows[0], self.rows[1] + 1) for c in range(self.cols[0], self.cols[1] + 1)]
@@ -301,7 +304,7 @@ def classify_block(job: GroundJob) -> list[GroundSummary]:
         x, y = columns[0], columns[1]
         result = classify_ground(
             x, y, columns[2], unit=job.unit, parameters=parameters,
-            return_number=columns[3], number_of_returns=columns[4], hull=job.hull,
+            return_number=columns[3], number_of_returns=columns[4], hull=job.hull, threads=job.threads,
         )
         mine = (x >= held[0]) & (x <= held[2]) & (y >= held[1]) & (y <= held[3])
         needed = _tile_range(grid, x, y, result.reach, mine) if mine.any() else block

@@ -659,6 +659,8 @@ def _ground_stage(plan: RunPlan, work: WorkDir, client, routed: Routed, show: bo
     jobs = [GroundJob(rows, cols, scratch, grid, plan.buffer, unit, parameters.to_dict(), columns=columns, hull=hull)
             for rows, cols in ground_blocks(grid, points, parameters.margin(unit))]
     jobs = [job for job in jobs if not all(done(r, c) for r, c in job.tiles())]
+    if isinstance(client, LocalThreads) and jobs:  # this process's threads: those fewer blocks leave idle
+        jobs = [replace(job, threads=max(1, client.threads // len(jobs))) for job in jobs]
 
     def classified(job: GroundJob, summaries: list[GroundSummary]) -> None:
         for s in summaries:

@@ -399,3 +399,14 @@ def test_the_cell_orders_are_those_of_a_lexsort(seed):
         first = np.ones(by_sort.shape[0], dtype=bool)
         first[1:] = cell[by_sort[1:]] != cell[by_sort[:-1]]
         assert np.array_equal(_lowest_per_cell(ids, cell, x, y, z, nx * ny), by_sort[first])
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threads_give_the_same_answer(scene, threads):
+    """The openings in bands of rows and the TIN's test in runs of points, on
+    several threads, flag every point as one thread does."""
+    x, y, z, _, _, one = scene
+    many = classify_ground(x, y, z, threads=threads)
+    assert np.array_equal(many.ground, one.ground)
+    assert np.array_equal(many.low_outlier, one.low_outlier)
+    assert np.array_equal(many.reach, one.reach)
