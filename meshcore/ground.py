@@ -308,17 +308,7 @@ def _lowest_per_cell(ids, cell, x, y, z, ncells):
         b = best[c]
         if b < 0 or z[i] < z[b] or (z[i] == z[b] and (x[i] < x[b] or (x[i] == x[b] and y[i] < y[b]))):
             best[c] = i
-    count = 0
-    for c in range(ncells):
-        if best[c] >= 0:
-            count += 1
-    lowest = np.empty(count, dtype=np.int64)
-    count = 0
-    for c in range(ncells):
-        if best[c] >= 0:
-            lowest[count] = best[c]
-            count += 1
-    return lowest
+    return best[best >= 0]
 
 
 @njit
@@ -964,7 +954,8 @@ def _in_threads(threads: int, calls: list) -> None:
 
 
 _BAND_ROWS = 64
-"""The fewest rows of cells a band of the openings computes for itself (a grid of fewer: one band)."""
+"""The fewest rows of cells a band of the openings computes for itself (and never fewer than the rows it
+reads on either side: a band narrower than that would mostly compute its neighbours' rows again)."""
 
 
 def _objects(padded, read, first_read, radii: int, slope_cell: float, cap: float, steps_cap: float, objects,
@@ -975,11 +966,11 @@ def _objects(padded, read, first_read, radii: int, slope_cell: float, cap: float
     rows with that many more on each side, and keeps its own: the flags are
     the whole grid's, bit for bit."""
     rows = padded.shape[0]
-    bands = max(1, min(threads, rows // _BAND_ROWS))
+    halo = 2 * radii + 1
+    bands = max(1, min(threads, rows // max(_BAND_ROWS, halo)))
     if bands == 1:
         _object_kernel(padded, read, first_read, radii, slope_cell, cap, steps_cap, objects)
         return
-    halo = 2 * radii + 1
     cuts = np.linspace(0, rows, bands + 1).round().astype(np.int64)
 
     def band(lo: int, hi: int):
