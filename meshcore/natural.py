@@ -726,7 +726,7 @@ def natural_coordinates(
     read = np.zeros(n_q)  # the disk around each place it reads, or 0: its circles, each on its own
     triangle = np.full((n_q, 3), -1, dtype=np.int64)  # the Delaunay triangle holding each place
     linear = np.full((n_q, 3), np.nan)
-    todo = np.arange(n_q)
+    pending = np.arange(n_q)
     for round_ in range(_MAX_ROUNDS + 1):
         if round_ == _MAX_ROUNDS:
             taken[:] = True  # all of them: nothing is left to find
@@ -739,36 +739,36 @@ def natural_coordinates(
         vertex_of = np.full(points.shape[0] + 1, -1, dtype=np.int64)  # the last: no point
         vertex_of[ids] = np.arange(ids.size)
         first, index, weight, status, reach_of, rows, tin_corners, tin_weights = _coordinates_kernel(
-            gx, gy, ids, triangulation.triangles, triangulation.halfedges, np.ascontiguousarray(places[todo]),
-            vertex_of[near[todo]], cap[todo])
-        rows = np.column_stack([todo[rows[:, 0]], ids[rows[:, 1]], ids[rows[:, 2]]]) if rows.size else rows
+            gx, gy, ids, triangulation.triangles, triangulation.halfedges, np.ascontiguousarray(places[pending]),
+            vertex_of[near[pending]], cap[pending])
+        rows = np.column_stack([pending[rows[:, 0]], ids[rows[:, 1]], ids[rows[:, 2]]]) if rows.size else rows
         by_circles = np.zeros(n_q, dtype=bool)
         by_circles[rows[:, 0]] = True
         # outside the points taken with no edge of their hull before it, or
         # found in no star: farther each time, up to ``cap``
-        lost = (status != 0) & ~by_circles[todo]
-        grow = todo[lost & (covered[todo] >= before[todo])]
+        lost = (status != 0) & ~by_circles[pending]
+        grow = pending[lost & (covered[pending] >= before[pending])]
         before[grow] = np.minimum(2.0 * before[grow], cap[grow])
         short = np.zeros(n_q, dtype=bool)
-        short[todo] = (by_circles[todo] | lost) & (covered[todo] < before[todo])
+        short[pending] = (by_circles[pending] | lost) & (covered[pending] < before[pending])
         # the disk around each place that it reads, or 0: its circles
-        read[todo] = np.where(short[todo], before[todo], np.where(by_circles[todo], 0.0,
-                              np.where(status == 0, reach_of, cap[todo])))
+        read[pending] = np.where(short[pending], before[pending], np.where(by_circles[pending], 0.0,
+                              np.where(status == 0, reach_of, cap[pending])))
         disks = np.empty((rows.shape[0], 3))
         flat = np.empty(rows.shape[0], dtype=bool)
         _star_disks_kernel(places, points, rows, disks, flat)
-        rounds.append((todo, first, index, weight, rows, disks))
-        triangle[todo] = np.where(status[:, None] == 0, tin_corners, -1)
-        linear[todo] = np.where(status[:, None] == 0, tin_weights, np.nan)
+        rounds.append((pending, first, index, weight, rows, disks))
+        triangle[pending] = np.where(status[:, None] == 0, tin_corners, -1)
+        linear[pending] = np.where(status[:, None] == 0, tin_weights, np.nan)
         if taken.all():
             break
         more = np.zeros(points.shape[0], dtype=bool)
         # a place whose disk lies within what was taken around it is done; one
         # short of points is done again, with them
-        open_ = todo[read[todo] > covered[todo]]
+        open_ = pending[read[pending] > covered[pending]]
         again = open_[within(open_, read[open_], taken, more)]
         covered[open_] = read[open_]
-        again = np.union1d(again, todo[short[todo]])
+        again = np.union1d(again, pending[short[pending]])
         # one read by its circles is done when none holds a point not taken (a
         # circle within what was taken around its place holds none)
         owner_xy = places[rows[:, 0]]
@@ -784,12 +784,12 @@ def natural_coordinates(
         if not again.size:
             break
         taken |= more
-        todo = again
+        pending = again
     first, index, weight = _last_rows(n_q, rounds)
     # the disks each place reads, from the round that computed it last
     last = np.empty(n_q, dtype=np.int64)
-    for r, (todo, *_) in enumerate(rounds):
-        last[todo] = r
+    for r, (pending, *_) in enumerate(rounds):
+        last[pending] = r
     circles = [disks[last[rows[:, 0]] == r] for r, (*_, rows, disks) in enumerate(rounds)]
     owners = [rows[last[rows[:, 0]] == r, 0] for r, (*_, rows, disks) in enumerate(rounds)]
     around = np.flatnonzero(read > 0.0)
@@ -804,18 +804,18 @@ def _last_rows(n_q: int, rounds: list) -> tuple[NDArray[np.int64], NDArray[np.in
     (rounds of ``(places, first, index, weight, ...)``)."""
     last = np.empty(n_q, dtype=np.int64)
     at = np.empty(n_q, dtype=np.int64)
-    for r, (todo, *_) in enumerate(rounds):
-        last[todo] = r
-        at[todo] = np.arange(todo.size)
+    for r, (pending, *_) in enumerate(rounds):
+        last[pending] = r
+        at[pending] = np.arange(pending.size)
     counts = np.empty(n_q, dtype=np.int64)
-    for r, (todo, first, *_) in enumerate(rounds):
-        mine = todo[last[todo] == r]
+    for r, (pending, first, *_) in enumerate(rounds):
+        mine = pending[last[pending] == r]
         counts[mine] = np.diff(first)[at[mine]]
     out_first = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     index = np.empty(out_first[-1], dtype=np.int64)
     weight = np.empty(out_first[-1])
-    for r, (todo, first, found, w, *_) in enumerate(rounds):
-        mine = todo[last[todo] == r]
+    for r, (pending, first, found, w, *_) in enumerate(rounds):
+        mine = pending[last[pending] == r]
         n = counts[mine]
         rank = _ranks(n)
         src = np.repeat(first[at[mine]], n) + rank
