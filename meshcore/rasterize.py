@@ -74,16 +74,17 @@ def _centre(origin: float, i: int, resolution: float) -> float:
 
 
 @njit_helper
-def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int) -> tuple[int, int]:
-    """Inclusive range ``first .. last`` of the cells whose centres may lie in ``[lo, hi]``.
+def _cell_range(lo: float, hi: float, origin: float, inv_res: float, n: int, offset: int = 0) -> tuple[int, int]:
+    """Inclusive range ``first .. last`` of the cells ``offset .. offset + n - 1``
+    (counted from ``origin``, returned from ``offset``) whose centres may lie in ``[lo, hi]``.
 
     A superset: the estimate is widened by more than its rounding error, so it
     may hold one cell too many at either end (only when a centre is within a
     few ulps of ``lo`` or ``hi``); the caller tests every centre.  Empty
     (``first > last``) when ``[lo, hi]`` misses the grid.
     """
-    a = (lo - origin) * inv_res - 0.5
-    b = (hi - origin) * inv_res - 0.5
+    a = (lo - origin) * inv_res - 0.5 - offset
+    b = (hi - origin) * inv_res - 0.5 - offset
     slack = _RANGE_SLACK * ((abs(lo) + abs(hi) + 2.0 * abs(origin)) * inv_res + 1.0)
     a -= slack
     b += slack
@@ -123,7 +124,7 @@ def _gather_chunk(
 @njit
 def _rasterize_kernel(
     vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, nodes: np.ndarray | None,
-    x0: float, y0: float, resolution: float, max_edge2: float, out: np.ndarray,
+    x0: float, y0: float, resolution: float, max_edge2: float, out: np.ndarray, i_first: int, j_first: int,
 ) -> None:
     """Fill ``out`` face by face; cubic patches with ``nodes``, else linear
     (compiled apart: a linear surface's kernel holds no patch)."""
@@ -152,10 +153,10 @@ def _rasterize_kernel(
                 larger(larger(ax, bx), larger(cx, dx)), larger(larger(ay, by), larger(cy, dy)),
             )
             # most faces of a dense survey hold no cell centre: settle them first
-            i0, i1 = _cell_range(bx0, bx1, x0, inv_res, nx)
+            i0, i1 = _cell_range(bx0, bx1, x0, inv_res, nx, i_first)
             if i0 > i1:
                 continue
-            j0, j1 = _cell_range(by0, by1, y0, inv_res, ny)
+            j0, j1 = _cell_range(by0, by1, y0, inv_res, ny, j_first)
             if j0 > j1:
                 continue
             longest = larger(
@@ -165,11 +166,11 @@ def _rasterize_kernel(
             if longest > max_edge2:
                 continue
             for j in range(j0, j1 + 1):
-                qy = _centre(y0, j, resolution)
+                qy = _centre(y0, j_first + j, resolution)
                 if qy < by0 or qy > by1:
                     continue
                 for i in range(i0, i1 + 1):
-                    qx = _centre(x0, i, resolution)
+                    qx = _centre(x0, i_first + i, resolution)
                     if qx < bx0 or qx > bx1:
                         continue
                     f = start + k
@@ -385,6 +386,7 @@ def rasterize(
     surface: str | Surface | SmoothSurface = "linear",
     nodes: ArrayLike | None = None,
     variogram: Variogram | None = None,
+    first_cell: tuple[int, int] = (0, 0),
 ) -> NDArray[np.float64]:
     """Sample the mesh surface at the centres of a regular grid.
 
@@ -405,12 +407,19 @@ def rasterize(
         so their cells stay NaN (long edges span data gaps).
     surface, nodes, variogram
         Which surface, as for :func:`meshcore.interpolate`.
+    first_cell : (column, row)
+        The raster is that window of the grid whose corner is ``(x0, y0)``:
+        cell ``(i, j)`` of the output is the grid's ``(column + i, row + j)``.
+        A tile of a larger grid gives the grid's corner and its first cell,
+        so its centres are the grid's to the bit whatever the tiling (a
+        tile's own corner, ``x0 + column * resolution``, rounds once more
+        unless the resolution is a power of two).
 
     Returns
     -------
     (ny, nx) float64 array
-        ``out[j, i]`` is the surface at ``(x0 + (i + 0.5) * resolution,
-        y0 + (j + 0.5) * resolution)``; NaN where no (kept) face covers it.
+        ``out[j, i]`` is the surface at ``(x0 + (column + i + 0.5) * resolution,
+        y0 + (row + j + 0.5) * resolution)``; NaN where no (kept) face covers it.
 
     Raises
     ------
@@ -435,6 +444,10 @@ def rasterize(
         raise InvalidInputError(f"resolution must be > 0, got {resolution!r}")
     nx = _positive_int("nx", nx)
     ny = _positive_int("ny", ny)
+    if not (isinstance(first_cell, (tuple, list)) and len(first_cell) == 2
+            and all(isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k >= 0 for k in first_cell)):
+        raise InvalidInputError(f"first_cell must be a (column, row) pair of whole numbers >= 0, got {first_cell!r}")
+    i_first, j_first = int(first_cell[0]), int(first_cell[1])
     if max_edge is None:
         max_edge2 = math.inf
     else:
@@ -452,7 +465,7 @@ def rasterize(
         keep = _within_max_edge(vertices, faces, max_edge2)[arrays.parent]
         faces_drawn, rows, max_edge2 = faces_drawn[keep], rows[keep], math.inf
     out = np.full((ny, nx), np.nan)
-    _rasterize_kernel(arrays.vertices, faces_drawn, arrays.z, rows, x0, y0, resolution, max_edge2, out)
+    _rasterize_kernel(arrays.vertices, faces_drawn, arrays.z, rows, x0, y0, resolution, max_edge2, out, i_first, j_first)
     return out
 
 

@@ -138,11 +138,15 @@ class TileContext:
         return (r1 - r0, c1 - c0)
 
     @property
-    def origin(self) -> tuple[float, float]:
-        """The south-west corner of the tile's first cell."""
-        g = self.grid
-        r0, _, c0, _ = g.cell_slice(self.row, self.col)
-        return (g.x0 + c0 * g.resolution, g.y0 + r0 * g.resolution)
+    def first_cell(self) -> tuple[int, int]:
+        """(column, row) of the tile's first cell on the run's grid.  Cell
+        centres are ``grid.x0 + (column + i + 0.5) * resolution`` (and the
+        same in y), from the grid's corner: a tile's own corner rounds once
+        more at a resolution that is not a power of two, and its centres
+        would then differ from another tiling's by an ulp
+        (:func:`meshcore.rasterize`'s ``first_cell``)."""
+        r0, _, c0, _ = self.grid.cell_slice(self.row, self.col)
+        return (c0, r0)
 
     def points(self, selection: Selection) -> Any:
         """The tile's points (its cells plus the buffer) of ``selection``."""

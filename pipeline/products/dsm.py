@@ -88,9 +88,8 @@ def _dsm(ctx: TileContext) -> NDArray[np.float32]:
         z[mesh.input_to_vertex] = points.z[highest]  # one point a cell: no two share x and y
         faces = dsm_faces(mesh.vertices, mesh.faces[:, :3].astype(np.int64), max_edge)
         if faces.shape[0]:
-            x0, y0 = ctx.origin
             drawn = meshcore.Mesh(mesh.vertices, faces, np.arange(mesh.vertices.shape[0]))
-            out = meshcore.rasterize(drawn, z, x0, y0, ctx.grid.resolution, shape[1], shape[0])
+            out = meshcore.rasterize(drawn, z, g.x0, g.y0, g.resolution, shape[1], shape[0], first_cell=ctx.first_cell)
     void = np.isnan(out)
     out[void] = elevation[void]
     return out.astype(np.float32)

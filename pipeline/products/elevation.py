@@ -19,9 +19,9 @@ def _elevation(ctx: TileContext) -> NDArray[np.float32]:
     shape = ctx.shape
     if ctx.mesh is None or ctx.mesh.faces.shape[0] == 0:
         return np.full(shape, np.nan, dtype=np.float32)
-    x0, y0 = ctx.origin
-    elev = meshcore.rasterize(ctx.mesh, ctx.z, x0, y0, ctx.grid.resolution, shape[1], shape[0],
-                              max_edge=ctx.max_edge, **ctx.surface)
+    g = ctx.grid
+    elev = meshcore.rasterize(ctx.mesh, ctx.z, g.x0, g.y0, g.resolution, shape[1], shape[0],
+                              max_edge=ctx.max_edge, first_cell=ctx.first_cell, **ctx.surface)
     return elev.astype(np.float32)
 
 

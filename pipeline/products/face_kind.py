@@ -18,13 +18,14 @@ def _face_kind(ctx: TileContext) -> NDArray[np.int8]:
     mesh, shape = ctx.mesh, ctx.shape
     if mesh is None or mesh.faces.shape[0] == 0:
         return np.zeros(shape, dtype=np.int8)
-    x0, y0 = ctx.origin
     f = mesh.faces
     corners = np.where(f >= 0, np.arange(f.size).reshape(f.shape), -1)
     vertices = mesh.vertices[np.maximum(f, 0)].reshape(-1, 2)
     value = np.repeat(ctx.kinds.astype(np.float64), 4)
     split = meshcore.Mesh(vertices, corners, np.arange(vertices.shape[0]))
-    out = meshcore.rasterize(split, value, x0, y0, ctx.grid.resolution, shape[1], shape[0], max_edge=ctx.max_edge)
+    g = ctx.grid
+    out = meshcore.rasterize(split, value, g.x0, g.y0, g.resolution, shape[1], shape[0], max_edge=ctx.max_edge,
+                             first_cell=ctx.first_cell)
     return np.nan_to_num(np.rint(out), nan=0.0).astype(np.int8)
 
 

@@ -20,10 +20,12 @@ def _slope(ctx: TileContext) -> NDArray[np.float32]:
     slope = np.full(shape, np.nan, dtype=np.float32)
     ok = np.isfinite(ctx.layers["elevation"])
     if ok.any():
-        x0, y0 = ctx.origin
-        res = ctx.grid.resolution
+        g = ctx.grid
+        c0, r0 = ctx.first_cell
         jj, ii = np.nonzero(ok)
-        gx, gy = meshcore.gradient(ctx.mesh, ctx.z, x0 + (ii + 0.5) * res, y0 + (jj + 0.5) * res, **ctx.surface)
+        # the grid's centres, to the bit (TileContext.first_cell)
+        gx, gy = meshcore.gradient(ctx.mesh, ctx.z, g.x0 + (c0 + ii + 0.5) * g.resolution,
+                                   g.y0 + (r0 + jj + 0.5) * g.resolution, **ctx.surface)
         slope[jj, ii] = np.degrees(np.arctan(ctx.height_scale * np.hypot(gx, gy)))
     return slope
 
