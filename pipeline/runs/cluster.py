@@ -22,8 +22,8 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Callable
-from concurrent.futures import Future, as_completed
+from collections.abc import Callable, Collection, Mapping
+from concurrent.futures import FIRST_COMPLETED, Future
 from concurrent.futures import wait as wait_futures
 from typing import Any
 
@@ -159,18 +159,42 @@ def map_tasks(
     progress: Progress,
     points: Callable[[Any], int],
     finished: Callable[[Any, Any], None] | None = None,
+    after: Mapping[int, Collection[int]] | None = None,
 ) -> list:
     """``fn`` over ``items`` on the cluster; ``finished(item, result)`` runs here
-    as each task ends (to record it), before the next result is taken."""
+    as each task ends (to record it), before the next result is taken.
+
+    ``after[i]``: the items (by index) whose tasks must end before item ``i``'s
+    starts; it is submitted as the last of them ends, so the others keep the
+    cores busy meanwhile (no barrier between sets of tasks)."""
     results: list[Any] = [None] * len(items)
     if not items:
         return results
+    waiting = {i: set(before) for i, before in (after or {}).items() if before}
+    released: dict[int, list[int]] = {}
+    for i, before in waiting.items():
+        for j in before:
+            released.setdefault(j, []).append(i)
+
+    def ready(i: int) -> list[int]:
+        """The items that item ``i``'s end lets start."""
+        out = []
+        for k in released.get(i, ()):
+            waiting[k].discard(i)
+            if not waiting[k]:
+                out.append(k)
+        return out
+
+    first = [i for i in range(len(items)) if i not in waiting]
     if isinstance(client, LocalThreads):
-        futures = [client.submit(fn, item) for item in items]
-        index = {f: i for i, f in enumerate(futures)}
+        running = {client.submit(fn, items[i]): i for i in first}
         try:
-            for future in as_completed(futures):
-                _take(future.result(), index[future], items, results, finished, progress, points)
+            while running:
+                ended, _ = wait_futures(running, return_when=FIRST_COMPLETED)
+                for future in ended:
+                    i = running.pop(future)
+                    _take(future.result(), i, items, results, finished, progress, points)
+                    running.update((client.submit(fn, items[k]), k) for k in ready(i))
         except BaseException as exc:
             client.cancel_pending()  # a failed task ends the stage, as on a cluster
             if not isinstance(exc, KeyboardInterrupt):  # (an interrupt exits at once)
@@ -179,8 +203,8 @@ def map_tasks(
         return results
     from distributed import as_completed as as_completed_on_cluster
 
-    futures = client.map(fn, items, pure=False)
-    index = {f.key: i for i, f in enumerate(futures)}
+    futures = client.map(fn, [items[i] for i in first], pure=False)
+    index = {f.key: i for i, f in zip(first, futures)}
     pending = as_completed_on_cluster(futures, loop=client.loop)
     del futures
     for future in pending:
@@ -190,7 +214,13 @@ def map_tasks(
         # spills, a tile's piece) a later stage may be reading as it rewrites them
         future.release()
         del future
-        _take(result, index[key], items, results, finished, progress, points)
+        i = index[key]
+        _take(result, i, items, results, finished, progress, points)
+        for k in ready(i):
+            later = client.submit(fn, items[k], pure=False)
+            index[later.key] = k
+            pending.add(later)
+            del later
     return results
 
 

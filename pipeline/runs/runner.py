@@ -10,7 +10,7 @@ Stages (each timed in the run report):
    against its neighbours, see :mod:`pipeline.meshing.tiles`);
 4. *dem*: one task per tile: the DEM of its cells from the stitched faces
    over it, written straight into the store (no locks: tiles that share a
-   chunk run one after the other, see :func:`_dem_waves`);
+   chunk run one after the other, see :func:`_dem_order`);
 5. *write mesh*: one task per tile renumbers its piece's faces to global node
    ids, then one task per block of whole chunks writes the nodes and faces
    into the store's UGRID group (the tasks: :mod:`pipeline.store.assemble`).
@@ -888,22 +888,23 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
 
     tasks = [("dem", job) for job in pending] + [("number", job) for job in unnumbered]
     progress = Progress("dem", len(tasks), show)
-    for wave in _dem_waves(grid, tasks):
-        map_tasks(client, dem_or_number, wave, progress, lambda _: 0, done)
+    map_tasks(client, dem_or_number, tasks, progress, lambda _: 0, done, after=_dem_order(grid, tasks))
     return valued if len(pending) == len(tile_jobs) else None
 
 
-def _dem_waves(grid: TileGrid, tasks: list[tuple[str, TileJob]]) -> list[list[tuple[str, TileJob]]]:
-    """The DEM stage's tasks in the sets that run one after the other: one
-    set, unless the store's chunk rows each hold parts of two tile rows
-    (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).  Then the
-    tiles of even rows go first, with the numbering (which writes no chunk),
-    and those of odd rows after them: no two tiles writing parts of one
-    chunk run at the same time."""
+def _dem_order(grid: TileGrid, tasks: list[tuple[str, TileJob]]) -> dict[int, list[int]]:
+    """Which of the DEM stage's tasks (by index) each must wait for: none,
+    unless the store's chunk rows each hold parts of two tile rows
+    (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).  Then a tile
+    of an odd row waits for the tiles of the even rows north and south of it
+    in its column, the only ones that write parts of its chunks (a tile's
+    column of cells is a column of chunks): no two tiles writing parts of one
+    chunk run at the same time, and the others need not wait."""
     if not grid.rows_share_chunks:
-        return [tasks]
-    odd = [task for task in tasks if task[0] == "dem" and task[1].row % 2]
-    return [[task for task in tasks if not (task[0] == "dem" and task[1].row % 2)], odd]
+        return {}
+    index = {(job.row, job.col): i for i, (what, job) in enumerate(tasks) if what == "dem"}
+    return {i: [index[(job.row + d, job.col)] for d in (-1, 1) if (job.row + d, job.col) in index]
+            for i, (what, job) in enumerate(tasks) if what == "dem" and job.row % 2}
 
 
 def _tile_key(job: TileJob) -> str:

@@ -36,8 +36,9 @@ be partial.  A tile's column of cells is a column of chunks; its rows,
 counted from the south, are chunk rows only when ``ny`` is a multiple of
 ``tile_cells``.  Otherwise a tile writes parts of two chunk rows, and so do
 its neighbours to the north and south: tiles of one row parity never share a
-chunk, so they are written in parallel without locks, one parity after the
-other (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).
+chunk, so they are written in parallel without locks, and a tile of an odd
+row after its neighbours to the north and south
+(:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).
 
 Both Zarr formats are written: 3 (the default, dimensions in
 ``dimension_names``) and 2 for older readers such as GDAL 3.6 (dimensions in

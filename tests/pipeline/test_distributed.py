@@ -86,6 +86,32 @@ def test_distributed_run_equals_local_run(cluster, tmp_path):
         np.testing.assert_array_equal(x, y)
 
 
+def test_a_task_mapped_after_others_on_the_cluster_starts_only_when_they_have_ended(cluster, tmp_path):
+    from distributed import Client
+
+    from pipeline.runs.cluster import Progress, map_tasks
+
+    from .test_run import _times
+
+    def timed_task(item: tuple[str, float, str]) -> str:
+        """As test_run's ``_timed_task``, nested: shipped by value, as the workers cannot import the tests."""
+        name, seconds, log = item
+        with open(log, "a") as f:
+            f.write(f"{name} start {time.perf_counter():.6f}\n")
+        time.sleep(seconds)
+        with open(log, "a") as f:
+            f.write(f"{name} end {time.perf_counter():.6f}\n")
+        return name
+
+    log = str(tmp_path / "log")
+    items = [("A", 0.3, log), ("B", 0.5, log), ("C", 0.0, log), ("D", 0.1, log)]
+    with Client(cluster.address, timeout="30s", set_as_default=False) as client:
+        names = map_tasks(client, timed_task, items, Progress("t", 4, False), lambda _: 0, after={2: [0, 1], 3: [2]})
+    assert names == ["A", "B", "C", "D"]
+    t = _times(log)
+    assert t["C", "start"] >= max(t["A", "end"], t["B", "end"]) and t["D", "start"] >= t["C", "end"]
+
+
 def test_a_worker_killed_mid_job_changes_nothing(cluster, tmp_path):
     folder = tmp_path / "survey"
     write_survey(folder, SurveySpec(points=120_000, files=4, width=300.0, height=200.0, seed=17))

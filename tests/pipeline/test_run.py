@@ -421,6 +421,66 @@ def test_a_local_run_maps_its_tasks_over_threads_and_stops_at_the_first_failure(
     assert len(started) <= 3  # the two running and one taken at the failure; the rest were cancelled
 
 
+def _timed_task(item: tuple[str, float, str]) -> str:
+    """Log when the task ``name`` starts and ends (after ``seconds``) in the file ``log``."""
+    import time
+
+    name, seconds, log = item
+    with open(log, "a") as f:
+        f.write(f"{name} start {time.perf_counter():.6f}\n")
+    time.sleep(seconds)
+    with open(log, "a") as f:
+        f.write(f"{name} end {time.perf_counter():.6f}\n")
+    return name
+
+
+def _times(log) -> dict[tuple[str, str], float]:
+    from pathlib import Path
+
+    return {(name, what): float(t) for name, what, t in (line.split() for line in Path(log).read_text().splitlines())}
+
+
+def test_a_task_mapped_after_others_starts_when_they_end_without_waiting_for_the_rest(tmp_path):
+    """``map_tasks(after=)``: the DEM of a tile that shares chunks with its
+    neighbours waits for them alone.  C waits for A and B, and starts while D,
+    which started before it, still runs (sets of tasks one after the other
+    would have made it wait for D too)."""
+    from pipeline.runs.cluster import LocalThreads, Progress, close, map_tasks
+
+    log = str(tmp_path / "log")
+    pool = LocalThreads(2)
+    items = [("A", 0.2, log), ("B", 0.3, log), ("D", 1.5, log), ("C", 0.0, log)]
+    ended = []
+    names = map_tasks(pool, _timed_task, items, Progress("t", 4, False), lambda _: 0,
+                      lambda item, name: ended.append(name), after={3: [0, 1]})
+    close(pool, None)
+    assert names == ["A", "B", "D", "C"] and sorted(ended) == sorted(names)
+    t = _times(log)
+    assert t["C", "start"] >= max(t["A", "end"], t["B", "end"])
+    assert t["C", "start"] < t["D", "end"] and ended.index("C") < ended.index("D")
+
+
+def test_the_dem_of_a_tile_waits_only_for_the_tiles_that_write_parts_of_its_chunks():
+    from pipeline.runs.runner import _dem_order
+    from pipeline.tiling.grid import TileGrid
+
+    class Job:
+        def __init__(self, row, col):
+            self.row, self.col = row, col
+
+    grid = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=25, ny=35)  # 4 x 3 tiles, 35 % 10 rows
+    assert grid.rows_share_chunks and (grid.n_rows, grid.n_cols) == (4, 3)
+    jobs = [Job(r, c) for r in range(4) for c in range(3) if (r, c) != (0, 1)]  # (0, 1) written by a run before
+    tasks = [("dem", j) for j in jobs] + [("number", Job(r, c)) for r in range(4) for c in range(3)]
+    order = _dem_order(grid, tasks)
+    where = {(j.row, j.col): i for i, j in enumerate(jobs)}
+    assert order == {where[1, 0]: [where[0, 0], where[2, 0]], where[1, 1]: [where[2, 1]],
+                     where[1, 2]: [where[0, 2], where[2, 2]], where[3, 0]: [where[2, 0]],
+                     where[3, 1]: [where[2, 1]], where[3, 2]: [where[2, 2]]}
+    aligned = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=25, ny=40)
+    assert not aligned.rows_share_chunks and _dem_order(aligned, tasks) == {}
+
+
 def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_piece(tmp_path, monkeypatch):
     """Clusters of points with wide voids between them, in tiles far smaller
     than the voids: every empty tile searches outward through hundreds of
