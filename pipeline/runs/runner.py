@@ -624,10 +624,11 @@ def ground_parameters(plan: RunPlan, routed: Routed) -> GroundParameters:
     """The ground filter's parameters for this survey: the defaults, for its
     point spacing (:meth:`meshcore.GroundParameters.for_spacing`), measured
     as the square root of the area of the convex hull of the points routed
-    over their number, so the same whatever the tiling."""
+    over their number, so the same whatever the tiling: each point counted
+    once (the tiles' counts hold the copies sent to their buffers too)."""
     unit = unit_metres(plan.crs.horizontal_unit) or 1.0
     hull = routed_hull(routed)
-    count = sum(n for c in routed.results for _, _, n in c.tile_points)
+    count = sum(c.kept for c in routed.results)
     if hull.shape[0] < 3 or count <= 0:
         return GroundParameters()
     area = abs(signed_area(hull - hull.min(axis=0)))
