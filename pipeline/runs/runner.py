@@ -8,12 +8,13 @@ Stages (each timed in the run report):
    core plus buffer holds it;
 3. *mesh*: one task per tile: its piece of the combined mesh (certified
    against its neighbours, see :mod:`pipeline.meshing.tiles`);
-4. *dem*: one task per tile: the DEM of its cells from the stitched faces
-   over it, written straight into the store (no locks: tiles that share a
-   chunk run one after the other, see :func:`_dem_order`);
-5. *write mesh*: one task per tile renumbers its piece's faces to global node
-   ids, then one task per block of whole chunks writes the nodes and faces
-   into the store's UGRID group (the tasks: :mod:`pipeline.store.assemble`).
+4. *dem and mesh*: one task per tile: the DEM of its cells from the
+   stitched faces over it, written straight into the store (no locks: tiles
+   that share a chunk run one after the other, see :func:`_dem_order`);
+   beside them, one task per tile renumbers its piece's faces to global node
+   ids, and one task per block of whole chunks writes the nodes or the faces
+   (once the tiles it spans are numbered) into the store's UGRID group (the
+   tasks: :mod:`pipeline.store.assemble`).
 
 Every finished unit is recorded (:mod:`pipeline.tiling.checkpoint`), so a stopped run
 resumes, and :func:`execute` can update a store after its inputs changed.
@@ -427,14 +428,10 @@ def _execute(
             meshed = _route_and_mesh(plan, work, client, compiling, show, report, provenance)
             assert isinstance(meshed, Meshed)  # the fallback's classes are not the default ones
         t0 = time.perf_counter()
-        node_offsets, face_offsets = mesh_offsets(grid, list(meshed.summaries.values()))
-        valued = _dem_stage(plan, work, client, meshed, node_offsets, show)
+        valued = _dem_stage(plan, work, client, meshed, mesh_offsets(grid, list(meshed.summaries.values())), show)
         if valued == 0:
             report.notes.append(_empty_dem_note(config))
-        report.stages["dem"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        _write_mesh(client, config, grid, work, node_offsets, face_offsets, show)
-        report.stages["write mesh"] = time.perf_counter() - t0
+        report.stages["dem and mesh"] = time.perf_counter() - t0
     finally:
         compiling.stop()
         close(client, cluster)
@@ -832,29 +829,23 @@ def _empty_dem_note(config: RunConfig) -> str:
     return "the DEM is empty: no cell centre lies under a face (the surface is smaller than the cells); finer cells give some"
 
 
-def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offsets, show: bool) -> int | None:
+def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, offsets: tuple[np.ndarray, np.ndarray],
+               show: bool) -> int | None:
     """Write the DEM of every tile not yet written, and of every tile that a
-    face meshed by this run reaches; returns the cells with an elevation,
-    when this run wrote every tile (else None: the others were not counted).
+    face meshed by this run reaches, and the mesh; returns the cells with an
+    elevation, when this run wrote every tile (else None: the others were
+    not counted).
 
-    The same tasks number the pieces' nodes for the mesh writer (they read
-    the pieces too, and need nothing of the DEM): the cores go from one to the
-    other without waiting at the end of the DEM for its last tile."""
+    The same tasks number the pieces' nodes and write the nodes and faces
+    into the store's mesh group in blocks of whole chunks (``offsets``: the
+    tiles' first node and face), a block of faces once the tiles it spans are
+    numbered (:func:`_dem_order`): the cores go from one to the other without
+    waiting at the end of the DEM for its last tile."""
     from ..store import zarr_store as store
 
     config, grid = plan.config, plan.grid
-    reached = {key: reached_tiles(grid, s.reach, *key) for key, s in meshed.summaries.items()}
-    reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
-    for key, tiles in reached.items():
-        for t in tiles:
-            reaching[t].add(key)
-    # the DEM under faces meshed again, however far they reach, is written again
-    store.reset_tiles_done(config.output, sorted({t for job in meshed.meshed_now for t in reached[(job.row, job.col)]}))
-    fallback = resume.class_fallback(work)
-    classify = config.classify_ground or fallback is not None
-    products = _products(plan, classify)
-    tile_jobs = [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)])), products=products)
-                 for job in meshed.tile_jobs]
+    node_offsets, face_offsets = offsets
+    tile_jobs = _dem_jobs(plan, work, meshed)
     written = store.tiles_done(config.output)
     pending = [job for job in tile_jobs if not written[job.row, job.col]]
 
@@ -873,39 +864,75 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, node_offset
 
     unnumbered = [job for job in tile_jobs if work.recorded(Ledger.WRITE, f"ids_{_tile_key(job)}") is None]
     number = partial(global_node_ids, node_offsets=node_offsets)
-
-    def dem_or_number(task: tuple[str, TileJob]) -> int:
-        what, job = task
-        return dem_and_write(job) if what == "dem" else number(job) or 0
-
+    writer, blocks = _mesh_blocks(config, grid, work, node_offsets, face_offsets)
+    work_of = {"dem": dem_and_write, "number": lambda job: number(job) or 0, "write": write_mesh_block}
     valued = 0
 
-    def done(task: tuple[str, TileJob], result: int) -> None:
+    def done(task: tuple[str, Any], result: Any) -> None:
         nonlocal valued
-        if task[0] == "number":
-            work.record(Ledger.WRITE, f"ids_{_tile_key(task[1])}", {})
+        what, item = task
+        if what == "number":
+            work.record(Ledger.WRITE, f"ids_{_tile_key(item)}", {})
+        elif what == "write":
+            writer.record(*result)
+            work.record(Ledger.WRITE, f"{item.what}_{item.start}", {"stop": item.stop})
         else:
             valued += result
 
-    tasks = [("dem", job) for job in pending] + [("number", job) for job in unnumbered]
-    progress = Progress("dem", len(tasks), show)
-    map_tasks(client, dem_or_number, tasks, progress, lambda _: 0, done, after=_dem_order(grid, tasks))
+    tasks: list[tuple[str, Any]] = ([("dem", job) for job in pending] + [("number", job) for job in unnumbered]
+                                    + [("write", block) for block in blocks])
+    map_tasks(client, lambda task: work_of[task[0]](task[1]), tasks, Progress("dem", len(tasks), show),
+              lambda _: 0, done, after=_dem_order(grid, tasks))
+    order = list(grid.tiles())
+    writer.set_tiles(np.array([r for r, _ in order]), np.array([c for _, c in order]), node_offsets, face_offsets)
+    writer.close()
     return valued if len(pending) == len(tile_jobs) else None
 
 
-def _dem_order(grid: TileGrid, tasks: list[tuple[str, TileJob]]) -> dict[int, list[int]]:
-    """Which of the DEM stage's tasks (by index) each must wait for: none,
-    unless the store's chunk rows each hold parts of two tile rows
-    (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`).  Then a tile
-    of an odd row waits for the tiles of the even rows north and south of it
-    in its column, the only ones that write parts of its chunks (a tile's
-    column of cells is a column of chunks): no two tiles writing parts of one
-    chunk run at the same time, and the others need not wait."""
-    if not grid.rows_share_chunks:
-        return {}
-    index = {(job.row, job.col): i for i, (what, job) in enumerate(tasks) if what == "dem"}
-    return {i: [index[(job.row + d, job.col)] for d in (-1, 1) if (job.row + d, job.col) in index]
-            for i, (what, job) in enumerate(tasks) if what == "dem" and job.row % 2}
+def _dem_jobs(plan: RunPlan, work: WorkDir, meshed: Meshed) -> list[TileJob]:
+    """Every tile's job for the DEM stage, with the tiles whose faces reach it
+    and the products; the tiles under faces meshed by this run are marked to
+    be written again, however far the faces reach."""
+    from ..store import zarr_store as store
+
+    grid = plan.grid
+    reached = {key: reached_tiles(grid, s.reach, *key) for key, s in meshed.summaries.items()}
+    reaching: dict[tuple[int, int], set[tuple[int, int]]] = {t: set() for t in grid.tiles()}
+    for key, tiles in reached.items():
+        for t in tiles:
+            reaching[t].add(key)
+    store.reset_tiles_done(plan.config.output,
+                           sorted({t for job in meshed.meshed_now for t in reached[(job.row, job.col)]}))
+    classify = plan.config.classify_ground or resume.class_fallback(work) is not None
+    products = _products(plan, classify)
+    return [replace(job, reaching=tuple(sorted(reaching[(job.row, job.col)])), products=products)
+            for job in meshed.tile_jobs]
+
+
+def _dem_order(grid: TileGrid, tasks: list[tuple[str, Any]]) -> dict[int, list[int]]:
+    """Which of the DEM stage's tasks (by index) each must wait for.
+
+    - A block of faces waits for the numbering of the tiles it spans (it
+      writes their global node ids).
+    - Where the store's chunk rows each hold parts of two tile rows
+      (:attr:`~pipeline.tiling.grid.TileGrid.rows_share_chunks`), a tile of
+      an odd row waits for the tiles of the even rows north and south of it
+      in its column, the only ones that write parts of its chunks (a tile's
+      column of cells is a column of chunks): no two tiles writing parts of
+      one chunk run at the same time, and the others need not wait."""
+    dem = {(item.row, item.col): i for i, (what, item) in enumerate(tasks) if what == "dem"}
+    numbered = {(item.row, item.col): i for i, (what, item) in enumerate(tasks) if what == "number"}
+    out: dict[int, list[int]] = {}
+    for i, (what, item) in enumerate(tasks):
+        if what == "write" and item.what == "faces":
+            before = [numbered[item.tiles[k]] for k, _, _ in item.spans() if item.tiles[k] in numbered]
+        elif what == "dem" and grid.rows_share_chunks and item.row % 2:
+            before = [dem[(item.row + d, item.col)] for d in (-1, 1) if (item.row + d, item.col) in dem]
+        else:
+            continue
+        if before:
+            out[i] = before
+    return out
 
 
 def _tile_key(job: TileJob) -> str:
@@ -993,12 +1020,10 @@ def _hull_points(
     return hull
 
 
-def _write_mesh(
-    client, config: RunConfig, grid: TileGrid, work: WorkDir, node_offsets, face_offsets, show: bool
-) -> None:
-    """Write the nodes and faces into the store's mesh group in blocks of
-    whole chunks on the workers, renumbering the faces' corners to the global
-    node ids the DEM stage saved (blocks written before a stop are kept)."""
+def _mesh_blocks(config: RunConfig, grid: TileGrid, work: WorkDir, node_offsets,
+                 face_offsets) -> tuple[Any, list[MeshBlock]]:
+    """The store's mesh writer, and the blocks of whole chunks of its nodes
+    and faces left to write (those written before a stop are kept)."""
     from ..store import zarr_store as store
 
     order = tuple(grid.tiles())
@@ -1017,16 +1042,4 @@ def _write_mesh(
                 writer.record(what, start, stop)
                 continue
             blocks.append(MeshBlock(config.output, work.scratch, order, tuple(int(v) for v in offsets), what, start, stop))
-
-    def written(block: MeshBlock, result: tuple[str, int, int]) -> None:
-        writer.record(*result)
-        work.record(Ledger.WRITE, f"{block.what}_{block.start}", {"stop": block.stop})
-
-    map_tasks(client, write_mesh_block, blocks, Progress("write", len(blocks), show), lambda _: 0, written)
-    writer.set_tiles(
-        np.array([r for r, _ in order]),
-        np.array([c for _, c in order]),
-        node_offsets,
-        face_offsets,
-    )
-    writer.close()
+    return writer, blocks

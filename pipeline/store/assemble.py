@@ -107,19 +107,27 @@ class MeshBlock:
     start: int
     stop: int
 
+    def spans(self) -> list[tuple[int, int, int]]:
+        """``(k, lo, hi)``: the rows ``[lo, hi)`` of the block that tile ``self.tiles[k]`` holds."""
+        offsets = self.offsets
+        first = int(np.searchsorted(offsets, self.start, side="right")) - 1
+        out = []
+        for k in range(first, len(self.tiles)):
+            lo, hi = max(self.start, int(offsets[k])), min(self.stop, int(offsets[k + 1]))
+            if lo >= self.stop:
+                break
+            if lo < hi:
+                out.append((k, lo, hi))
+        return out
+
 
 def write_mesh_block(block: MeshBlock) -> tuple[str, int, int]:
     """Gather the block's rows from the pieces of the tiles they span and write
-    them; returns (what, start, stop) for the runner to record."""
+    them; returns (what, start, stop) for the runner to record.  A block of
+    faces reads the global node ids that :func:`global_node_ids` gave those tiles."""
     offsets = np.asarray(block.offsets)
-    first = int(np.searchsorted(offsets, block.start, side="right")) - 1
     parts = []
-    for k in range(first, len(block.tiles)):
-        lo, hi = max(block.start, int(offsets[k])), min(block.stop, int(offsets[k + 1]))
-        if lo >= block.stop:
-            break
-        if lo >= hi:
-            continue
+    for k, lo, hi in block.spans():
         arrays = ("vertices",) if block.what == "nodes" else ("faces", "node_ids")
         piece = Piece.load(block.scratch, *block.tiles[k], arrays)
         rows = slice(lo - offsets[k], hi - offsets[k])

@@ -479,6 +479,19 @@ def test_the_dem_of_a_tile_waits_only_for_the_tiles_that_write_parts_of_its_chun
                      where[3, 1]: [where[2, 1]], where[3, 2]: [where[2, 2]]}
     aligned = TileGrid(x0=0.0, y0=0.0, resolution=1.0, tile_cells=10, nx=25, ny=40)
     assert not aligned.rows_share_chunks and _dem_order(aligned, tasks) == {}
+    # the mesh's blocks: one of faces waits for the numbering of the tiles it spans (but those numbered before)
+    from pipeline.store.assemble import MeshBlock
+
+    tiles = tuple(grid.tiles())
+    offsets = tuple(range(0, 100 * len(tiles) + 1, 100))  # 100 faces (and nodes) a tile
+    blocks = [MeshBlock("o.zarr", None, tiles, offsets, what, start, stop)
+              for what, start, stop in (("nodes", 0, 1200), ("faces", 150, 450), ("faces", 1000, 1200))]
+    assert [t for k, _, _ in blocks[1].spans() for t in [tiles[k]]] == [tiles[1], tiles[2], tiles[3], tiles[4]]
+    tasks = tasks[:len(jobs)] + [t for t in tasks[len(jobs):] if t[1].row > 0] + [("write", b) for b in blocks]
+    number = {(j.row, j.col): i for i, (what, j) in enumerate(tasks) if what == "number"}
+    order = _dem_order(aligned, tasks)
+    assert order == {len(tasks) - 2: [number[tiles[3]], number[tiles[4]]],
+                     len(tasks) - 1: [number[tiles[10]], number[tiles[11]]]}
 
 
 def test_a_sparse_survey_in_tiny_tiles_reads_each_tile_once_and_meshes_as_one_piece(tmp_path, monkeypatch):
