@@ -91,10 +91,8 @@ def test_a_task_mapped_after_others_on_the_cluster_starts_only_when_they_have_en
 
     from pipeline.runs.cluster import Progress, map_tasks
 
-    from .test_run import _times
-
     def timed_task(item: tuple[str, float, str]) -> str:
-        """As test_run's ``_timed_task``, nested: shipped by value, as the workers cannot import the tests."""
+        """Log when the task starts and ends (nested: shipped by value, as the workers cannot import the tests)."""
         name, seconds, log = item
         with open(log, "a") as f:
             f.write(f"{name} start {time.perf_counter():.6f}\n")
@@ -103,12 +101,12 @@ def test_a_task_mapped_after_others_on_the_cluster_starts_only_when_they_have_en
             f.write(f"{name} end {time.perf_counter():.6f}\n")
         return name
 
-    log = str(tmp_path / "log")
-    items = [("A", 0.3, log), ("B", 0.5, log), ("C", 0.0, log), ("D", 0.1, log)]
+    log = tmp_path / "log"
+    items = [("A", 0.3, str(log)), ("B", 0.5, str(log)), ("C", 0.0, str(log)), ("D", 0.1, str(log))]
     with Client(cluster.address, timeout="30s", set_as_default=False) as client:
         names = map_tasks(client, timed_task, items, Progress("t", 4, False), lambda _: 0, after={2: [0, 1], 3: [2]})
     assert names == ["A", "B", "C", "D"]
-    t = _times(log)
+    t = {(name, what): float(at) for name, what, at in (line.split() for line in log.read_text().splitlines())}
     assert t["C", "start"] >= max(t["A", "end"], t["B", "end"]) and t["D", "start"] >= t["C", "end"]
 
 

@@ -421,41 +421,30 @@ def test_a_local_run_maps_its_tasks_over_threads_and_stops_at_the_first_failure(
     assert len(started) <= 3  # the two running and one taken at the failure; the rest were cancelled
 
 
-def _timed_task(item: tuple[str, float, str]) -> str:
-    """Log when the task ``name`` starts and ends (after ``seconds``) in the file ``log``."""
-    import time
-
-    name, seconds, log = item
-    with open(log, "a") as f:
-        f.write(f"{name} start {time.perf_counter():.6f}\n")
-    time.sleep(seconds)
-    with open(log, "a") as f:
-        f.write(f"{name} end {time.perf_counter():.6f}\n")
-    return name
-
-
-def _times(log) -> dict[tuple[str, str], float]:
-    from pathlib import Path
-
-    return {(name, what): float(t) for name, what, t in (line.split() for line in Path(log).read_text().splitlines())}
-
-
-def test_a_task_mapped_after_others_starts_when_they_end_without_waiting_for_the_rest(tmp_path):
+def test_a_task_mapped_after_others_starts_when_they_end_without_waiting_for_the_rest():
     """``map_tasks(after=)``: the DEM of a tile that shares chunks with its
     neighbours waits for them alone.  C waits for A and B, and starts while D,
     which started before it, still runs (sets of tasks one after the other
     would have made it wait for D too)."""
+    import time
+
     from pipeline.runs.cluster import LocalThreads, Progress, close, map_tasks
 
-    log = str(tmp_path / "log")
+    t: dict[tuple[str, str], float] = {}
+
+    def task(item: tuple[str, float]) -> str:
+        name, seconds = item
+        t[name, "start"] = time.perf_counter()
+        time.sleep(seconds)
+        t[name, "end"] = time.perf_counter()
+        return name
+
     pool = LocalThreads(2)
-    items = [("A", 0.2, log), ("B", 0.3, log), ("D", 1.5, log), ("C", 0.0, log)]
     ended = []
-    names = map_tasks(pool, _timed_task, items, Progress("t", 4, False), lambda _: 0,
-                      lambda item, name: ended.append(name), after={3: [0, 1]})
+    names = map_tasks(pool, task, [("A", 0.2), ("B", 0.3), ("D", 1.5), ("C", 0.0)], Progress("t", 4, False),
+                      lambda _: 0, lambda item, name: ended.append(name), after={3: [0, 1]})
     close(pool, None)
     assert names == ["A", "B", "D", "C"] and sorted(ended) == sorted(names)
-    t = _times(log)
     assert t["C", "start"] >= max(t["A", "end"], t["B", "end"])
     assert t["C", "start"] < t["D", "end"] and ended.index("C") < ended.index("D")
 
