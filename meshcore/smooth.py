@@ -33,8 +33,9 @@ kriging with a linear drift:
   the linear surface's values;
 - a node in a void (farther than :data:`VOID_NEAR` spacings from its
   cell's points) is blended, by its distance from them, into the void's
-  fill: the linear surface, then half of it and half the natural-neighbour
-  interpolant of the points around the void (:mod:`meshcore.natural`).
+  fill: the linear surface, then the TIN of the points around the void,
+  moved half the way to their natural-neighbour interpolant
+  (:mod:`meshcore.natural`) where the two agree (:data:`VOID_AGREEMENT`).
   There the cell's points lie on one side of the rim, and kriging carries
   that side's tilt and noise across the void: beyond a few spacings it was
   worse than the TIN; the fill reads the whole rim, stays within its values
@@ -544,7 +545,7 @@ def smooth_nodes(
     _nodes_kriged_kernel(
         vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
-        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size), near, far, values,
+        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size, variogram, hoods.gap), near, far, values,
     )
     _scatter_nodes(values, hoods.take, out)
     return out
@@ -910,7 +911,7 @@ def _krige_added(
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
         np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
-        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n), near, far, values,
+        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n, variogram, added.gap), near, far, values,
     )
     out = np.empty(n)
     out[order] = values

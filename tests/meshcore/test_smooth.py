@@ -620,3 +620,33 @@ def test_leave_one_out_errors_of_several_nuggets_are_those_of_each_nugget_alone(
             assert np.isfinite(alone[0]).sum() >= sample.size - 1
         # the nugget matters: the errors differ from one to the next
         assert not np.array_equal(together[1], together[3])
+
+
+def test_a_voids_fill_takes_the_natural_neighbours_only_where_they_agree_with_the_tin():
+    """Where the natural-neighbour interpolant departs from the TIN by several of
+    the ground's standard deviations at the node's distance from the points (a
+    rim of two grounds: a step, the far side of a bay), the fill is the TIN's;
+    where they agree it is the mean of the two."""
+    from meshcore.natural import natural_coordinates, natural_values, tin_values
+    from meshcore.voids import VOID_AGREEMENT, VOID_NATURAL_SHARE, VoidFill
+
+    angles = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
+    ring = np.column_stack([np.cos(angles), np.sin(angles)]) * 10.0
+    near = ring[:12] * 0.9  # a dense arc on one side, as a strip along a step
+    points = np.vstack([ring, near]) + OFFSET
+    z = np.concatenate([np.zeros(40), np.full(12, 2.0)])
+    places = np.array([[1.5, -2.0], [-3.0, 1.0]]) + OFFSET
+    coords = natural_coordinates(points, places, np.full(2, 30.0), np.full(2, 100.0))
+    natural, tin = natural_values(coords, z), tin_values(coords, z)
+    departure = np.abs(natural - tin)
+    assert np.all(departure > 0.1)
+    gap = np.full(2, 7.0)
+    fill = VoidFill(np.arange(2), coords)
+    for sill, share in ((1e6, VOID_NATURAL_SHARE), (1e-6, 0.0)):
+        values = fill.values(z, 2, Variogram(0.0, sill, 5.0, "exponential", spacing=1.0), gap)
+        assert_allclose(values[:, 0], tin + share * (natural - tin))
+    # in between, the share falls linearly with the departure
+    sd = float(np.sqrt(Variogram(0.0, 1.0, 5.0, "exponential").semivariance(7.0)))
+    sill = (departure[0] / (1.5 * VOID_AGREEMENT * sd)) ** 2
+    values = fill.values(z, 2, Variogram(0.0, sill, 5.0, "exponential", spacing=1.0), gap)
+    assert_allclose(values[0, 0], tin[0] + 0.5 * VOID_NATURAL_SHARE * (natural[0] - tin[0]))
