@@ -545,7 +545,8 @@ def smooth_nodes(
     _nodes_kriged_kernel(
         vertices, zv, hoods.centres, hoods.index, hoods.first, hoods.positions, hoods.corners, rows, _PATTERN_WEIGHTS,
         variogram.nugget / variogram.sill, 1.0 / variogram.range, MODELS.index(variogram.model),
-        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size, variogram, hoods.gap), near, far, values,
+        _clamps_inside(variogram), hoods.gap, hoods.fill.values(zv, values.size, variogram, hoods.gap), near, far,
+        values,
     )
     _scatter_nodes(values, hoods.take, out)
     return out
@@ -911,7 +912,8 @@ def _krige_added(
     _nodes_kriged_kernel(
         vertices, z, added.centres, added.index, added.first, np.ascontiguousarray(positions[order]), corners,
         np.arange(n, dtype=np.int32), weights, variogram.nugget / variogram.sill, 1.0 / variogram.range,
-        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n, variogram, added.gap), near, far, values,
+        MODELS.index(variogram.model), _clamps_inside(variogram), added.gap, added.fill.values(z, n, variogram, added.gap),
+        near, far, values,
     )
     out = np.empty(n)
     out[order] = values
