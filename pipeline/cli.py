@@ -226,7 +226,7 @@ def _add_classify(sub) -> None:
                          "(class 2 ground, class 1 for former ground; nothing else changed)")
     cls.add_argument("inputs", nargs="+", metavar="INPUT", help="LAS/LAZ files, folders or glob patterns")
     cls.add_argument("-o", "--output", required=True, help="folder to write NAME.laz into, one per input")
-    add_config_flags(cls, ("tile_size", "buffer", "in_crs", "workers", "scheduler", "overwrite"),
+    add_config_flags(cls, ("tile_size", "buffer", "in_crs", "override_crs", "workers", "scheduler", "overwrite"),
                      {"overwrite": "replace files already in the output folder"})
     cls.add_argument("--no-progress", action="store_true", help="no progress bars")
 
@@ -476,7 +476,8 @@ def _command(args: argparse.Namespace, process_ends: bool = False) -> int:
 
         loaded()
         done = classify(args.inputs, args.output, tile_size=args.tile_size, buffer=args.buffer, workers=args.workers,
-                        scheduler=args.scheduler, in_crs=args.in_crs, overwrite=bool(args.overwrite),
+                        scheduler=args.scheduler, in_crs=args.in_crs, override_crs=args.override_crs,
+                        overwrite=bool(args.overwrite),
                         progress=_progress(args))
         for note in done.notes:
             LOGGER.info(_said(args, note))

@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AREA_TOLERANCE_KM", "SURFACE_TOLERANCE_KM", "CrsPlan", "Reprojector", "contradiction", "crs_label", "resolve_crs",
-    "same_crs", "transform_bounds",
+    "same_crs", "transform_bounds", "working_crs",
 ]
 
 _MAX_LISTED = 5
@@ -654,6 +654,35 @@ def resolve_crs(
         height_scale=height_scale,
         z_factors=tuple(z_factors) if any(f != 1.0 for f in z_factors) else (),
     )
+
+
+def working_crs(
+    infos: Sequence[SourceInfo], in_crs: str | None = None, *, override_crs: str | None = None
+) -> tuple[str, str] | None:
+    """For work that needs linear coordinates but writes none (the ground
+    filter of ``terrain classify``, whose sizes are metres): None when the
+    files' one CRS (their records, ``in_crs``, ``override_crs``, as
+    :func:`resolve_crs` takes them) is projected; when it is geographic or
+    geocentric, the WGS 84 UTM zone at the centre of their bounds to work in,
+    ``("EPSG:326zz", its name)``.  None too where :func:`resolve_crs` will
+    refuse the files anyway (and say why)."""
+    if in_crs is not None and override_crs is not None:
+        return None
+    cache = _CrsCache()
+    user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
+    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
+    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
+    try:
+        sources, _ = _file_crss(infos, cache, user_in, user_override, option, user, [])
+    except CrsError:
+        return None
+    groups = _group_by_crs(sources)
+    if len(groups) != 1:
+        return None
+    h = _horizontal(groups[0][0])
+    if h.is_projected or not (h.is_geographic or h.is_geocentric):
+        return None
+    return _suggest_utm(infos, sources)
 
 
 def _file_crss(

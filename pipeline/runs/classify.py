@@ -7,12 +7,16 @@ each point's position in its file carried along.  Then each file is streamed
 again and written as LAZ with only its classification changed: class 2 on the
 ground, class 1 on points the file had as ground that are not; every other
 point keeps its class (noise and withheld points are never classified).
-Every other dimension, the VLRs and the EVLRs are copied as they are.  A
-file is written under a temporary name and renamed when whole.
+Every other dimension, the VLRs and the EVLRs are copied as they are, byte
+for byte and in their order, but the LAZ VLR (the written file's
+compressor's own) and, of a COPC file, the octree's VLR and EVLR: the copy
+is plain LAZ, whose chunks are not the octree's nodes.  A file is written
+under a temporary name and renamed when whole.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import sys
 import tempfile
@@ -79,6 +83,7 @@ def classify(
     workers: int | None = None,
     scheduler: str | None = None,
     in_crs: str | None = None,
+    override_crs: str | None = None,
     overwrite: bool = False,
     progress: bool | None = None,
 ) -> ClassifyReport:
@@ -86,6 +91,11 @@ def classify(
 
     Files in one CRS are classified together (a survey cut into files gets
     the ground of the whole survey); files of another CRS apart, in theirs.
+    ``in_crs`` is the CRS of files without a usable CRS record;
+    ``override_crs`` that of every file, whatever its record says (a wrong
+    one): all are then one survey.  Either only tells the filter the
+    coordinates' unit (its sizes are in metres); the files written keep
+    their own records.
 
     Raises
     ------
@@ -95,6 +105,7 @@ def classify(
     InputFileError
         For a file that cannot be read.
     """
+    from ..inputs.crs import working_crs
     from ..inputs.sources import discover_inputs, read_info
 
     t0 = time.perf_counter()
@@ -102,27 +113,34 @@ def classify(
     paths = [str(p) for p in discover_inputs(list(inputs))]
     targets = dict(zip(paths, _targets(paths, out, overwrite)))  # every clash said before any work
     out.mkdir(parents=True, exist_ok=True)
-    groups: dict[str | None, list[str]] = {}
+    groups: dict[str | None, list[Any]] = {}
     for path in paths:
-        groups.setdefault(read_info(path).crs_wkt, []).append(path)
+        info = read_info(path)
+        groups.setdefault(None if override_crs is not None else info.crs_wkt, []).append(info)
     report = ClassifyReport()
     for group in groups.values():
-        _classify_group(group, out, targets, report, tile_size=tile_size, buffer=buffer, workers=workers,
-                        scheduler=scheduler, in_crs=in_crs, progress=progress)
+        # the filter's sizes are metres: files in degrees are classified in their UTM zone
+        work_in = working_crs(group, in_crs, override_crs=override_crs)
+        if work_in is not None:
+            report.notes.append(f"{', '.join(str(i.path) for i in group)}: classified in {work_in[1]} ({work_in[0]}),"
+                                " the files' CRS being in degrees; the files written keep their own coordinates")
+        _classify_group([str(i.path) for i in group], out, targets, report, tile_size=tile_size, buffer=buffer,
+                        workers=workers, scheduler=scheduler, in_crs=in_crs, override_crs=override_crs,
+                        out_crs=None if work_in is None else work_in[0], progress=progress)
     report.seconds = time.perf_counter() - t0
     return report
 
 
 def _classify_group(paths: list[str], out: Path, targets: dict[str, Path], report: ClassifyReport, *,
-                    tile_size, buffer, workers, scheduler, in_crs, progress) -> None:
+                    tile_size, buffer, workers, scheduler, in_crs, override_crs, out_crs, progress) -> None:
     """Classify files of one CRS together (:func:`classify`)."""
     from . import resume
     from .runner import RunReport, _ground_stage, _route_stage, ground_parameters
 
-    # the run's plan over the files as they are: no reprojection, cells of one unit only size the tiles
+    # the run's plan over the files as they are (files in degrees: in out_crs), cells of one unit only size the tiles
     config = RunConfig(inputs=tuple(paths), output=str(out / ".terrain-classify.zarr"), resolution=1.0,
                        tile_size=tile_size, buffer=buffer, workers=workers, scheduler=scheduler, in_crs=in_crs,
-                       classify_ground=True)
+                       override_crs=override_crs, out_crs=out_crs, classify_ground=True)
     plan = plan_run(config)
     show = sys.stderr.isatty() if progress is None else progress
     report.notes.extend(plan.notes)
@@ -148,6 +166,9 @@ def _ground_positions(work: WorkDir, index: int) -> np.ndarray:
     return np.concatenate(arrays).astype(np.int64) if arrays else np.empty(0, dtype=np.int64)
 
 
+_LASZIP = ("laszip encoded", 22204)
+"""The LAZ VLR: the compressor's own settings (its chunk size), never the source's."""
+
 def _vlr_table(head: bytes) -> list[tuple[bytes, int, int, int]]:
     """``(user_id, record_id, data offset, data length)`` of each VLR in a LAS header's bytes."""
     header_size = int.from_bytes(head[94:96], "little")
@@ -164,31 +185,52 @@ def _vlr_table(head: bytes) -> list[tuple[bytes, int, int, int]]:
     return out
 
 
-def _restore_vlrs(source: str, written: Path) -> None:
-    """Put back, byte for byte, the source's VLR payloads that the LAS writer
-    rebuilt (it recomputes the extra bytes' description, for one): each VLR of
-    the written file takes the bytes of the source's VLR of the same id and
-    length.  The written file's LAZ VLR is its own."""
+def _head(source: str) -> bytes:
+    """The bytes of ``source`` up to its point data: the header and every VLR."""
     from ..urls import is_url, open_input
 
     with (open_input(source) if is_url(source) else open(source, "rb")) as stream:
         head = stream.read(375)
         stream.seek(0)
-        head = stream.read(int.from_bytes(head[96:100], "little"))  # to the point data: every VLR
-    theirs: dict[tuple[bytes, int], list[bytes]] = {}
-    for user_id, record_id, at, length in _vlr_table(head):
-        theirs.setdefault((user_id, record_id), []).append(head[at:at + length])
-    with open(written, "r+b") as f:
-        mine = f.read(375)
-        f.seek(0)
-        mine = f.read(int.from_bytes(mine[96:100], "little"))
-        for user_id, record_id, at, length in _vlr_table(mine):
-            found = theirs.get((user_id, record_id))
-            if found and len(found[0]) == length and found[0] != mine[at:at + length]:
-                f.seek(at)
-                f.write(found[0])
-            if found:
-                found.pop(0)
+        return stream.read(int.from_bytes(head[96:100], "little"))
+
+
+def _evlr_records(source: str, head: bytes) -> list[Any]:
+    """The EVLRs of a LAS 1.4 ``source`` as raw records (their bytes as they are)."""
+    import laspy
+
+    from ..urls import is_url, open_input
+
+    if head[25] < 4 or len(head) < 375:
+        return []
+    at, count = int.from_bytes(head[235:243], "little"), int.from_bytes(head[243:247], "little")
+    out = []
+    with (open_input(source) if is_url(source) else open(source, "rb")) as stream:
+        for _ in range(count if at else 0):
+            stream.seek(at)
+            record = stream.read(60)
+            if len(record) < 60:
+                break
+            length = int.from_bytes(record[20:28], "little")
+            out.append(laspy.VLR(_text(record[2:18]), int.from_bytes(record[18:20], "little"), _text(record[28:60]),
+                                 stream.read(length)))
+            at += 60 + length
+    return out
+
+
+def _text(field: bytes) -> str:
+    return field.split(b"\0", 1)[0].decode("ascii", errors="replace")
+
+
+def _vlr_records(head: bytes) -> list[Any]:
+    """The source's VLRs as raw records, their bytes as they are (the LAS
+    writer would serialise a parsed WKT, GeoTIFF or extra-bytes record anew),
+    in their order, without the LAZ VLR and COPC's."""
+    import laspy
+
+    return [laspy.VLR(_text(user_id), record_id, _text(head[at - 32:at]), head[at:at + length])
+            for user_id, record_id, at, length in _vlr_table(head)
+            if (_text(user_id), record_id) != _LASZIP and _text(user_id) != "copc"]
 
 
 def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
@@ -203,11 +245,12 @@ def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
     ground = np.unique(ground)
     source = open_input(path) if is_url(path) else os.fspath(path)
     try:
+        head = _head(path)
         with laspy.open(source) as reader:
-            header = reader.header
-            copc = [v for v in header.vlrs if v.user_id == "copc"]
-            for v in copc:  # a COPC file's octree is not this file's: it is written as plain LAZ
-                header.vlrs.remove(v)
+            header = copy.deepcopy(reader.header)  # the reader's keeps the LAZ VLR it decompresses by
+            # a COPC file's octree is not this file's (written as plain LAZ): its VLR and EVLR are left out
+            header.vlrs = VLRList(_vlr_records(head))
+            header.vlrs.extract("ExtraBytesVlr")  # the one the header made from the point format: the source's is kept
             with laspy.open(partial, mode="w", header=header, do_compress=True) as writer:
                 start = 0
                 for points in reader.chunk_iterator(_CHUNK):
@@ -225,10 +268,9 @@ def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
                     counts["ground"] += int(is_ground.sum())
                     counts["no_longer_ground"] += int(lost.sum())
                     start += n
-                evlrs = [e for e in (reader.evlrs or []) if not (copc and e.user_id == "copc")]
+                evlrs = [e for e in _evlr_records(path, head) if e.user_id != "copc"]
                 if evlrs:
                     writer.write_evlrs(VLRList(evlrs))
-        _restore_vlrs(path, partial)
         os.replace(partial, target)
     except OSError as exc:
         partial.unlink(missing_ok=True)

@@ -133,6 +133,20 @@ def test_geographic_target_suggests_the_utm_zone(tmp_path: Path) -> None:
     assert plan.horizontal_unit == "metre"
 
 
+def test_work_in_degrees_is_done_in_the_utm_zone(tmp_path: Path) -> None:
+    """``terrain classify`` writes no grid: files in degrees are worked on in their UTM zone, not refused."""
+    from pipeline.inputs.crs import working_crs
+
+    geo = info_for(tmp_path, "geo.las", "EPSG:4326", origin=(3.0, 45.0), spread=0.5)
+    assert working_crs([geo]) == ("EPSG:32631", "WGS 84 / UTM zone 31N")
+    projected = info_for(tmp_path, "a.las", LAMBERT93, origin=(700_000.0, 6_600_000.0))
+    assert working_crs([projected]) is None
+    # what the override says, not the record
+    wrong = info_for(tmp_path, "wrong.las", LAMBERT93, origin=(3.0, 45.0), spread=0.5)
+    assert working_crs([wrong], override_crs="EPSG:4326") == ("EPSG:32631", "WGS 84 / UTM zone 31N")
+    assert working_crs([geo], override_crs=LAMBERT93) is None
+
+
 @pytest.mark.parametrize("target", ["EPSG:4978", "EPSG:5703", "EPSG:4979"])
 def test_non_projected_targets_are_refused(tmp_path: Path, target: str) -> None:
     info = info_for(tmp_path, "a.las", LAMBERT93, origin=(700_000.0, 6_600_000.0))
