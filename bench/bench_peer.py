@@ -24,7 +24,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from bench_mesh import table
+from bench_mesh import compile_bytecode, table
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 TERRAIN = Path(sys.executable).with_name("terrain")
@@ -102,6 +102,7 @@ def startup(repeat: int, path: Path) -> None:
 
 
 def main() -> None:
+    compile_bytecode(Path(__file__).resolve().parents[1])
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=["whitebox", "startup"])
     parser.add_argument("--file", type=Path, default=SHARED / "extra_byte_blocks_lambert93.laz")

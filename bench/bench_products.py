@@ -31,7 +31,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from bench_mesh import table
+from bench_mesh import compile_bytecode, table
 
 HERE = Path(__file__).resolve().parents[1]
 SHARED = HERE.parent / "shared" / "data"
@@ -68,6 +68,7 @@ def _timed(cmd: list[str]) -> tuple[float, float]:
 
 
 def measure(path: Path, repeat: int, resolution: float) -> list[list[str]]:
+    compile_bytecode(HERE)
     with tempfile.TemporaryDirectory() as tmp:
         base = [sys.executable, "-m", "pipeline.cli", "run", str(path), "--resolution", str(resolution), "--overwrite", "-q"]
         jobs = {
