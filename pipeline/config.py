@@ -257,7 +257,8 @@ class RunConfig:
         "contradict; not with --in-crs")
     """The CRS of every input, whatever its record says (PDAL's ``override_srs``):
     for files whose record the coordinates contradict."""
-    out_crs: str | None = _param(None, "reproject to this CRS (required for mixed or geographic inputs)")
+    out_crs: str | None = _param(None, "reproject to this CRS (required for inputs in several CRSs; for inputs "
+                                       "in degrees, default: the WGS 84 UTM zone at their centre)")
     duplicates: DuplicatePolicy = _param(
         DuplicatePolicy.LOWEST, "z of points sharing x,y (default lowest; first: the first read, files in sorted "
         "path order)")

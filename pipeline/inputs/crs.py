@@ -659,13 +659,13 @@ def resolve_crs(
 def working_crs(
     infos: Sequence[SourceInfo], in_crs: str | None = None, *, override_crs: str | None = None
 ) -> tuple[str, str] | None:
-    """For work that needs linear coordinates but writes none (the ground
-    filter of ``terrain classify``, whose sizes are metres): None when the
-    files' one CRS (their records, ``in_crs``, ``override_crs``, as
-    :func:`resolve_crs` takes them) is projected; when it is geographic or
-    geocentric, the WGS 84 UTM zone at the centre of their bounds to work in,
-    ``("EPSG:326zz", its name)``.  None too where :func:`resolve_crs` will
-    refuse the files anyway (and say why)."""
+    """The CRS to work in when no ``out_crs`` is given (meshes, cells and the
+    ground filter's sizes need linear coordinates): None when the files' one
+    CRS (their records, ``in_crs``, ``override_crs``, as :func:`resolve_crs`
+    takes them) is projected; when it is geographic or geocentric, the WGS 84
+    UTM zone at the centre of their bounds, ``("EPSG:326zz", its name)``.
+    None too where :func:`resolve_crs` will refuse the files anyway (and say
+    why)."""
     if in_crs is not None and override_crs is not None:
         return None
     cache = _CrsCache()

@@ -93,8 +93,8 @@ class RunPlan:
     file_bounds: tuple[tuple[float, float, float, float] | None, ...]
     """Each input's header bounds in the target CRS."""
     provenance: dict[str, Any]
-    kept: dict[str, float] = field(default_factory=dict)
-    """The sizes (``tile_size``, ``buffer``) the config left unset that an
+    kept: dict[str, Any] = field(default_factory=dict)
+    """The sizes (``tile_size``, ``buffer``, ...) and the ``out_crs`` the config left unset that an
     incremental run took from its store, as the store's first run derived them."""
     dsm_max_edge: float = math.inf
     """The DSM's maximum edge (``config.dsm_max_edge``, or derived from the
@@ -116,7 +116,8 @@ class RunPlan:
         and tiles given too small."""
         notes = [f"{p}: {note}" for p, info in zip(self.paths, self.infos) for note in info.notes] + list(self.crs.notes)
         if self.kept:
-            sizes = " and ".join(f"{name}={value:g}" for name, value in self.kept.items())
+            sizes = " and ".join(f"{name}={value:g}" if isinstance(value, float) else f"{name}={value}"
+                                 for name, value in self.kept.items())
             notes.append(f"{sizes} kept from the store, which derived them from the point density in its first run")
         c = self.config
         cells = None if c.tile_size is None else given_tile_cells(c)
@@ -148,14 +149,18 @@ def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
     from ..inputs.crs import resolve_crs
 
     paths, infos, skipped = read_headers(config)
-    crs = resolve_crs(infos, config.in_crs, config.out_crs, override_crs=config.override_crs)
     kept = kept_sizes(config) if keep_sizes else {}
+    out_crs, chosen = _out_crs(config, infos, kept)
+    crs = resolve_crs(infos, config.in_crs, out_crs, override_crs=config.override_crs)
+    if chosen:
+        crs = replace(crs, notes=(chosen, *crs.notes))
     sized = replace(config, **kept)
     infos, (grid, bounds, buffer, file_bounds) = _frame_measuring_wide_headers(sized, paths, infos, crs)
     tile_cells, _ = _auto_sizes(sized, bounds, sum(i.point_count for i in infos))
     dsm_edge = _dsm_max_edge(sized, bounds, sum(i.point_count for i in infos))
     derived = {"tile_size": tile_cells * config.resolution, "buffer": buffer,
-               **({} if math.isinf(dsm_edge) else {"dsm_max_edge": dsm_edge})}
+               **({} if math.isinf(dsm_edge) else {"dsm_max_edge": dsm_edge}),
+               **({} if out_crs is None else {"out_crs": out_crs})}
     derived = {name: value for name, value in derived.items() if getattr(config, name) is None}
     provenance = {
         "software": "terrain-pipeline",
@@ -183,13 +188,13 @@ left them unset: ``{"tile_size": ..., "buffer": ...}`` (CRS units), each
 present only when its parameter is unset."""
 
 
-def kept_sizes(config: RunConfig) -> dict[str, float]:
-    """The sizes ``config`` leaves unset (``tile_size``, ``buffer``) that the
-    store at ``config.output`` recorded as derived: an incremental run keeps
-    them.  Derived again, they would follow the point density of the inputs
-    as they are now, and a new file would change them and with them every
-    tile.  Empty without a store, with ``overwrite``, or for a store that
-    recorded none."""
+def kept_sizes(config: RunConfig) -> dict[str, Any]:
+    """The sizes ``config`` leaves unset (``tile_size``, ``buffer``,
+    ``dsm_max_edge``), and the UTM zone of inputs in degrees (``out_crs``),
+    that the store at ``config.output`` recorded as derived: an incremental
+    run keeps them.  Derived again, they would follow the inputs as they are
+    now, and a new file would change them and with them every tile.  Empty
+    without a store, with ``overwrite``, or for a store that recorded none."""
     from ..store import zarr_store as store
 
     if config.overwrite:
@@ -197,7 +202,26 @@ def kept_sizes(config: RunConfig) -> dict[str, float]:
     attrs = store.read_attrs(config.output) or {}
     derived = attrs.get("provenance", {}).get(DERIVED, {})
     unset = [name for name in ("tile_size", "buffer", "dsm_max_edge") if getattr(config, name) is None]
-    return {name: float(derived[name]) for name in unset if name in derived}
+    kept: dict[str, Any] = {name: float(derived[name]) for name in unset if name in derived}
+    if config.out_crs is None and "out_crs" in derived:
+        kept["out_crs"] = str(derived["out_crs"])
+    return kept
+
+
+def _out_crs(config: RunConfig, infos: list, kept: dict[str, Any]) -> tuple[str | None, str | None]:
+    """The CRS to reproject to: ``config.out_crs``, or the one an incremental
+    run keeps, or, for inputs in degrees (or geocentric), the WGS 84 UTM
+    zone at their centre, with the note that says so (meshes and cells need
+    linear coordinates).  None: the inputs' own CRS."""
+    from ..inputs.crs import working_crs
+
+    if config.out_crs is not None or "out_crs" in kept:
+        return config.out_crs or kept["out_crs"], None
+    utm = working_crs(infos, config.in_crs, override_crs=config.override_crs)
+    if utm is None:
+        return None, None
+    return utm[0], (f"the inputs' CRS is not projected (degrees or geocentric): the DEM and the mesh are in "
+                    f"{utm[1]} ({utm[0]}), the UTM zone at their centre; give out_crs for another")
 
 
 def read_headers(config: RunConfig) -> tuple[list[Path], list, list[dict[str, Any]]]:

@@ -68,13 +68,27 @@ def test_us_feet_and_info(tmp_path, capsys):
     assert xr.open_zarr(out)["elevation"].attrs["units"] == "0.304800609601219 metre"
 
 
-def test_geographic_input_needs_a_projected_crs(tmp_path, capsys):
+def test_geographic_input_is_gridded_in_its_utm_zone(tmp_path, capsys):
+    """A survey in degrees is valid input: without --out-crs the run works in
+    the WGS 84 UTM zone at its centre, says so, and gives what --out-crs of
+    that zone gives; an incremental run keeps the zone the store chose."""
+    from pyproj import CRS
+
+    from pipeline.runs.plan import kept_sizes
+
     path = sample("geographic_epsg4326.las")
-    code = main(["run", str(path), "-o", str(tmp_path / "g.zarr"), "--resolution", "1", "--classes", "all", "--no-progress"])
-    assert code == 2
-    assert "projected" in capsys.readouterr().err
-    with pytest.raises(CrsError):
-        _run(path, tmp_path / "g2.zarr", classes=None)
+    auto, given = tmp_path / "auto.zarr", tmp_path / "given.zarr"
+    assert main(["run", str(path), "-o", str(auto), "--resolution", "2", "--no-progress"]) == 0
+    assert "are in WGS 84 / UTM zone 15N (EPSG:32615), the UTM zone at their centre" in capsys.readouterr().out
+    assert main(["run", str(path), "-o", str(given), "--resolution", "2", "--out-crs", "EPSG:32615", "-q"]) == 0
+    a, b = xr.open_zarr(auto), xr.open_zarr(given)
+    assert CRS.from_wkt(a["spatial_ref"].attrs["crs_wkt"]).to_epsg() == 32615
+    assert np.isfinite(a["elevation"].values).sum() > 1000
+    np.testing.assert_array_equal(a["elevation"].values, b["elevation"].values)
+    np.testing.assert_array_equal(a["x"].values, b["x"].values)
+    assert kept_sizes(RunConfig(inputs=(str(path),), output=str(auto), resolution=2.0))["out_crs"] == "EPSG:32615"
+    with pytest.raises(CrsError, match="geographic"):  # an out_crs in degrees is still refused
+        _run(path, tmp_path / "g2.zarr", out_crs="EPSG:4326")
 
 
 @pytest.mark.parametrize(
