@@ -118,7 +118,8 @@ class RunPlan:
         if self.kept:
             sizes = " and ".join(f"{name}={value:g}" if isinstance(value, float) else f"{name}={value}"
                                  for name, value in self.kept.items())
-            notes.append(f"{sizes} kept from the store, which derived them from the point density in its first run")
+            why = "the point density" + (" and the inputs' CRS" if "out_crs" in self.kept else "")
+            notes.append(f"{sizes} kept from the store, which derived them from {why} in its first run")
         c = self.config
         cells = None if c.tile_size is None else given_tile_cells(c)
         if cells is not None and not math.isclose(cells * c.resolution, c.tile_size, rel_tol=1e-9):
