@@ -86,6 +86,27 @@ def test_distributed_run_equals_local_run(cluster, tmp_path):
         np.testing.assert_array_equal(x, y)
 
 
+def test_a_distributed_run_of_every_stage_and_product_equals_a_local_run(cluster, tmp_path):
+    """The ground stage (its blocks on the workers), the smooth surface (its
+    variogram's sample merged from the workers' tiles) and every product
+    (their spill files, the DSM's margin) on the cluster, against this
+    process's threads: every layer and the mesh, bit for bit."""
+    folder = tmp_path / "survey"
+    write_survey(folder, SurveySpec(points=30_000, files=2, width=200.0, height=150.0, seed=11))
+    common = dict(inputs=(str(folder),), resolution=2.0, tile_size=64.0, scratch_dir=str(tmp_path),
+                  classify_ground=True, surface="smooth",
+                  layers=("elevation", "dsm", "chm", "intensity", "density", "ground_density", "slope"))
+    local = run(RunConfig(output=str(tmp_path / "local.zarr"), workers=2, **common), progress=False)
+    remote = run(RunConfig(output=str(tmp_path / "remote.zarr"), scheduler=cluster.address, **common), progress=False)
+    assert remote.tiles == local.tiles > 4 and remote.points_kept == local.points_kept
+    a, b = xr.open_zarr(tmp_path / "local.zarr"), xr.open_zarr(tmp_path / "remote.zarr")
+    for name in common["layers"]:
+        assert np.isfinite(a[name].values).any(), name
+        np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
+    for x, y in zip(store.read_mesh(tmp_path / "local.zarr"), store.read_mesh(tmp_path / "remote.zarr")):
+        np.testing.assert_array_equal(x, y)
+
+
 def test_a_task_mapped_after_others_on_the_cluster_starts_only_when_they_have_ended(cluster, tmp_path):
     from distributed import Client
 
