@@ -1011,6 +1011,9 @@ def _hull_points(
         by_source = {**spill_by_source(scratch, r, c), **copies}  # source after source, as a tile holds them
         pts = np.concatenate([by_source[k] for k in sorted(by_source)]) if by_source else np.empty((0, 3))
         mine = np.flatnonzero((rows == r) & (cols == c))
+        # the rows at a hull point's x first (a few of the tile's), then their x and y together
+        near = np.flatnonzero(np.isin(pts[:, 0], hull[mine, 0]))
+        pts = pts[near]
         pkey = pts[:, 0] + 1j * pts[:, 1]
         sel = np.isin(pkey, key[mine])
         # every copy of a hull point, reduced by the duplicate policy like any vertex
