@@ -20,7 +20,7 @@ from typing import Any
 
 import pyproj
 
-from ..inputs.crs import crs_label
+from ..inputs.crs import contradiction, crs_label
 from ..errors import InputFileError
 from ..inputs.header import SourceInfo
 from ..inputs.sources import class_counts, discover_inputs, read_info
@@ -83,8 +83,10 @@ def info_json(inputs: Inputs, *, keep_going: bool = False) -> list[dict[str, Any
     -------
     list of dict
         :meth:`SourceInfo.to_dict` plus ``crs_name``, ``crs_epsg``,
-        ``horizontal_unit``, ``classes`` (``[{"code", "name", "count"}]``)
-        and ``error`` (None).
+        ``horizontal_unit``, ``crs_contradiction`` (why the header's bounds
+        cannot be coordinates of the CRS record, as a run says it; None when
+        they can), ``classes`` (``[{"code", "name", "count"}]``) and
+        ``error`` (None).
     """
     entries = []
     for path in discover_inputs(inputs):
@@ -123,14 +125,18 @@ def _entry(path: Path) -> dict[str, Any]:
 def _crs_summary(info: SourceInfo) -> dict[str, Any]:
     crs = info.crs()
     if crs is None:
-        return {"crs_name": None, "crs_epsg": None, "crs_kind": None, "horizontal_unit": None}
+        return {"crs_name": None, "crs_epsg": None, "crs_kind": None, "horizontal_unit": None,
+                "crs_contradiction": None}
     horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
     axes = horizontal.axis_info
+    # a record the header's bounds cannot be coordinates of (what a run refuses, naming override_crs)
+    against = contradiction(crs, info.bounds) if info.point_count and info.bounds_usable else None
     return {
         "crs_name": crs.name,
         "crs_epsg": crs.to_epsg(),
         "crs_kind": crs.type_name,
         "horizontal_unit": axes[0].unit_name if axes else None,
+        "crs_contradiction": None if against is None else against[0],
     }
 
 
@@ -169,6 +175,8 @@ def _format(entry: dict[str, Any]) -> str:
         d = _decimals(scale)
         row("bounds" if i == 0 else "", f"{axis} {lo:.{d}f} .. {hi:.{d}f}  (extent {hi - lo:.{d}f})")
     row("CRS", _crs_text(entry))
+    if entry.get("crs_contradiction"):
+        row("", f"wrong? it {entry['crs_contradiction']}; give --override-crs the CRS the coordinates are in")
     dims = entry["extra_dims"]
     row("extra bytes", ", ".join(f"{d['name']} ({d['dtype']})" for d in dims) if dims else "none")
     for i, note in enumerate(entry["notes"]):

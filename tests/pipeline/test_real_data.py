@@ -91,6 +91,22 @@ def test_geographic_input_is_gridded_in_its_utm_zone(tmp_path, capsys):
         _run(path, tmp_path / "g2.zarr", out_crs="EPSG:4326")
 
 
+def test_info_names_a_crs_record_the_bounds_contradict(capsys):
+    """``terrain info`` says what a run would refuse: the record of lone-star
+    (UTM metres recorded as degrees) flagged, with the flag to give; a right
+    record is not."""
+    from pipeline.tools.info import info_json
+
+    wrong, right = sample("lone_star_wrong_crs_degrees.laz"), sample("ign_semis_lambert93.laz")
+    assert main(["info", str(wrong), str(right)]) == 0
+    text = capsys.readouterr().out
+    assert text.count("wrong? it is in degrees, but its header bounds (x 515,368.6") == 1
+    assert "give --override-crs the CRS the coordinates are in" in text
+    by_path = {e["path"]: e for e in info_json([wrong, right])}
+    assert by_path[str(wrong)]["crs_contradiction"].startswith("is in degrees, but its header bounds")
+    assert by_path[str(right)]["crs_contradiction"] is None
+
+
 @pytest.mark.parametrize(
     ("name", "record"),
     [
