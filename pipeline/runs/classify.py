@@ -169,6 +169,7 @@ def _ground_positions(work: WorkDir, index: int) -> np.ndarray:
 _LASZIP = ("laszip encoded", 22204)
 """The LAZ VLR: the compressor's own settings (its chunk size), never the source's."""
 
+
 def _vlr_table(head: bytes) -> list[tuple[bytes, int, int, int]]:
     """``(user_id, record_id, data offset, data length)`` of each VLR in a LAS header's bytes."""
     header_size = int.from_bytes(head[94:96], "little")
@@ -222,15 +223,21 @@ def _text(field: bytes) -> str:
     return field.split(b"\0", 1)[0].decode("ascii", errors="replace")
 
 
+def _is_copc(head: bytes) -> bool:
+    """Whether the header's bytes declare a COPC file (its info VLR)."""
+    return any((_text(user_id), record_id) == ("copc", 1) for user_id, record_id, _, _ in _vlr_table(head))
+
+
 def _vlr_records(head: bytes) -> list[Any]:
     """The source's VLRs as raw records, their bytes as they are (the LAS
     writer would serialise a parsed WKT, GeoTIFF or extra-bytes record anew),
-    in their order, without the LAZ VLR and COPC's."""
+    in their order, without the LAZ VLR and, of a COPC file, COPC's."""
     import laspy
 
+    copc = _is_copc(head)
     return [laspy.VLR(_text(user_id), record_id, _text(head[at - 32:at]), head[at:at + length])
             for user_id, record_id, at, length in _vlr_table(head)
-            if (_text(user_id), record_id) != _LASZIP and _text(user_id) != "copc"]
+            if (_text(user_id), record_id) != _LASZIP and not (copc and _text(user_id) == "copc")]
 
 
 def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
@@ -268,7 +275,8 @@ def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
                     counts["ground"] += int(is_ground.sum())
                     counts["no_longer_ground"] += int(lost.sum())
                     start += n
-                evlrs = [e for e in _evlr_records(path, head) if e.user_id != "copc"]
+                copc = _is_copc(head)
+                evlrs = [e for e in _evlr_records(path, head) if not (copc and e.user_id == "copc")]
                 if evlrs:
                     writer.write_evlrs(VLRList(evlrs))
         os.replace(partial, target)

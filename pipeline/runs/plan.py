@@ -184,8 +184,9 @@ def plan_run(config: RunConfig, keep_sizes: bool = False) -> RunPlan:
 
 
 DERIVED = "derived"
-"""The provenance's entry of the sizes a run derived because its parameters
-left them unset: ``{"tile_size": ..., "buffer": ...}`` (CRS units), each
+"""The provenance's entry of what a run derived because its parameters left
+it unset: ``{"tile_size": ..., "buffer": ..., "dsm_max_edge": ...}`` (CRS
+units) and, for inputs in degrees, ``"out_crs"`` (their UTM zone), each
 present only when its parameter is unset."""
 
 
