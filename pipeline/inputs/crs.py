@@ -613,15 +613,11 @@ def resolve_crs(
         raise UsageError("no input files to resolve a CRS for")
     if in_crs is not None and override_crs is not None:
         raise UsageError(BOTH_CRS_OPTIONS)
-    cache = _CrsCache()
-    user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
-    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
+    given = _given_crss(in_crs, override_crs)
     user_out = _user_crs(out_crs, "out_crs") if out_crs is not None else None
-    # the CRS the user gives for files, and the option that gives it
-    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
     notes: list[str] = []
 
-    sources, chosen_by = _file_crss(infos, cache, user_in, user_override, option, user, notes)
+    sources, chosen_by = _file_crss(infos, _CrsCache(), *given, notes)
     groups = _group_by_crs(sources)
 
     plausible = _check_coordinates(infos, groups, chosen_by, notes)
@@ -668,12 +664,8 @@ def working_crs(
     why)."""
     if in_crs is not None and override_crs is not None:
         return None
-    cache = _CrsCache()
-    user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
-    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
-    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
     try:
-        sources, _ = _file_crss(infos, cache, user_in, user_override, option, user, [])
+        sources, _ = _file_crss(infos, _CrsCache(), *_given_crss(in_crs, override_crs), [])
     except CrsError:
         return None
     groups = _group_by_crs(sources)
@@ -683,6 +675,18 @@ def working_crs(
     if h.is_projected or not (h.is_geographic or h.is_geocentric):
         return None
     return _suggest_utm(infos, sources)
+
+
+def _given_crss(
+    in_crs: str | None, override_crs: str | None
+) -> tuple[pyproj.CRS | None, pyproj.CRS | None, str, pyproj.CRS | None]:
+    """The CRSs the options ``in_crs`` and ``override_crs`` name (not both),
+    then the option that gives the files' CRS and that CRS: the arguments of
+    :func:`_file_crss` after the infos and the cache."""
+    user_in = _user_crs(in_crs, "in_crs") if in_crs is not None else None
+    user_override = _user_crs(override_crs, "override_crs") if override_crs is not None else None
+    option, user = ("override_crs", user_override) if user_override is not None else ("in_crs", user_in)
+    return user_in, user_override, option, user
 
 
 def _file_crss(

@@ -186,58 +186,53 @@ def _vlr_table(head: bytes) -> list[tuple[bytes, int, int, int]]:
     return out
 
 
-def _head(source: str) -> bytes:
-    """The bytes of ``source`` up to its point data: the header and every VLR."""
-    from ..urls import is_url, open_input
-
-    with (open_input(source) if is_url(source) else open(source, "rb")) as stream:
-        head = stream.read(375)
-        stream.seek(0)
-        return stream.read(int.from_bytes(head[96:100], "little"))
-
-
-def _evlr_records(source: str, head: bytes) -> list[Any]:
-    """The EVLRs of a LAS 1.4 ``source`` as raw records (their bytes as they are)."""
+def _source_records(source: str) -> tuple[list[Any], list[Any]]:
+    """The VLRs and the EVLRs of ``source`` as raw records, their bytes as
+    they are (the LAS writer would serialise a parsed WKT, GeoTIFF or
+    extra-bytes record anew), in their order, without the LAZ VLR and, of a
+    COPC file, COPC's records."""
     import laspy
 
-    from ..urls import is_url, open_input
+    from ..urls import open_input
+
+    with open_input(source) as stream:
+        head = stream.read(375)
+        stream.seek(0)
+        head = stream.read(int.from_bytes(head[96:100], "little"))  # to the point data: every VLR
+        evlrs = _evlrs(stream, head)
+    table = _vlr_table(head)
+    copc = any((_text(user_id), record_id) == ("copc", 1) for user_id, record_id, _, _ in table)
+
+    def kept(user_id: str, record_id: int) -> bool:
+        return (user_id, record_id) != _LASZIP and not (copc and user_id == "copc")
+
+    vlrs = [laspy.VLR(_text(user_id), record_id, _text(head[at - 32:at]), head[at:at + length])
+            for user_id, record_id, at, length in table if kept(_text(user_id), record_id)]
+    return vlrs, [e for e in evlrs if kept(e.user_id, e.record_id)]
+
+
+def _evlrs(stream: Any, head: bytes) -> list[Any]:
+    """The EVLRs of a LAS 1.4 file open as ``stream`` (``head``: its header's bytes), as raw records."""
+    import laspy
 
     if head[25] < 4 or len(head) < 375:
         return []
     at, count = int.from_bytes(head[235:243], "little"), int.from_bytes(head[243:247], "little")
     out = []
-    with (open_input(source) if is_url(source) else open(source, "rb")) as stream:
-        for _ in range(count if at else 0):
-            stream.seek(at)
-            record = stream.read(60)
-            if len(record) < 60:
-                break
-            length = int.from_bytes(record[20:28], "little")
-            out.append(laspy.VLR(_text(record[2:18]), int.from_bytes(record[18:20], "little"), _text(record[28:60]),
-                                 stream.read(length)))
-            at += 60 + length
+    for _ in range(count if at else 0):
+        stream.seek(at)
+        record = stream.read(60)
+        if len(record) < 60:
+            break
+        length = int.from_bytes(record[20:28], "little")
+        out.append(laspy.VLR(_text(record[2:18]), int.from_bytes(record[18:20], "little"), _text(record[28:60]),
+                             stream.read(length)))
+        at += 60 + length
     return out
 
 
 def _text(field: bytes) -> str:
     return field.split(b"\0", 1)[0].decode("ascii", errors="replace")
-
-
-def _is_copc(head: bytes) -> bool:
-    """Whether the header's bytes declare a COPC file (its info VLR)."""
-    return any((_text(user_id), record_id) == ("copc", 1) for user_id, record_id, _, _ in _vlr_table(head))
-
-
-def _vlr_records(head: bytes) -> list[Any]:
-    """The source's VLRs as raw records, their bytes as they are (the LAS
-    writer would serialise a parsed WKT, GeoTIFF or extra-bytes record anew),
-    in their order, without the LAZ VLR and, of a COPC file, COPC's."""
-    import laspy
-
-    copc = _is_copc(head)
-    return [laspy.VLR(_text(user_id), record_id, _text(head[at - 32:at]), head[at:at + length])
-            for user_id, record_id, at, length in _vlr_table(head)
-            if (_text(user_id), record_id) != _LASZIP and not (copc and _text(user_id) == "copc")]
 
 
 def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
@@ -252,11 +247,11 @@ def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
     ground = np.unique(ground)
     source = open_input(path) if is_url(path) else os.fspath(path)
     try:
-        head = _head(path)
+        vlrs, evlrs = _source_records(path)
         with laspy.open(source) as reader:
             header = copy.deepcopy(reader.header)  # the reader's keeps the LAZ VLR it decompresses by
             # a COPC file's octree is not this file's (written as plain LAZ): its VLR and EVLR are left out
-            header.vlrs = VLRList(_vlr_records(head))
+            header.vlrs = VLRList(vlrs)
             header.vlrs.extract("ExtraBytesVlr")  # the one the header made from the point format: the source's is kept
             with laspy.open(partial, mode="w", header=header, do_compress=True) as writer:
                 start = 0
@@ -275,8 +270,6 @@ def _write(path: str, target: Path, ground: np.ndarray) -> dict[str, Any]:
                     counts["ground"] += int(is_ground.sum())
                     counts["no_longer_ground"] += int(lost.sum())
                     start += n
-                copc = _is_copc(head)
-                evlrs = [e for e in _evlr_records(path, head) if not (copc and e.user_id == "copc")]
                 if evlrs:
                     writer.write_evlrs(VLRList(evlrs))
         os.replace(partial, target)
