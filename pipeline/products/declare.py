@@ -131,6 +131,8 @@ class TileContext:
     load_dtm_points: Callable[[], Any] | None = None
     """Reads the tile's points the DTM is made of (its cells plus the buffer), as :class:`~pipeline.products.points.ProductPoints`."""
     _points: Any = None
+    _selected: dict[Selection, Any] = field(default_factory=dict)
+    _cells: dict[int, tuple[Any, NDArray[np.int64], NDArray[np.bool_]]] = field(default_factory=dict)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -154,18 +156,30 @@ class TileContext:
             if self.load_points is None:
                 raise RuntimeError("this tile has no product points: the run declared no product that needs them")
             self._points = self.load_points()
-        return self._points.selected(selection)
+        if selection not in self._selected:  # several products read one selection: select once
+            self._selected[selection] = self._points.selected(selection)
+        return self._selected[selection]
+
+    def _cell_of(self, points: Any) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        """The tile's flat cell index of each of ``points`` in its cells, and
+        which are (computed once per point set: products count one set twice)."""
+        cached = self._cells.get(id(points))
+        if cached is None or cached[0] is not points:
+            g = self.grid
+            r0, r1, c0, c1 = g.cell_slice(self.row, self.col)
+            i = np.floor((points.x - g.x0) / g.resolution).astype(np.int64) - c0
+            j = np.floor((points.y - g.y0) / g.resolution).astype(np.int64) - r0
+            ok = (i >= 0) & (i < c1 - c0) & (j >= 0) & (j < r1 - r0)
+            cached = (points, j[ok] * (c1 - c0) + i[ok], ok)  # the points held: their id stays theirs
+            self._cells[id(points)] = cached
+        return cached[1], cached[2]
 
     def cell_counts(self, points: Any, weights: NDArray | None = None) -> NDArray:
         """Per cell of the tile: the number of ``points`` whose cell it is (or
         the sum of ``weights``, int64), by the grid's one rule of a point's
         cell: ``floor((x - x0) / resolution)``, the same at any tiling."""
-        g = self.grid
-        r0, r1, c0, c1 = g.cell_slice(self.row, self.col)
-        i = np.floor((points.x - g.x0) / g.resolution).astype(np.int64) - c0
-        j = np.floor((points.y - g.y0) / g.resolution).astype(np.int64) - r0
-        ok = (i >= 0) & (i < c1 - c0) & (j >= 0) & (j < r1 - r0)
-        flat = j[ok] * (c1 - c0) + i[ok]
+        r0, r1, c0, c1 = self.grid.cell_slice(self.row, self.col)
+        flat, ok = self._cell_of(points)
         size = (r1 - r0) * (c1 - c0)
         if weights is None:
             return np.bincount(flat, minlength=size).reshape(r1 - r0, c1 - c0)

@@ -83,7 +83,7 @@ def _dsm(ctx: TileContext) -> NDArray[np.float32]:
     g = ctx.grid
     highest = meshcore.tiles.highest_per_cell(points.x, points.y, points.z, g.x0, g.y0, ctx.settings.dsm_cell)
     if highest.size >= 3:
-        mesh = meshcore.build_mesh(points.xy[highest], "delaunay", None)
+        mesh = meshcore.build_mesh(np.column_stack([points.x[highest], points.y[highest]]), "delaunay", None)
         z = np.empty(mesh.vertices.shape[0])
         z[mesh.input_to_vertex] = points.z[highest]  # one point a cell: no two share x and y
         faces = dsm_faces(mesh.vertices, mesh.faces[:, :3].astype(np.int64), max_edge)

@@ -40,10 +40,6 @@ class ProductPoints:
         keep = selection.mask(len(self), self.attributes)
         return self if keep.all() else self.take(keep)
 
-    @property
-    def xy(self) -> NDArray[np.float64]:
-        return np.column_stack([self.x, self.y])
-
 
 def as_columns(x: NDArray, y: NDArray, z: NDArray, attributes: Mapping[str, NDArray],
                columns: Sequence[str]) -> NDArray[np.float64]:
