@@ -6,6 +6,7 @@ canopy height model), and optionally the combined mesh over a zoom window
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -155,6 +156,10 @@ def render_preview(
 ) -> Path:
     """Draw the store's DEM (and with ``window`` the mesh over it) into a PNG.
 
+    A DEM without a value (a valid run can make one: its notes say why, as
+    cells coarser than every face under ``max_edge``) is drawn as its grid's
+    extent with that said, and the mesh in ``window`` over it.
+
     Parameters
     ----------
     store_path : a store written by ``terrain run``
@@ -177,15 +182,18 @@ def render_preview(
     ds = open_dem(store_path)
     if "elevation" not in ds:
         raise UsageError(f"{store_path}: the store has no elevation layer")
-    view = _overview(ds, store_path, max_pixels)
+    view = _overview(ds, max_pixels)
     xy_unit, z_unit, height_scale = _units(ds)
-    rgb, norm, ramp = _hillshade(view.elev, view.cell, height_scale=height_scale)
 
-    drawn = _previewed_layers(ds)
+    drawn = [] if view.empty else _previewed_layers(ds)
     panels = 1 + len(drawn) + (window is not None)
     fig, axes = plt.subplots(1, panels, figsize=(7.5 * panels, 6.5), squeeze=False, constrained_layout=True)
     ax = axes[0, 0]
-    _overview_panel(fig, ax, ds, store_path, view, rgb, norm, ramp, xy_unit, z_unit)
+    if view.empty:
+        _empty_panel(ax, ds, store_path, view, xy_unit)
+    else:
+        rgb, norm, ramp = _hillshade(view.elev, view.cell, height_scale=height_scale)
+        _overview_panel(fig, ax, ds, store_path, view, rgb, norm, ramp, xy_unit, z_unit)
     rows, cols, step = view.rows, view.cols, view.step
     for k, spec in enumerate(drawn):
         values = ds[spec.name].values[::step, ::step].astype(np.float64)[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
@@ -233,16 +241,22 @@ class _Overview:
     xs: np.ndarray
     ys: np.ndarray
 
+    @property
+    def empty(self) -> bool:
+        """Whether no cell has an elevation (``elev`` is then empty, ``extent`` the whole grid's)."""
+        return self.elev.size == 0
 
-def _overview(ds, store_path, max_pixels: int) -> _Overview:
+
+def _overview(ds, max_pixels: int) -> _Overview:
     """The DEM's overview: at most ``max_pixels`` cells a side, cropped to its data."""
     res = float(abs(ds["x"].values[1] - ds["x"].values[0])) if ds.sizes["x"] > 1 else 1.0
     step = max(1, math.ceil(max(ds.sizes["x"], ds.sizes["y"]) / max_pixels))
     elev = ds["elevation"].values[::step, ::step].astype(np.float64)
-    if not np.isfinite(elev).any():
-        raise UsageError(f"{store_path}: the DEM has no data to draw")
     xs, ys = ds["x"].values, ds["y"].values
     extent = (xs[0] - res / 2, xs[-1] + res / 2, ys[-1] - res / 2, ys[0] + res / 2)
+    if not np.isfinite(elev).any():
+        none = np.zeros(0, dtype=np.int64)
+        return _Overview(np.empty((0, 0)), extent, res * step, step, none, none, res, xs, ys)
     # crop the overview to the cells with data (the grid is the data's box, which a survey need not fill)
     rows = np.flatnonzero(np.isfinite(elev).any(axis=1))
     cols = np.flatnonzero(np.isfinite(elev).any(axis=0))
@@ -251,6 +265,26 @@ def _overview(ds, store_path, max_pixels: int) -> _Overview:
     left, top = extent[0] + cols[0] * cell, extent[3] - rows[0] * cell
     extent = (left, left + elev.shape[1] * cell, top - elev.shape[0] * cell, top)
     return _Overview(elev, extent, cell, step, rows, cols, res, xs, ys)
+
+
+def _empty_panel(ax, ds, store_path, view: _Overview, xy_unit: str) -> None:
+    """The grid's extent, saying that no cell has an elevation, with the run's note on why."""
+    report = ds.attrs.get("report")
+    notes = report.get("notes", []) if isinstance(report, dict) else []
+    why = next((str(n) for n in notes if "DEM is empty" in str(n)), "")
+    ax.set_xlim(view.extent[0], view.extent[1])
+    ax.set_ylim(view.extent[2], view.extent[3])
+    ax.set_aspect("equal")
+    text = "no cell of this DEM has an elevation"
+    if why:
+        text += "\n\n" + textwrap.fill(str(why), 60)
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=10,
+            bbox={"facecolor": "white", "edgecolor": "none"})
+    ax.set_title(f"{Path(store_path).name}: empty DEM, {view.res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
+    ax.set_xlabel(f"x ({xy_unit})")
+    ax.set_ylabel(f"y ({xy_unit})")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=8)
 
 
 def _overview_panel(fig, ax, ds, store_path, view: _Overview, rgb, norm, ramp, xy_unit: str, z_unit: str) -> None:

@@ -52,6 +52,29 @@ def test_refusals_are_one_line_errors(store, tmp_path, capsys):
     assert main(["preview", str(tmp_path / "nothing.zarr"), "-o", str(tmp_path / "e.png")]) == 2
 
 
+def _coloured(picture) -> float:
+    """The share of the picture's pixels that are neither white nor grey (relief, colour bars)."""
+    rgb = picture[..., :3]
+    return float((rgb.max(axis=2) - rgb.min(axis=2) > 0.1).mean())
+
+
+def test_an_empty_dem_is_drawn_as_its_extent_not_refused(store, tmp_path):
+    """A valid run can write a DEM without a value (every face longer than
+    --max-edge); previewing it is not an error: the grid's extent is drawn,
+    saying so, and the mesh in a window over it."""
+    survey = next(p for p in store.parent.glob("survey*") if p.is_dir())  # the fixture's files
+    empty = tmp_path / "empty.zarr"
+    report = run(RunConfig(inputs=(str(survey),), output=str(empty), resolution=1.0, max_edge=0.05), progress=False)
+    assert report.faces > 0 and any("the DEM is empty" in n for n in report.notes)
+    assert main(["preview", str(empty), "-o", str(tmp_path / "e.png")]) == 0
+    assert main(["preview", str(store), "-o", str(tmp_path / "s.png")]) == 0
+    assert _coloured(imread(tmp_path / "e.png")) < 0.01 < _coloured(imread(tmp_path / "s.png"))
+    window = "651050,6861050,651080,6861080"
+    assert main(["preview", str(empty), "-o", str(tmp_path / "w.png"), "--window", window]) == 0
+    zoom = imread(tmp_path / "w.png")
+    assert _red(zoom) > 50  # the window's box on the extent
+
+
 def _dataset(crs: str, units: str | None):
     import xarray as xr
     from pyproj import CRS
