@@ -267,6 +267,14 @@ def _overview(ds, max_pixels: int) -> _Overview:
     return _Overview(elev, extent, cell, step, rows, cols, res, xs, ys)
 
 
+def _map_axes(ax, xy_unit: str) -> None:
+    """A map panel's axes: x and y in the CRS's unit, plain numbers (no offset)."""
+    ax.set_xlabel(f"x ({xy_unit})")
+    ax.set_ylabel(f"y ({xy_unit})")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.tick_params(labelsize=8)
+
+
 def _empty_panel(ax, ds, store_path, view: _Overview, xy_unit: str) -> None:
     """The grid's extent, saying that no cell has an elevation, with the run's note on why."""
     report = ds.attrs.get("report")
@@ -277,14 +285,11 @@ def _empty_panel(ax, ds, store_path, view: _Overview, xy_unit: str) -> None:
     ax.set_aspect("equal")
     text = "no cell of this DEM has an elevation"
     if why:
-        text += "\n\n" + textwrap.fill(str(why), 60)
+        text += "\n\n" + textwrap.fill(why, 60)
     ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=10,
             bbox={"facecolor": "white", "edgecolor": "none"})
     ax.set_title(f"{Path(store_path).name}: empty DEM, {view.res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
-    ax.set_xlabel(f"x ({xy_unit})")
-    ax.set_ylabel(f"y ({xy_unit})")
-    ax.ticklabel_format(useOffset=False, style="plain")
-    ax.tick_params(labelsize=8)
+    _map_axes(ax, xy_unit)
 
 
 def _overview_panel(fig, ax, ds, store_path, view: _Overview, rgb, norm, ramp, xy_unit: str, z_unit: str) -> None:
@@ -303,10 +308,7 @@ def _overview_panel(fig, ax, ds, store_path, view: _Overview, rgb, norm, ramp, x
     mappable = plt.cm.ScalarMappable(norm=norm, cmap=ramp)
     fig.colorbar(mappable, ax=ax, shrink=0.8, label=f"elevation ({z_unit})")
     ax.set_title(f"{Path(store_path).name}: DEM hillshade, {res:g} {xy_unit} cells ({_crs_name(ds)})", fontsize=10)
-    ax.set_xlabel(f"x ({xy_unit})")
-    ax.set_ylabel(f"y ({xy_unit})")
-    ax.ticklabel_format(useOffset=False, style="plain")
-    ax.tick_params(labelsize=8)
+    _map_axes(ax, xy_unit)
 
 
 def _mesh_panel(zoom, ds, window, polys, quads, view: _Overview, height_scale: float, xy_unit: str) -> None:
