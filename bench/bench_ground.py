@@ -2,6 +2,7 @@
 against two peers (run by hand; ``pip install -e ".[bench]"``).
 
     python bench/bench_ground.py [--samples NAME ...] [--peers csf whitebox] [--cache DIR] [--pipeline REPEAT [--forest N]]
+    python bench/bench_ground.py --steep SEED
 
 Every shared sample with a ground class has its classes removed (the points
 of every class but noise, 7 and 18, are classified) and is classified by
@@ -32,6 +33,10 @@ their flags per sample and reuses them.
 ``N`` points (:func:`bench_products.forest`: trees over most of it, a few
 buildings, ground a small share of the returns), a survey larger than the
 samples, classified in one block.
+
+``--steep SEED`` prints only a table of synthetic steep terrain with a known
+surface: sharp ridges, a dike and cones bare, and a mountain village
+(:func:`steep_table`).
 """
 
 from __future__ import annotations
@@ -244,6 +249,109 @@ def pipeline_table(paths: list[Path], repeat: int, cache: Path | None) -> None:
         print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
 
 
+def _ridges(slope: float, spacing: float):
+    return lambda x, y: slope * (spacing / 2 - np.abs(((x + 0.3 * y) % spacing) - spacing / 2))
+
+
+def _dike(x, y):
+    return np.clip(6.0 - np.maximum(np.abs(x - 300.0) - 2.0, 0.0) * 0.6, 0.0, None)
+
+
+def _cone_hills(x, y):
+    z = np.zeros_like(x)
+    for cx, cy, r, h in ((150, 150, 40, 25), (420, 200, 25, 15), (300, 450, 60, 40), (120, 470, 15, 12)):
+        z = np.maximum(z, h * np.clip(1 - np.hypot(x - cx, y - cy) / r, 0.0, None))
+    return z
+
+
+STEEP = {
+    "ridges of V section every 120 m, slope 0.3": _ridges(0.3, 120.0),
+    "the same, slope 0.5": _ridges(0.5, 120.0),
+    "the same, slope 0.84": _ridges(0.84, 120.0),
+    "a dike 6 m high, crest 4 m wide, sides of 0.6": _dike,
+    "cones 12-40 m high, slopes 0.6-0.8": _cone_hills,
+}
+
+
+def steep_table(seed: int) -> None:
+    """Ground found on synthetic steep terrain: bare (360,000 points over
+    600 x 600 m, 5 cm of noise, survey coordinates at 1 cm), and a mountain
+    village (ridges every 100 m with houses, conifers letting 40% of the
+    returns through and shrubs, on sides of 0.3 and 0.6); the DTM a TIN of
+    the ground found (scipy, local coordinates) on 1 m cells against the
+    true surface."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    size = 600.0
+    for name, terrain in STEEP.items():
+        n = 360_000
+        lx, ly = rng.uniform(0.0, size, n), rng.uniform(0.0, size, n)
+        x, y = np.round(lx + 651_000.0, 2), np.round(ly + 6_861_000.0, 2)
+        z = np.round(terrain(lx, ly) + 120.0 + rng.normal(0.0, 0.05, n), 2)
+        ground = classify_ground(x, y, z).ground
+        gx, gy = np.meshgrid(np.arange(20.5, size - 20.0), np.arange(20.5, size - 20.0))
+        err = LinearNDInterpolator(np.column_stack([lx[ground], ly[ground]]), z[ground])(gx, gy) - terrain(gx, gy) - 120.0
+        err = err[np.isfinite(err)]
+        rows.append([name, f"{100 * ground.mean():.1f}", "", f"{np.sqrt(np.mean(err ** 2)):.3f}", f"{np.abs(err).max():.2f}"])
+    for slope in (0.3, 0.6):
+        x, y, z, rn, nr, objects, terrain = _village(rng, slope)
+        ground = classify_ground(x + 340_000.0, y + 5_100_000.0, z, return_number=rn, number_of_returns=nr).ground
+        gx, gy = np.meshgrid(np.arange(10.5, 490.0), np.arange(10.5, 490.0))
+        err = LinearNDInterpolator(np.column_stack([x[ground], y[ground]]), z[ground])(gx, gy) - terrain(gx, gy)
+        err = err[np.isfinite(err)]
+        rows.append([f"mountain village, sides of {slope}", f"{100 * ground[~objects].mean():.1f}",
+                     f"{100 * ground[objects].mean():.2f}", f"{np.sqrt(np.mean(err ** 2)):.3f}", f"{np.abs(err).max():.2f}"])
+    header = ["terrain", "ground kept %", "objects taken %", "DTM RMS m", "max m"]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    print("\nSteep synthetic terrain (DTM of the ground found against the true surface, 1 m cells)")
+    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
+    print("  ".join("-" * w for w in widths))
+    for r in rows:
+        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+
+
+def _village(rng, slope: float):
+    """500 x 500 m, 300,000 returns: ridges every 100 m, 45 houses (8-30 m,
+    3-9 m over their highest corner, every other one gabled), 400 conifers
+    and 300 shrubs; coordinates local, heights absolute."""
+    size, n = 500.0, 300_000
+
+    def terrain(x, y):
+        return 800.0 + slope * (50.0 - np.abs(((x + 0.4 * y) % 100.0) - 50.0)) + 0.02 * y
+
+    x, y = rng.uniform(0.0, size, n), rng.uniform(0.0, size, n)
+    bare = terrain(x, y)
+    z = bare + rng.normal(0.0, 0.04, n)
+    rn, nr = np.ones(n, dtype=np.int64), np.ones(n, dtype=np.int64)
+    objects = np.zeros(n, dtype=bool)
+    for k in range(45):
+        bx, by = rng.uniform(30.0, size - 60.0, 2)
+        w, h = rng.uniform(8.0, 30.0, 2)
+        height = rng.uniform(3.0, 9.0)
+        inside = (x > bx) & (x < bx + w) & (y > by) & (y < by + h)
+        if inside.any():
+            gable = rng.uniform(0.0, 0.8) * (w / 2 - np.abs(x[inside] - (bx + w / 2))) if k % 2 else 0.0
+            z[inside] = bare[inside].max() + height + gable
+            objects |= inside
+    for _ in range(400):
+        tx, ty = rng.uniform(0.0, size, 2)
+        radius, height = rng.uniform(1.5, 4.0), rng.uniform(6.0, 20.0)
+        d = np.hypot(x - tx, y - ty)
+        inside = (d < radius) & ~objects
+        canopy = inside & (rng.random(n) > 0.4)
+        z[canopy] = bare[canopy] + height * (1 - d[canopy] / radius) * rng.uniform(0.7, 1.0, canopy.sum()) + 0.5
+        objects |= canopy
+        nr[inside], rn[canopy], rn[inside & ~canopy] = 2, 1, 2
+    for _ in range(300):
+        tx, ty = rng.uniform(0.0, size, 2)
+        inside = (np.hypot(x - tx, y - ty) < rng.uniform(1.0, 2.5)) & ~objects
+        z[inside] = bare[inside] + rng.uniform(0.5, 1.5)
+        objects |= inside
+    return np.round(x, 2), np.round(y, 2), np.round(z, 2), rn, nr, objects, terrain
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", nargs="*")
@@ -253,7 +361,13 @@ def main(argv: list[str] | None = None) -> None:
                         help="also time whole runs, own classes against --classify-ground (medians of REPEAT)")
     parser.add_argument("--forest", type=int, metavar="N", default=0,
                         help="with --pipeline: also a synthetic forest of N points")
+    parser.add_argument("--steep", type=int, metavar="SEED",
+                        help="only the table of synthetic steep terrain, drawn with SEED")
     args = parser.parse_args(argv)
+    if args.steep is not None:
+        classify_ground(*np.random.default_rng(0).uniform(0, 50, (3, 500)))
+        steep_table(args.steep)
+        return
 
     classify_ground(*np.random.default_rng(0).uniform(0, 50, (3, 500)))  # compile outside the timings
     rows = []

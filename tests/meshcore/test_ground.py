@@ -263,6 +263,48 @@ def test_a_roof_that_opens_down_in_two_steps_is_not_ground(seed):
     assert ground[~base].mean() > 0.99
 
 
+@pytest.mark.parametrize("slope", [0.5, 0.84])
+def test_sharp_crests_of_steep_ground_stay_ground_and_houses_on_them_do_not(slope):
+    """Ridges of V section every 100 m (27 or 40 degrees), with flat-roofed
+    houses and shrubs on their sides.  An opening cuts a crest a little more
+    at every radius, so Pingel's test alone flags the cells within ``slope /
+    0.15`` cells of it (3 or 6 m), and the TIN of the seeds bridges the crest
+    below it: 3% and 1% of the points within 3 m of a crest were ground.  A
+    drop that goes on over the next radii is the ground's slope
+    (:data:`meshcore.ground.SLOPE_RADII`): 91% and 84% now.  A house opens
+    down all at once and stays off the ground; a shrub one metre high on a
+    crest looks like a sharper crest, and some of those are taken (5% and
+    11% of the shrubs' points, against 1% and 7% before)."""
+    rng = np.random.default_rng(21)
+    size, n = 300.0, 2 * 300 * 300
+
+    def terrain(x, y):
+        return slope * (50.0 - np.abs(((x + 0.25 * y) % 100.0) - 50.0))
+
+    x = rng.uniform(0.0, size, n)
+    y = rng.uniform(0.0, size, n)
+    z = 400.0 + terrain(x, y) + rng.normal(0.0, 0.04, n)
+    houses = np.zeros(n, dtype=bool)
+    for bx, by in rng.uniform(20.0, size - 40.0, (12, 2)):  # houses 12 x 9 m, 5 m over their highest corner
+        house = (x > bx) & (x < bx + 12.0) & (y > by) & (y < by + 9.0)
+        z[house] = 400.0 + terrain(x[house], y[house]).max() + 5.0
+        houses |= house
+    shrubs = np.zeros(n, dtype=bool)
+    for sx, sy in rng.uniform(0.0, size, (60, 2)):  # shrubs 3 m across, 1 m high, no return under them
+        shrub = (np.hypot(x - sx, y - sy) < 1.5) & ~houses
+        z[shrub] += 1.0
+        shrubs |= shrub
+    objects = houses | shrubs
+    x, y, z = np.round((x + X0) * 100) / 100, np.round((y + Y0) * 100) / 100, np.round(z * 100) / 100
+    ground = classify_ground(x, y, z).ground
+    crest = (np.abs(((x - X0 + 0.25 * (y - Y0)) % 100.0) - 50.0) < 3.0) & ~objects  # within 3 m of a crest
+    assert crest.sum() > 5000
+    assert ground[crest].mean() > 0.75
+    assert ground[~objects].mean() > 0.98
+    assert houses.sum() > 1000 and not ground[houses].any()
+    assert ground[shrubs].mean() < 0.15
+
+
 def test_order_does_not_matter(scene):
     """Shuffled input gives every point the same class (ties go by coordinates)."""
     x, y, z, label, truth, result = scene
