@@ -55,6 +55,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench_mesh import table  # noqa: E402
 from meshcore.ground import classify_ground  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -238,15 +239,10 @@ def pipeline_table(paths: list[Path], repeat: int, cache: Path | None) -> None:
                 csf = f"{float(np.load(cached)['seconds']) / mine:.1f}x"
             rows.append([path.stem, f"{own_cmd:.2f}", f"{mine_cmd:.2f}", f"{mine_cmd / own_cmd:.2f}x",
                          f"{own:.2f}", f"{mine:.2f}", f"{mine / own:.2f}x", csf])
-    header = ["sample", "own classes s", "--classify-ground s", "ratio", "run() own s", "run() classify s",
-              "run() ratio", "CSF time / ours"]
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print(f"\nterrain run, 1-unit cells: the files' classes against --classify-ground (medians of {repeat}, interleaved;"
-          " the whole command, and run() in this process)")
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    print("  ".join("-" * w for w in widths))
-    for r in rows:
-        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+    table(f"terrain run, 1-unit cells: the files' classes against --classify-ground (medians of {repeat}, interleaved;"
+          " the whole command, and run() in this process)",
+          ["sample", "own classes s", "--classify-ground s", "ratio", "run() own s", "run() classify s", "run() ratio",
+           "CSF time / ours"], rows)
 
 
 def _ridges(slope: float, spacing: float):
@@ -303,13 +299,8 @@ def steep_table(seed: int) -> None:
         err = err[np.isfinite(err)]
         rows.append([f"mountain village, sides of {slope}", f"{100 * ground[~objects].mean():.1f}",
                      f"{100 * ground[objects].mean():.2f}", f"{np.sqrt(np.mean(err ** 2)):.3f}", f"{np.abs(err).max():.2f}"])
-    header = ["terrain", "ground kept %", "objects taken %", "DTM RMS m", "max m"]
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print("\nSteep synthetic terrain (DTM of the ground found against the true surface, 1 m cells)")
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    print("  ".join("-" * w for w in widths))
-    for r in rows:
-        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+    table("Steep synthetic terrain (DTM of the ground found against the true surface, 1 m cells)",
+          ["terrain", "ground kept %", "objects taken %", "DTM RMS m", "max m"], rows)
 
 
 def _village(rng, slope: float):
@@ -404,13 +395,9 @@ def main(argv: list[str] | None = None) -> None:
                 "" if outliers is None else str(outliers),
             ])
             print(json.dumps({"sample": path.stem, "method": name, "rms": rms, "kappa": kappa, "seconds": seconds}), file=sys.stderr)
-    header = ["sample", "method", "points", "unit", "median", "p95", "RMS", "max", "type I %", "type II %", "kappa", "time s", "low outliers"]
-    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
-    print("\nGround against the survey's class 2 (DTM difference in the file's unit, 1-unit cells)")
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    print("  ".join("-" * w for w in widths))
-    for r in rows:
-        print("  ".join(c.rjust(w) for c, w in zip(r, widths)))
+    table("Ground against the survey's class 2 (DTM difference in the file's unit, 1-unit cells)",
+          ["sample", "method", "points", "unit", "median", "p95", "RMS", "max", "type I %", "type II %", "kappa",
+           "time s", "low outliers"], rows)
     for line in skipped:
         print(line)
     if args.pipeline:
