@@ -512,8 +512,8 @@ synthetic steep terrain (360,000 points over 600 x 600 m, 5 cm noise;
 sharp ridges every 120 m, a dike): two radii and 0.35 took ``autzen_trim``
 from 0.40 to 0.41 ft; three and 0.5 left 0.35 m of the ridges' 1.4 m at a
 slope of 0.84; three and 0.25 took the ridges of slope 0.5 from 0.32 to
-0.05 m RMS and those of 0.84 from 1.4 to 0.06 m, while every shared survey kept its
-RMS within 0.007 ft (``autzen_trim``, 0.396 to 0.403 ft; ``ign_semis``
+0.05 m RMS and those of 0.84 from 1.4 to 0.06 m, while every shared survey
+kept its RMS within 0.007 ft (``autzen_trim``, 0.396 to 0.403 ft; ``ign_semis``
 0.554 to 0.553 m).  The openings read no farther: the radii checked are
 at most ``R``, and the last ones are judged by Pingel's test alone."""
 
@@ -549,7 +549,8 @@ def _object_kernel(surface, read, first_read, radii, slope_cell, cap, steps_cap,
     scratch = np.empty_like(surface)
     tmp = np.empty_like(surface)
     # each cell's drops at the last SLOPE_RADII + 1 radii, that of radius q at q % (SLOPE_RADII + 1)
-    drops = np.zeros((SLOPE_RADII + 1, ny, nx))
+    k = SLOPE_RADII + 1
+    drops = np.zeros((k, ny, nx))
     work = _square_work(ny, nx, radii)
     for r in range(1, radii + 1):
         _min3(eroded, tmp, scratch)
@@ -561,7 +562,6 @@ def _object_kernel(surface, read, first_read, radii, slope_cell, cap, steps_cap,
         _square_min(scratch, r, current, work)
         previous = recent[(r - 1) % DROP_RADII]
         oldest = recent[r % DROP_RADII]
-        k = SLOPE_RADII + 1
         for i in range(ny):
             for j in range(nx):
                 v = surface[i, j]
