@@ -44,7 +44,7 @@ from meshcore.kernels import empty
 from ..config import MeshOptions
 from ..errors import SeamError
 from ..products import ProductSettings, TileContext
-from ..products.points import from_columns
+from ..products.points import from_columns, from_product_rows, product_row_width
 from ..products.tile import tile_layers, warm_up
 from ..tiling.scratch import Scratch
 from ..tiling.windows import WindowSource, points_in_boxes, tile_points
@@ -1245,8 +1245,9 @@ def dem_tile(job: TileJob) -> dict[str, NDArray]:
         job.grid, job.row, job.col, settings, mesh=mesh, z=z, kinds=kinds,
         surface={"surface": job.options.surface if smooth is None else smooth}, height_scale=job.height_scale,
         max_edge=job.options.max_edge,
-        load_points=lambda: from_columns(
-            load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, 3 + len(settings.columns)), settings.columns
+        load_points=lambda: from_product_rows(
+            load_tile_points(job.scratch, job.row, job.col, PRODUCT_SPILL, product_row_width(settings.columns)),
+            settings.columns,
         ),
         load_piece=lambda name: getattr(Piece.load(job.scratch, job.row, job.col, (name,)), name),
         load_dtm_points=lambda: from_columns(load_tile_points(job.scratch, job.row, job.col), ()),

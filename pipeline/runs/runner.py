@@ -40,7 +40,7 @@ from meshcore import GroundParameters
 
 from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
-from ..products.points import as_columns
+from ..products.points import as_columns, as_product_rows
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import Ledger, WorkDir, output_lock, source_key, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
@@ -271,10 +271,10 @@ class _RouteSplit:
         if s.reads is not None:
             mine = s.reads.mask(x.size, attributes) if s.reads != self.reading else np.ones(x.size, dtype=bool)
             if mine.all():  # every point read is the products' (the usual case): no copy
-                self.spill.add_rows(as_columns(x, y, z, attributes, s.columns))
+                self.spill.add_rows(as_product_rows(x, y, z, attributes, s.columns))
             else:
-                self.spill.add_rows(as_columns(x[mine], y[mine], z[mine],
-                                               {k: v[mine] for k, v in attributes.items()}, s.columns))
+                self.spill.add_rows(as_product_rows(x[mine], y[mine], z[mine],
+                                                    {k: v[mine] for k, v in attributes.items()}, s.columns))
             if dtm is not None:
                 counts["products_only"] += int(np.count_nonzero(mine & ~dtm))
                 neither = ~mine & ~dtm
