@@ -377,6 +377,31 @@ def test_points_carry_only_the_attributes_the_products_need():
     assert chm.computed == ("elevation", "dsm", "chm") and chm.layers == ("elevation", "chm")
 
 
+def test_a_product_row_keeps_every_attribute_at_the_widest_values_a_las_record_holds():
+    from pipeline.products.points import as_product_rows, from_product_rows, product_row_width
+
+    columns = ("classification", "return_number", "number_of_returns", "intensity")
+    attributes = {
+        "classification": np.array([0, 255, 2, 7], dtype=np.uint8),
+        "return_number": np.array([0, 15, 1, 3], dtype=np.uint8),
+        "number_of_returns": np.array([15, 0, 1, 5], dtype=np.uint8),
+        "intensity": np.array([65535, 0, 1, 40000], dtype=np.uint16),
+    }
+    x, y, z = np.array([1.5, 2.5, 3.5, 4.5]), np.array([0.25, 0.5, 0.75, 1.0]), np.array([-3.0, 0.0, 1e4, 2.5])
+    rows = as_product_rows(x, y, z, attributes, columns)
+    assert rows.shape == (4, product_row_width(columns)) == (4, 4)
+    back = from_product_rows(rows, columns)
+    assert np.array_equal(back.x, x) and np.array_equal(back.y, y) and np.array_equal(back.z, z)
+    for name in columns:
+        assert np.array_equal(back.attributes[name], attributes[name]), name
+    # a subset: only its own columns, in their own bits
+    part = from_product_rows(as_product_rows(x, y, z, attributes, columns[3:]), columns[3:])
+    assert list(part.attributes) == ["intensity"] and np.array_equal(part.attributes["intensity"], attributes["intensity"])
+    assert product_row_width(()) == 3 and len(from_product_rows(np.column_stack([x, y, z]), ())) == 4
+    with pytest.raises(ValueError, match="return_number holds 16"):
+        as_product_rows(x, y, z, attributes | {"return_number": np.array([0, 16, 1, 1])}, columns)
+
+
 def test_every_product_declares_what_the_store_and_export_need():
     for spec in PRODUCTS:
         assert spec.export_dtype in ("float32", "uint8", "int32")
