@@ -7,9 +7,9 @@ array of rows ``x, y, z, code`` (:func:`as_product_rows`): the attributes are
 small integers of at most 16 bits, and ``code`` holds them all side by side
 (:data:`ATTRIBUTE_BITS`), an integer under ``2**32``, exact in a float64.  A
 tile reads them back as :class:`ProductPoints` (:func:`from_product_rows`).
-The rows of a survey's every return were twice as wide with one float64 a
-column: the route stage spent 0.04-0.07 s on them on a 700k-point file,
-0.02-0.04 s with the code.
+With one float64 an attribute, the rows of the three a run with every product
+needs were 1.5 times as wide: the route stage spent 0.04-0.07 s on them on a
+700k-point file, 0.02-0.04 s with the code.
 
 :func:`as_columns` and :func:`from_columns` are the general form (a float64
 column each, any integer below ``2**53``: a point's index in its file), which
