@@ -3,6 +3,7 @@ against two peers (run by hand; ``pip install -e ".[bench]"``).
 
     python bench/bench_ground.py [--samples NAME ...] [--peers csf whitebox] [--cache DIR] [--pipeline REPEAT [--forest N]]
     python bench/bench_ground.py --steep SEED
+    python bench/bench_ground.py --low-roofs SEED
 
 Every shared sample with a ground class has its classes removed (the points
 of every class but noise, 7 and 18, are classified) and is classified by
@@ -36,7 +37,9 @@ samples, classified in one block.
 
 ``--steep SEED`` prints only a table of synthetic steep terrain with a known
 surface: sharp ridges, a dike and cones bare, and a mountain village
-(:func:`steep_table`).
+(:func:`steep_table`).  ``--low-roofs SEED`` prints only a table of low wide
+flat roofs beside a terrace and a raised field, with the wall test and
+without it (:func:`low_roofs_table`).
 """
 
 from __future__ import annotations
@@ -303,6 +306,70 @@ def steep_table(seed: int) -> None:
           ["terrain", "ground kept %", "objects taken %", "DTM RMS m", "max m"], rows)
 
 
+#: x, y, width, depth and height of the flat roofs of :func:`low_roofs_table`
+LOW_ROOFS = [(200, 60, 60, 48, 2.5), (300, 60, 60, 48, 3.0), (400, 60, 60, 48, 3.5), (520, 60, 48, 36, 2.5),
+             (600, 60, 48, 36, 3.5), (200, 200, 30, 24, 2.5), (280, 200, 30, 24, 3.0), (360, 200, 90, 70, 3.0),
+             (520, 200, 40, 30, 4.5)]
+
+
+def _rising(x, y):
+    """Ground rising 0.04 to the east, with hills."""
+    return 40.0 + 0.04 * x + 3.0 * np.sin(y / 90.0) + 2.0 * np.cos(x / 130.0)
+
+
+def _banks(x, y):
+    """The raised ground of :func:`low_roofs_table`: the north-east quarter
+    3 m up behind a bank 2 m wide, and a field 80 x 110 m 2.8 m up behind banks 3 m wide."""
+    terrace = np.clip((y - 380.0) / 2.0, 0.0, 1.0) * (x > 420.0) * 3.0
+    field = 2.8 * np.clip(np.minimum(x - 40.0, 120.0 - x) / 3.0, 0.0, 1.0) * np.clip(np.minimum(y - 30.0, 140.0 - y) / 3.0, 0.0, 1.0)
+    return terrace, field
+
+
+def low_roofs_table(seed: int) -> None:
+    """Flat roofs 2.5-4.5 m high and 24-90 m across on ground rising 0.04
+    (700 x 500 m, 2 points a square metre, 120 trees), beside a terrace and
+    a raised field: the share of each roof's points taken for ground with the
+    wall test (``wall_height``) and without it (``wall_radius=0``: Pingel's
+    threshold alone), the raised ground kept, and the DTM's RMS."""
+    from meshcore import GroundParameters
+    from scipy.interpolate import LinearNDInterpolator
+
+    rng = np.random.default_rng(seed)
+    width, depth = 700.0, 500.0
+    n = int(width * depth * 2.0)
+    lx, ly = rng.uniform(0.0, width, n), rng.uniform(0.0, depth, n)
+    terrace, field = _banks(lx, ly)
+    bare = _rising(lx, ly) + terrace + field
+    z = bare + rng.normal(0.0, 0.04, n)
+    roofs = []
+    for bx, by, w, h, height in LOW_ROOFS:
+        inside = (lx >= bx) & (lx < bx + w) & (ly >= by) & (ly < by + h)
+        z[inside] = _rising(bx + w / 2, by + h / 2) + height + rng.normal(0.0, 0.03, inside.sum())
+        roofs.append(inside)
+    objects = np.any(roofs, axis=0)
+    for cx, cy in zip(rng.uniform(0.0, width, 120), rng.uniform(300.0, depth, 120)):
+        radius, height = rng.uniform(2.0, 5.0), rng.uniform(6.0, 18.0)
+        d = np.hypot(lx - cx, ly - cy)
+        crown = (d < radius) & ~objects & (rng.random(n) < 0.6)
+        z[crown] = bare[crown] + height * (1.0 - 0.3 * d[crown] / radius)
+        objects |= crown
+    x, y, z = np.round(lx + 651_000.0, 2), np.round(ly + 6_861_000.0, 2), np.round(z, 2)
+    gx, gy = np.meshgrid(np.arange(2.5, width - 2.0), np.arange(2.5, depth - 2.0))
+    truth = _rising(gx, gy) + sum(_banks(gx, gy))
+    raised = (terrace > 0.5) | (field > 0.5)
+    rows = []
+    for name, parameters in (("Pingel's threshold alone (wall_radius 0)", GroundParameters(wall_radius=0.0)),
+                             ("with the wall test (defaults)", GroundParameters())):
+        ground = classify_ground(x, y, z, parameters=parameters).ground
+        err = LinearNDInterpolator(np.column_stack([lx[ground], ly[ground]]), z[ground])(gx, gy) - truth
+        err = err[np.isfinite(err)]
+        rows.append([name, *(f"{100 * ground[r].mean():.0f}" for r in roofs),
+                     f"{100 * ground[raised & ~objects].mean():.1f}", f"{np.sqrt(np.mean(err ** 2)):.3f}"])
+    table("Low wide flat roofs: the share of each roof's points taken for ground, %",
+          ["test", *(f"{w}x{h}, {height} m" for _, _, w, h, height in LOW_ROOFS), "raised ground kept %", "DTM RMS m"],
+          rows)
+
+
 def _village(rng, slope: float):
     """500 x 500 m, 300,000 returns: ridges every 100 m, 45 houses (8-30 m,
     3-9 m over their highest corner, every other one gabled), 400 conifers
@@ -354,11 +421,16 @@ def main(argv: list[str] | None = None) -> None:
                         help="with --pipeline: also a synthetic forest of N points")
     parser.add_argument("--steep", type=int, metavar="SEED",
                         help="only the table of synthetic steep terrain, drawn with SEED")
+    parser.add_argument("--low-roofs", type=int, metavar="SEED",
+                        help="only the table of low wide flat roofs beside raised ground, drawn with SEED")
     args = parser.parse_args(argv)
 
     classify_ground(*np.random.default_rng(0).uniform(0, 50, (3, 500)))  # compile outside the timings
     if args.steep is not None:
         steep_table(args.steep)
+        return
+    if args.low_roofs is not None:
+        low_roofs_table(args.low_roofs)
         return
     rows = []
     skipped: list[str] = []

@@ -263,6 +263,34 @@ def test_a_roof_that_opens_down_in_two_steps_is_not_ground(seed):
     assert ground[~base].mean() > 0.99
 
 
+@pytest.mark.parametrize("height", [2.8, 3.5])
+def test_a_low_wide_flat_roof_is_not_ground_and_a_wider_raised_field_is(height):
+    """A flat roof 60 x 48 m and ``height`` high: its openings drop at the
+    radius of 24 m that no longer fits it, by less than Pingel's ``slope *
+    r`` (3.6 m), so his test alone keeps it whole as ground; the drop is a
+    wall (``wall_height``, 2.5 m, not followed by more).  A raised field 120
+    x 110 m, 2.8 m up behind banks 3 m wide, drops at radii beyond
+    ``wall_radius`` (25 m) and stays ground, as the ground around both."""
+    rng = np.random.default_rng(7)
+    width, depth, n = 360.0, 180.0, int(2 * 360 * 180)
+    x = rng.uniform(0.0, width, n)
+    y = rng.uniform(0.0, depth, n)
+    ground_z = 100.0 + 0.005 * x + rng.normal(0.0, 0.03, n)
+    rise = np.clip(np.minimum(x - 200.0, 320.0 - x) / 3.0, 0.0, 1.0) * np.clip(np.minimum(y - 35.0, 145.0 - y) / 3.0, 0.0, 1.0)
+    field = rise > 0.999
+    ground_z = ground_z + 2.8 * rise
+    roof = (np.abs(x - 90.0) < 30.0) & (np.abs(y - 90.0) < 24.0)
+    z = np.where(roof, 100.0 + 0.005 * 90.0 + height + rng.normal(0.0, 0.02, n), ground_z)
+    x, y, z = np.round((x + X0) * 100) / 100, np.round((y + Y0) * 100) / 100, np.round(z * 100) / 100
+    ground = classify_ground(x, y, z).ground
+    assert roof.sum() > 5000 and field.sum() > 20000
+    assert ground[roof].mean() < 0.02
+    assert ground[field].mean() > 0.99
+    assert ground[~roof & ~field].mean() > 0.99
+    # without the wall test (``wall_radius`` 0), Pingel's threshold keeps the roof as ground
+    assert classify_ground(x, y, z, parameters=GroundParameters(wall_radius=0.0)).ground[roof].mean() > 0.9
+
+
 @pytest.mark.parametrize("slope", [0.5, 0.84])
 def test_sharp_crests_of_steep_ground_stay_ground_and_houses_on_them_do_not(slope):
     """Ridges of V section every 100 m (27 or 40 degrees), with flat-roofed
