@@ -248,6 +248,15 @@ def pipeline_table(paths: list[Path], repeat: int, cache: Path | None) -> None:
            "CSF time / ours"], rows)
 
 
+def _tin_errors(x, y, z, ground, gx, gy, truth):
+    """The finite differences, at the cells ``gx, gy``, between a TIN of the
+    ``ground`` points (scipy, local coordinates) and the true heights ``truth``."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    err = LinearNDInterpolator(np.column_stack([x[ground], y[ground]]), z[ground])(gx, gy) - truth
+    return err[np.isfinite(err)]
+
+
 def _ridges(slope: float, spacing: float):
     return lambda x, y: slope * (spacing / 2 - np.abs(((x + 0.3 * y) % spacing) - spacing / 2))
 
@@ -279,8 +288,6 @@ def steep_table(seed: int) -> None:
     returns through and shrubs, on sides of 0.3 and 0.6); the DTM a TIN of
     the ground found (scipy, local coordinates) on 1 m cells against the
     true surface."""
-    from scipy.interpolate import LinearNDInterpolator
-
     rng = np.random.default_rng(seed)
     rows = []
     size = 600.0
@@ -291,15 +298,13 @@ def steep_table(seed: int) -> None:
         z = np.round(terrain(lx, ly) + 120.0 + rng.normal(0.0, 0.05, n), 2)
         ground = classify_ground(x, y, z).ground
         gx, gy = np.meshgrid(np.arange(20.5, size - 20.0), np.arange(20.5, size - 20.0))
-        err = LinearNDInterpolator(np.column_stack([lx[ground], ly[ground]]), z[ground])(gx, gy) - terrain(gx, gy) - 120.0
-        err = err[np.isfinite(err)]
+        err = _tin_errors(lx, ly, z, ground, gx, gy, terrain(gx, gy) + 120.0)
         rows.append([name, f"{100 * ground.mean():.1f}", "", f"{np.sqrt(np.mean(err ** 2)):.3f}", f"{np.abs(err).max():.2f}"])
     for slope in (0.3, 0.6):
         x, y, z, rn, nr, objects, terrain = _village(rng, slope)
         ground = classify_ground(x + 340_000.0, y + 5_100_000.0, z, return_number=rn, number_of_returns=nr).ground
         gx, gy = np.meshgrid(np.arange(10.5, 490.0), np.arange(10.5, 490.0))
-        err = LinearNDInterpolator(np.column_stack([x[ground], y[ground]]), z[ground])(gx, gy) - terrain(gx, gy)
-        err = err[np.isfinite(err)]
+        err = _tin_errors(x, y, z, ground, gx, gy, terrain(gx, gy))
         rows.append([f"mountain village, sides of {slope}", f"{100 * ground[~objects].mean():.1f}",
                      f"{100 * ground[objects].mean():.2f}", f"{np.sqrt(np.mean(err ** 2)):.3f}", f"{np.abs(err).max():.2f}"])
     table("Steep synthetic terrain (DTM of the ground found against the true surface, 1 m cells)",
@@ -332,7 +337,6 @@ def low_roofs_table(seed: int) -> None:
     wall test (``wall_height``) and without it (``wall_radius=0``: Pingel's
     threshold alone), the raised ground kept, and the DTM's RMS."""
     from meshcore import GroundParameters
-    from scipy.interpolate import LinearNDInterpolator
 
     rng = np.random.default_rng(seed)
     width, depth = 700.0, 500.0
@@ -361,8 +365,7 @@ def low_roofs_table(seed: int) -> None:
     for name, parameters in (("Pingel's threshold alone (wall_radius 0)", GroundParameters(wall_radius=0.0)),
                              ("with the wall test (defaults)", GroundParameters())):
         ground = classify_ground(x, y, z, parameters=parameters).ground
-        err = LinearNDInterpolator(np.column_stack([lx[ground], ly[ground]]), z[ground])(gx, gy) - truth
-        err = err[np.isfinite(err)]
+        err = _tin_errors(lx, ly, z, ground, gx, gy, truth)
         rows.append([name, *(f"{100 * ground[r].mean():.0f}" for r in roofs),
                      f"{100 * ground[raised & ~objects].mean():.1f}", f"{np.sqrt(np.mean(err ** 2)):.3f}"])
     table("Low wide flat roofs: the share of each roof's points taken for ground, %",

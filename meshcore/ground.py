@@ -542,6 +542,13 @@ SLOPE_KEPT = 0.25
 :data:`SLOPE_RADII` drops must keep for the ground's slope to explain it."""
 
 
+@njit_helper
+def _flagged_drop(drop: float, q: int, slope_cell: float, wall: float, wall_radii: int) -> bool:
+    """Whether the opening's drop at radius ``q`` marks an object unless it goes on: over Pingel's
+    ``slope_cell * q``, or over ``wall`` at the radii up to ``wall_radii``."""
+    return drop > slope_cell * q or (q <= wall_radii and drop > wall)
+
+
 @njit
 def _object_kernel(surface, read, first_read, radii, slope_cell, cap, steps_cap, wall, wall_radii, objects) -> None:
     """Pingel's progressive test: ``objects`` where the opening of radius
@@ -599,15 +606,14 @@ def _object_kernel(surface, read, first_read, radii, slope_cell, cap, steps_cap,
                     q = r - SLOPE_RADII
                     if q >= 1:
                         dq = drops[q % k, i, j]
-                        if dq > slope_cell * q or (q <= wall_radii and dq > wall):
+                        if _flagged_drop(dq, q, slope_cell, wall, wall_radii):
                             for m in range(q + 1, r + 1):
                                 if drops[m % k, i, j] < SLOPE_KEPT * dq:
                                     objects[i, j] = True
                                     break
                     if r == radii:
                         for q in range(max(1, r - SLOPE_RADII + 1), r + 1):
-                            dq = drops[q % k, i, j]
-                            if dq > slope_cell * q or (q <= wall_radii and dq > wall):
+                            if _flagged_drop(drops[q % k, i, j], q, slope_cell, wall, wall_radii):
                                 objects[i, j] = True
 
 
