@@ -40,7 +40,7 @@ from meshcore import GroundParameters
 
 from ..config import DEFAULT_CLASSES, RunConfig
 from ..products import ProductSettings, Selection
-from ..products.points import as_columns, as_product_rows
+from ..products.points import attribute_columns, product_code
 from .cluster import LocalThreads, Progress, close, connect, map_tasks
 from ..tiling.checkpoint import Ledger, WorkDir, output_lock, source_key, work_dir_for
 from ..errors import CrsError, InputFileError, OutputWriteError, PipelineError, SeamError
@@ -230,7 +230,7 @@ def _route(job: _RouteJob) -> RouteResult:
             b[0], b[1] = min(b[0], float(x.min())), min(b[1], float(y.min()))
             b[2], b[3] = max(b[2], float(x.max())), max(b[3], float(y.max()))
         if job.classify:
-            spill.add_rows(as_columns(x, y, z, extra, job.ground_columns))
+            spill.add(x, y, z, attribute_columns(extra, job.ground_columns, x.shape[0]))
         else:
             spill.add(x, y, z)
         hull = grow_hull(hull, x, y, z)
@@ -271,10 +271,10 @@ class _RouteSplit:
         if s.reads is not None:
             mine = s.reads.mask(x.size, attributes) if s.reads != self.reading else np.ones(x.size, dtype=bool)
             if mine.all():  # every point read is the products' (the usual case): no copy
-                self.spill.add_rows(as_product_rows(x, y, z, attributes, s.columns))
+                self.spill.add(x, y, z, product_code(attributes, s.columns, x.shape[0]))
             else:
-                self.spill.add_rows(as_product_rows(x[mine], y[mine], z[mine],
-                                                    {k: v[mine] for k, v in attributes.items()}, s.columns))
+                self.spill.add(x[mine], y[mine], z[mine],
+                               product_code({k: v[mine] for k, v in attributes.items()}, s.columns, int(mine.sum())))
             if dtm is not None:
                 counts["products_only"] += int(np.count_nonzero(mine & ~dtm))
                 neither = ~mine & ~dtm
@@ -853,8 +853,7 @@ def _dem_stage(plan: RunPlan, work: WorkDir, client, meshed: Meshed, offsets: tu
         """The tile's DEM written; how many of its cells have an elevation."""
         layers = dem_tile(job)
         try:
-            store.write_tile(config.output, grid, job.row, job.col, layers, run=job.run_id)
-            store.mark_tile_done(config.output, job.row, job.col, run=job.run_id)
+            store.write_tile(config.output, grid, job.row, job.col, layers, run=job.run_id, mark_done=True)
         except OSError as exc:
             raise OutputWriteError(
                 f"{config.output}: cannot write tile ({job.row}, {job.col}): {exc.strerror or exc}; "

@@ -290,6 +290,21 @@ def test_write_tile_checks_shape_layer_and_dtype(tmp_path, grid):
         write_tile(path, grid, 0, 0, {"slope": np.zeros((8, 8))})
 
 
+def test_a_tile_is_marked_written_with_its_layers_and_never_without(tmp_path, grid):
+    from pipeline.store.zarr_store import tiles_done
+
+    path = new_store(tmp_path / "dem.zarr", grid, 3, layers=("elevation", "face_kind"))
+    values = np.arange(64, dtype=np.float32).reshape(8, 8)
+    write_tile(path, grid, 0, 0, {"elevation": values}, mark_done=True)
+    write_tile(path, grid, 1, 1, {"elevation": values})  # written, not marked
+    with pytest.raises(UsageError, match="cannot store float64 values as int8"):  # refused: nothing written
+        write_tile(path, grid, 1, 0, {"elevation": values, "face_kind": np.zeros((8, 8))}, mark_done=True)
+    done = tiles_done(path)
+    assert done[0, 0] and done.sum() == 1
+    with open_dem(path) as ds:
+        assert_array_equal(ds.elevation.values[::-1][:8, :8], values)
+
+
 # --------------------------------------------------------------------------
 # Errors on creation
 # --------------------------------------------------------------------------
