@@ -771,7 +771,8 @@ def iter_points(
     attributes
         Point attributes (:class:`~pipeline.inputs.attributes.Attribute`
         names) to decode for the kept points, in ``PointChunk.attributes``
-        (as float64); none by default: x, y, z only.
+        (as the record's integers: ``point_index`` as float64); none by
+        default: x, y, z only.
 
     Raises
     ------
@@ -922,17 +923,24 @@ def _kept(path: Location, header: laspy.LasHeader, chunk: Any, decoders: list, k
         by_return = returns.mask(np.asarray(chunk.return_number), np.asarray(chunk.number_of_returns))
         filtered_returns = int(np.count_nonzero(keep & ~by_return))
         keep &= by_return
+    every = bool(keep.all())  # the usual case: no copy of the kept points
     xyz = []
     for axis, decode in zip("xyz", decoders):
-        values = decode(np.asarray(getattr(chunk, axis.upper()))[keep])
+        stored = np.asarray(getattr(chunk, axis.upper()))
+        values = decode(stored if every else stored[keep])
         if not np.isfinite(values).all():
             raise InputFileError(
                 f"{path}: non-finite {axis} coordinate after scaling "
                 f"(scales {[float(v) for v in header.scales]}, offsets {[float(v) for v in header.offsets]})"
             )
         xyz.append(values)
-    kept_attributes = {name: (np.flatnonzero(keep) + float(start)) if name == "point_index"
-                       else np.asarray(getattr(chunk, name))[keep].astype(np.float64) for name in attributes}
+    kept_attributes = {}
+    for name in attributes:
+        if name == "point_index":
+            kept_attributes[name] = np.flatnonzero(keep) + float(start)
+        else:  # the record's own integers (the LAS widths: 8 or 16 bits)
+            values = np.asarray(getattr(chunk, name))
+            kept_attributes[name] = values.copy() if every else values[keep]
     return PointChunk(x=xyz[0], y=xyz[1], z=xyz[2], read=n, filtered_class=filtered_class,
                       filtered_withheld=filtered_withheld, filtered_returns=filtered_returns,
                       attributes=kept_attributes)

@@ -11,9 +11,9 @@ With one float64 an attribute, the rows of the three a run with every product
 needs were 1.5 times as wide: the route stage spent 0.04-0.07 s on them on a
 700k-point file, 0.02-0.04 s with the code.
 
-:func:`as_columns` and :func:`from_columns` are the general form (a float64
-column each, any integer below ``2**53``: a point's index in its file), which
-the ground stage's spill files use.
+:func:`attribute_columns` and :func:`from_columns` are the general form (a
+float64 column each, any integer below ``2**53``: a point's index in its
+file), which the ground stage's spill files use.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from numpy.typing import NDArray
 
 from .declare import Selection
 
-__all__ = ["ProductPoints", "ATTRIBUTE_BITS", "as_columns", "from_columns", "as_product_rows", "from_product_rows",
-           "product_row_width"]
+__all__ = ["ProductPoints", "ATTRIBUTE_BITS", "attribute_columns", "from_columns", "product_code", "as_product_rows",
+           "from_product_rows", "product_row_width"]
 
 ATTRIBUTE_BITS: dict[str, tuple[int, int]] = {
     "classification": (0, 8),
@@ -61,18 +61,17 @@ class ProductPoints:
         return self if keep.all() else self.take(keep)
 
 
-def as_columns(x: NDArray, y: NDArray, z: NDArray, attributes: Mapping[str, NDArray],
-               columns: Sequence[str]) -> NDArray[np.float64]:
-    """The spill array ``(n, 3 + len(columns))`` of points and their attributes, in ``columns`` order."""
-    out = np.empty((x.shape[0], 3 + len(columns)))
-    out[:, 0], out[:, 1], out[:, 2] = x, y, z
+def attribute_columns(attributes: Mapping[str, NDArray], columns: Sequence[str], n: int) -> NDArray[np.float64]:
+    """The ``columns`` of ``attributes`` ``(n, len(columns))``, as float64: a
+    spill row's columns after x, y, z (:func:`from_columns` reads them back)."""
+    out = np.empty((n, len(columns)))
     for k, name in enumerate(columns):
-        out[:, 3 + k] = attributes[name]
+        out[:, k] = attributes[name]
     return out
 
 
 def from_columns(array: NDArray[np.float64], columns: Sequence[str]) -> ProductPoints:
-    """:class:`ProductPoints` of a spill array written by :func:`as_columns`."""
+    """:class:`ProductPoints` of spill rows x, y, z and :func:`attribute_columns`."""
     array = np.asarray(array).reshape(-1, 3 + len(columns))
     return ProductPoints(array[:, 0], array[:, 1], array[:, 2],
                          {name: array[:, 3 + k] for k, name in enumerate(columns)})
@@ -83,22 +82,29 @@ def product_row_width(columns: Sequence[str]) -> int:
     return 3 + (1 if columns else 0)
 
 
+def product_code(attributes: Mapping[str, NDArray], columns: Sequence[str], n: int) -> NDArray[np.float64] | None:
+    """The ``columns`` of ``attributes`` packed into one code a point
+    (:data:`ATTRIBUTE_BITS`), as float64: a product row's column after x, y, z;
+    None without columns (the rows are x, y, z)."""
+    if not columns:
+        return None
+    code = np.zeros(n, dtype=np.uint32)
+    for name in columns:
+        shift, width = ATTRIBUTE_BITS[name]
+        value = np.asarray(attributes[name])
+        if value.size and int(value.max()) >> width:
+            raise ValueError(f"{name} holds {int(value.max())}, over the {width} bits a product row keeps")
+        code |= value.astype(np.uint32) << np.uint32(shift)
+    return code.astype(np.float64)
+
+
 def as_product_rows(x: NDArray, y: NDArray, z: NDArray, attributes: Mapping[str, NDArray],
                     columns: Sequence[str]) -> NDArray[np.float64]:
     """The product spill array ``(n, product_row_width(columns))``: x, y, z and
-    the ``columns`` of ``attributes`` packed into one code (:data:`ATTRIBUTE_BITS`)."""
-    out = np.empty((x.shape[0], product_row_width(columns)))
-    out[:, 0], out[:, 1], out[:, 2] = x, y, z
-    if columns:
-        code = np.zeros(x.shape[0], dtype=np.uint32)
-        for name in columns:
-            shift, width = ATTRIBUTE_BITS[name]
-            value = np.asarray(attributes[name]).astype(np.uint32)
-            if width < 32 and value.size and int(value.max()) >> width:
-                raise ValueError(f"{name} holds {int(value.max())}, over the {width} bits a product row keeps")
-            code |= value << np.uint32(shift)
-        out[:, 3] = code
-    return out
+    :func:`product_code` (the router writes the same rows, gathering the
+    columns straight into each tile's: :func:`~pipeline.tiling.routing.route_rows`)."""
+    code = product_code(attributes, columns, x.shape[0])
+    return np.column_stack([x, y, z] if code is None else [x, y, z, code]).astype(np.float64)
 
 
 def from_product_rows(array: NDArray[np.float64], columns: Sequence[str]) -> ProductPoints:

@@ -26,6 +26,7 @@ from .scratch import Scratch
 __all__ = [
     "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_points", "drop_source_spill", "source_spill",
     "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box", "hull_candidates",
+    "route_rows",
     "grow_hull", "PRODUCT_SPILL", "GROUND_SPILL",
 ]
 
@@ -139,7 +140,7 @@ class TileSpiller:
     ``folder``: a folder inside each tile's where its files go (the product
     points' spill files, :mod:`pipeline.products`; empty: the DTM's points,
     in the tile's own folder).  Points are rows of any number of columns,
-    x and y first (:meth:`add_rows`)."""
+    x, y, z first (:meth:`add`)."""
 
     def __init__(self, scratch: Scratch, grid: TileGrid, buffer: float, source: int, budget: int = 4_000_000,
                  folder: str = ""):
@@ -154,18 +155,14 @@ class TileSpiller:
         self._parts: dict[tuple[int, int], int] = {}
         self._points: dict[tuple[int, int], int] = {}
 
-    def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64]) -> None:
-        self.add_rows(np.column_stack([x, y, z]))
-
-    def add_rows(self, rows: NDArray[np.float64]) -> None:
-        """Route points given as rows ``(n, k)``: x, y, then any other columns."""
-        if rows.shape[0] == 0:
+    def add(self, x: NDArray[np.float64], y: NDArray[np.float64], z: NDArray[np.float64],
+            extra: NDArray[np.float64] | None = None) -> None:
+        """Route points: their rows in the spill files are x, y, z, then the
+        columns of ``extra`` ``(n, k)``, if given (:func:`route_rows`)."""
+        if x.shape[0] == 0:
             return
         g = self.grid
-        offsets, pts = _route_kernel(
-            _read_only(rows), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), self.buffer,
-            g.n_cols, g.n_tiles,
-        )
+        offsets, pts = route_rows(g, self.buffer, x, y, z, extra)
         for k in np.flatnonzero(offsets[1:] > offsets[:-1]).tolist():
             s, e = int(offsets[k]), int(offsets[k + 1])
             key = (k // g.n_cols, k % g.n_cols)
@@ -200,21 +197,40 @@ class TileSpiller:
 _ROUNDOFF = 2.0**-53
 
 
-def _read_only(rows: NDArray[np.float64]) -> NDArray[np.float64]:
-    """A C-contiguous read-only view (one compiled kernel, as the points read back from the scratch folder)."""
-    view = np.ascontiguousarray(rows, dtype=np.float64).view()
+def _read_only(values: NDArray) -> NDArray[np.float64]:
+    """A C-contiguous float64 read-only view (one compiled kernel, whatever the caller's arrays)."""
+    view = np.ascontiguousarray(values, dtype=np.float64).view()
     view.flags.writeable = False
     return view
 
 
+def route_rows(grid: TileGrid, buffer: float, x: NDArray[np.float64], y: NDArray[np.float64],
+               z: NDArray[np.float64], extra: NDArray[np.float64] | None = None,
+               ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The rows ``x, y, z, *extra`` of the points routed to each tile
+    (``extra``: ``(n, k)`` more columns, or none): tile ``t`` (``row *
+    n_cols + col``) gets ``rows[offsets[t]:offsets[t + 1]]``.  The columns
+    are gathered straight into the tiles' rows: the points are never first
+    stacked into rows of their own (a copy of every point, 20 MB for a
+    700k-point file's product rows)."""
+    g = grid
+    more = np.empty((x.shape[0], 0)) if extra is None else np.asarray(extra)
+    if more.ndim == 1:
+        more = more.reshape(-1, 1)
+    return _route_kernel(_read_only(x), _read_only(y), _read_only(z), _read_only(more), g.x0, g.y0,
+                         1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer), g.n_cols, g.n_tiles)
+
+
 @meshcore.kernels.kernel
-def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
-    """Every point (a row: x, y, then its other columns) copied to each tile whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
+def _route_kernel(xs, ys, zs, extra, x0, y0, inv_size, below_x, above_x, below_y, above_y, buffer, n_cols, n_tiles):
+    """Every point (x, y, z and its row of ``extra``) copied to each tile
+    whose core grown by ``buffer`` holds it: ``pts[offsets[t]:offsets[t + 1]]`` goes to
     tile ``t``.  Within a tile, points for which it is the lowest row and
     column of their reach come first, then the next column, row, ...; each
     group in input order (a counting sort, stable)."""
-    n = rows.shape[0]
-    width = rows.shape[1]
+    n = xs.shape[0]
+    more = extra.shape[1]
+    width = 3 + more
     c_lo = empty(n, dtype=np.int32)
     r_lo = empty(n, dtype=np.int32)
     c_span = empty(n, dtype=np.int32)
@@ -222,8 +238,8 @@ def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, bu
     span_c = 1
     span_r = 1
     for i in range(n):
-        xi = rows[i, 0]
-        yi = rows[i, 1]
+        xi = xs[i]
+        yi = ys[i]
         # a tile claims every point of its closed window grown by the buffer
         # (``held_box``): a point on that box's edge, or a rounding away from
         # it, goes to the tile too (to both tiles, on a shared edge)
@@ -255,20 +271,16 @@ def _route_kernel(rows, x0, y0, inv_size, below_x, above_x, below_y, above_y, bu
     for t in range(n_tiles + 1):
         offsets[t] = start[t * groups]
     for i in range(n):
-        if r_span[i] == 1 and c_span[i] == 1:
-            slot = (r_lo[i] * n_cols + c_lo[i]) * groups
-            at = start[slot]
-            start[slot] = at + 1
-            for k in range(width):
-                pts[at, k] = rows[i, k]
-            continue
-        for dr in range(r_span[i]):
+        for dr in range(r_span[i]):  # most points: one tile
             for dc in range(c_span[i]):
                 slot = ((r_lo[i] + dr) * n_cols + c_lo[i] + dc) * groups + dr * span_c + dc
                 at = start[slot]
                 start[slot] = at + 1
-                for k in range(width):
-                    pts[at, k] = rows[i, k]
+                pts[at, 0] = xs[i]
+                pts[at, 1] = ys[i]
+                pts[at, 2] = zs[i]
+                for k in range(more):
+                    pts[at, 3 + k] = extra[i, k]
     return offsets, pts
 
 
@@ -276,10 +288,7 @@ def route_points(grid: TileGrid, buffer: float, points: NDArray[np.float64], row
     """The points of ``points`` (n, 3) that routing sends to tile (row, col),
     in the order routing gives them (:class:`TileSpiller`)."""
     g = grid
-    offsets, pts = _route_kernel(
-        _read_only(points), g.x0, g.y0, 1.0 / g.tile_size, *g.bin_bounds(0), *g.bin_bounds(1), float(buffer),
-        g.n_cols, g.n_tiles,
-    )
+    offsets, pts = route_rows(g, buffer, points[:, 0], points[:, 1], points[:, 2])
     t = row * g.n_cols + col
     return pts[offsets[t]:offsets[t + 1]]
 
