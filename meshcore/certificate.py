@@ -23,7 +23,7 @@ from ._jit import empty, larger, njit, njit_helper, smaller
 from .delaunay import Triangulation, circumcenter_terms
 from .predicates import cross_rounded
 
-__all__ = ["KnownRegion", "WindowCertificate", "circles_leaving", "disk_box_in", "lens_boxes", "initial_doubt", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
+__all__ = ["KnownRegion", "WindowCertificate", "circles_leaving", "disk_box_in", "lens_boxes", "inner_box", "initial_doubt", "open_hull_edges", "circle_in_input_frame", "safe_circle"]
 
 _U = 2.0**-53
 """The unit roundoff of float64."""
@@ -305,7 +305,6 @@ def disk_box_in(cx: float, cy: float, r: float, x0: float, y0: float, x1: float,
     return not (lo_x > hi_x or lo_y > hi_y), lo_x, lo_y, hi_x, hi_y
 
 
-@njit
 def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.ndarray:
     """For each circle ``(cx, cy, r)``: the bounding box of (disk ∩ convex
     polygon ``hull`` (counter-clockwise ``(h, 2)``) ∩ ``box``), rounded
@@ -320,7 +319,80 @@ def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.nda
     polygon.  An infinite radius (a triangle too thin to bound its circle)
     gives the whole of ``box``; a hull of fewer than three points, the disk's
     box in ``box``.
+
+    A disk inside a box that lies deep inside the polygon
+    (:func:`inner_box`) has no corner or crossing and its four extreme points
+    inside: it is settled without reading the polygon's edges, which each
+    other circle reads (most circles of a tile inside a survey, whose hull
+    may have hundreds of corners).
     """
+    hull = np.ascontiguousarray(hull, dtype=np.float64).reshape(-1, 2)
+    return _lens_boxes(np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3), hull,
+                       np.ascontiguousarray(box, dtype=np.float64), inner_box(hull))
+
+
+def inner_box(hull: np.ndarray) -> np.ndarray:
+    """An axis-aligned box ``(x0, y0, x1, y1)`` inside the convex polygon
+    ``hull`` (counter-clockwise ``(h, 2)``), every point of it farther inside
+    every edge than 1e-5 of the polygon's size (ten times the farthest
+    that rounding moves :func:`lens_boxes`' tests, at a tangent): the polygon's box shrunk about
+    the mean of its corners as far as that holds.  An empty box (``x0 >
+    x1``) for a polygon too thin, or of fewer than three corners."""
+    hull = np.ascontiguousarray(hull, dtype=np.float64).reshape(-1, 2)
+    return _inner_box_kernel(hull)
+
+
+@njit
+def _inner_box_kernel(hull: np.ndarray) -> np.ndarray:
+    out = np.empty(4)
+    out[0], out[1], out[2], out[3] = math.inf, math.inf, -math.inf, -math.inf
+    h = hull.shape[0]
+    if h < 3:
+        return out
+    x_lo, y_lo, x_hi, y_hi = math.inf, math.inf, -math.inf, -math.inf
+    mx, my = 0.0, 0.0
+    for j in range(h):
+        x_lo, x_hi = min(x_lo, hull[j, 0]), max(x_hi, hull[j, 0])
+        y_lo, y_hi = min(y_lo, hull[j, 1]), max(y_hi, hull[j, 1])
+        mx += hull[j, 0]
+        my += hull[j, 1]
+    mx /= h
+    my /= h
+    size = max(x_hi - x_lo, y_hi - y_lo)
+    margin = 1e-5 * size + 1e-9 * max(abs(x_lo), abs(x_hi), abs(y_lo), abs(y_hi))
+    lo, hi = 0.0, 1.0  # the share of the way from the mean to the polygon's box that stays inside
+    if not _box_deep_inside(hull, mx, my, mx, my, margin):
+        return out
+    for _ in range(24):  # to a few millionths of the way
+        s = 0.5 * (lo + hi)
+        if _box_deep_inside(hull, mx - s * (mx - x_lo), my - s * (my - y_lo), mx + s * (x_hi - mx),
+                            my + s * (y_hi - my), margin):
+            lo = s
+        else:
+            hi = s
+    out[0], out[1], out[2], out[3] = mx - lo * (mx - x_lo), my - lo * (my - y_lo), mx + lo * (x_hi - mx), my + lo * (y_hi - my)
+    return out
+
+
+@njit_helper
+def _box_deep_inside(hull, x0, y0, x1, y1, margin) -> bool:
+    """Whether the four corners of the box lie more than ``margin`` inside every edge of ``hull``."""
+    h = hull.shape[0]
+    for j in range(h):
+        k = j + 1 if j + 1 < h else 0
+        dx, dy = hull[k, 0] - hull[j, 0], hull[k, 1] - hull[j, 1]
+        need = margin * math.hypot(dx, dy)
+        for m in range(4):
+            qx = x0 if m % 2 == 0 else x1
+            qy = y0 if m < 2 else y1
+            if not dx * (qy - hull[j, 1]) - dy * (qx - hull[j, 0]) > need:
+                return False
+    return True
+
+
+@njit
+def _lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray, inner: np.ndarray) -> np.ndarray:
+    """:func:`lens_boxes`, with the polygon's :func:`inner_box` (an empty one: every circle reads the edges)."""
     n = circles.shape[0]
     h = hull.shape[0]
     out = empty((n, 4))
@@ -340,51 +412,54 @@ def lens_boxes(circles: np.ndarray, hull: np.ndarray, box: np.ndarray) -> np.nda
         r = r + 4 * _U * (abs(cx) + abs(cy) + r + big)
         lo_x, lo_y, hi_x, hi_y = math.inf, math.inf, -math.inf, -math.inf
         grow = 0.0
-        reach = 2.0 * r  # an edge whose box lies farther from the centre has no corner or crossing in the disk
-        for j in range(h):
-            k = j + 1 if j + 1 < h else 0
-            if (min(hull[j, 0], hull[k, 0]) > cx + reach or max(hull[j, 0], hull[k, 0]) < cx - reach
-                    or min(hull[j, 1], hull[k, 1]) > cy + reach or max(hull[j, 1], hull[k, 1]) < cy - reach):
-                continue
-            px, py = hull[j, 0] - cx, hull[j, 1] - cy
-            dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
-            a = dx * dx + dy * dy
-            b = px * dx + py * dy
-            c = px * px + py * py - r * r  # <= 0: the corner is in the disk
-            err_c = 4 * _U * (px * px + py * py + r * r)
-            if c <= err_c:
-                lo_x, hi_x, lo_y, hi_y = min(lo_x, px), max(hi_x, px), min(lo_y, py), max(hi_y, py)
-            disc = b * b - a * c
-            err_disc = 8 * _U * ((abs(px * dx) + abs(py * dy)) ** 2 + a * abs(c)) + a * err_c
-            if not (a > 0 and disc + err_disc >= 0):
-                continue
-            root = math.sqrt(max(disc, 0.0))
-            # how far a crossing may be from where it is computed, along its edge
-            spread = math.sqrt(max(disc + err_disc, 0.0)) - math.sqrt(max(disc - err_disc, 0.0))
-            dt = (spread + 8 * _U * (abs(b) + root)) / a
-            for sign in (-1.0, 1.0):
-                t = (-b + sign * root) / a
-                if t >= -dt and t <= 1.0 + dt:
-                    tc = min(max(t, 0.0), 1.0)
-                    qx, qy = px + tc * dx, py + tc * dy
-                    lo_x, hi_x, lo_y, hi_y = min(lo_x, qx), max(hi_x, qx), min(lo_y, qy), max(hi_y, qy)
-                    grow = max(grow, dt * math.sqrt(a))
-        # the disk's extreme points (east, west, north, south) inside the polygon; the rounding's
-        # bound takes 1-norms for the 2-norms (larger: a point on an edge counts as inside)
-        for m in range(4):
-            ex = r if m == 0 else (-r if m == 1 else 0.0)
-            ey = r if m == 2 else (-r if m == 3 else 0.0)
-            inside = True
+        if cx - r > inner[0] and cx + r < inner[2] and cy - r > inner[1] and cy + r < inner[3]:
+            lo_x, lo_y, hi_x, hi_y = -r, -r, r, r  # deep inside: what the edges below would give
+        else:
+            reach = 2.0 * r  # an edge whose box lies farther from the centre has no corner or crossing in the disk
             for j in range(h):
                 k = j + 1 if j + 1 < h else 0
+                if (min(hull[j, 0], hull[k, 0]) > cx + reach or max(hull[j, 0], hull[k, 0]) < cx - reach
+                        or min(hull[j, 1], hull[k, 1]) > cy + reach or max(hull[j, 1], hull[k, 1]) < cy - reach):
+                    continue
                 px, py = hull[j, 0] - cx, hull[j, 1] - cy
                 dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
-                side = dx * (ey - py) - dy * (ex - px)
-                if side < -8 * _U * (abs(dx) + abs(dy)) * (r + abs(px) + abs(py)):
-                    inside = False
-                    break
-            if inside:
-                lo_x, hi_x, lo_y, hi_y = min(lo_x, ex), max(hi_x, ex), min(lo_y, ey), max(hi_y, ey)
+                a = dx * dx + dy * dy
+                b = px * dx + py * dy
+                c = px * px + py * py - r * r  # <= 0: the corner is in the disk
+                err_c = 4 * _U * (px * px + py * py + r * r)
+                if c <= err_c:
+                    lo_x, hi_x, lo_y, hi_y = min(lo_x, px), max(hi_x, px), min(lo_y, py), max(hi_y, py)
+                disc = b * b - a * c
+                err_disc = 8 * _U * ((abs(px * dx) + abs(py * dy)) ** 2 + a * abs(c)) + a * err_c
+                if not (a > 0 and disc + err_disc >= 0):
+                    continue
+                root = math.sqrt(max(disc, 0.0))
+                # how far a crossing may be from where it is computed, along its edge
+                spread = math.sqrt(max(disc + err_disc, 0.0)) - math.sqrt(max(disc - err_disc, 0.0))
+                dt = (spread + 8 * _U * (abs(b) + root)) / a
+                for sign in (-1.0, 1.0):
+                    t = (-b + sign * root) / a
+                    if t >= -dt and t <= 1.0 + dt:
+                        tc = min(max(t, 0.0), 1.0)
+                        qx, qy = px + tc * dx, py + tc * dy
+                        lo_x, hi_x, lo_y, hi_y = min(lo_x, qx), max(hi_x, qx), min(lo_y, qy), max(hi_y, qy)
+                        grow = max(grow, dt * math.sqrt(a))
+            # the disk's extreme points (east, west, north, south) inside the polygon; the rounding's
+            # bound takes 1-norms for the 2-norms (larger: a point on an edge counts as inside)
+            for m in range(4):
+                ex = r if m == 0 else (-r if m == 1 else 0.0)
+                ey = r if m == 2 else (-r if m == 3 else 0.0)
+                inside = True
+                for j in range(h):
+                    k = j + 1 if j + 1 < h else 0
+                    px, py = hull[j, 0] - cx, hull[j, 1] - cy
+                    dx, dy = (hull[k, 0] - cx) - px, (hull[k, 1] - cy) - py
+                    side = dx * (ey - py) - dy * (ex - px)
+                    if side < -8 * _U * (abs(dx) + abs(dy)) * (r + abs(px) + abs(py)):
+                        inside = False
+                        break
+                if inside:
+                    lo_x, hi_x, lo_y, hi_y = min(lo_x, ex), max(hi_x, ex), min(lo_y, ey), max(hi_y, ey)
         if not math.isfinite(lo_x):  # no part of the polygon in the disk
             out[i, :] = np.nan
             continue

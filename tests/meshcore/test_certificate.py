@@ -122,3 +122,42 @@ def test_the_last_flip_round_of_many_boxes_is_the_largest_block_any_of_them_meet
         expected = _last_flip_round_block_by_block(blocks, box, boxes)
         assert meshcore.tiles.last_flip_round_in(blocks, box, boxes) == expected
         assert meshcore.tiles.last_flip_round_in(blocks, box, boxes[:1]) == _last_flip_round_block_by_block(blocks, box, boxes[:1])
+
+
+@pytest.mark.parametrize("offset", [0.0, 6.8e6])
+def test_lens_boxes_settle_disks_deep_inside_the_hull_as_the_edges_would(rng, offset):
+    """The shortcut for disks inside the hull's inner box gives every bit the
+    edge-by-edge computation gives, also for disks touching that box and on
+    thin polygons, at survey-sized offsets; and the box lies inside the hull."""
+    from meshcore.certificate import _lens_boxes, inner_box, lens_boxes
+
+    no_box = np.array([math.inf, math.inf, -math.inf, -math.inf])
+    settled = 0
+    for trial in range(40):
+        size = 10.0 ** rng.uniform(0, 4)
+        points = rng.random((int(rng.integers(3, 300)), 2)) * size + offset
+        if trial % 4 == 0:  # a thin strip
+            points[:, 1] = offset + (points[:, 1] - offset) * 1e-3
+        hull = points[meshcore.convex_hull(points[:, 0], points[:, 1])]
+        if hull.shape[0] < 3:
+            continue
+        inner = inner_box(hull)
+        circles = np.column_stack([offset + size * (1.4 * rng.random(500) - 0.2),
+                                   offset + size * (1.4 * rng.random(500) - 0.2), size * 10.0 ** rng.uniform(-3, 0.3, 500)])
+        if inner[0] < inner[2] and inner[1] < inner[3]:
+            corners = np.array([[inner[0], inner[1]], [inner[2], inner[1]], [inner[2], inner[3]], [inner[0], inner[3]]])
+            for k in range(hull.shape[0]):  # every corner of the box strictly inside every edge
+                a, b = hull[k - 1], hull[k]
+                assert all(meshcore.orient2d(a[0], a[1], b[0], b[1], x, y) > 0 for x, y in corners)
+            # disks touching the inner box's west side from inside, and just past it
+            r = rng.random(100) * (inner[2] - inner[0]) / 3
+            circles[:100] = np.column_stack([inner[0] + r * (1.0 + rng.choice([0.0, 1e-12, -1e-12], 100)),
+                                             np.clip(rng.uniform(inner[1], inner[3], 100), inner[1] + r, inner[3] - r), r])
+        box = np.array([offset + 0.3 * size * rng.random(), offset + 0.3 * size * rng.random(),
+                        offset + size * rng.uniform(0.6, 1.2), offset + size * rng.uniform(0.6, 1.2)])
+        fast = lens_boxes(circles, hull, box)
+        np.testing.assert_array_equal(fast, _lens_boxes(circles, hull, box, no_box))
+        c = circles
+        settled += int(np.count_nonzero((c[:, 0] - c[:, 2] > inner[0]) & (c[:, 0] + c[:, 2] < inner[2])
+                                        & (c[:, 1] - c[:, 2] > inner[1]) & (c[:, 1] + c[:, 2] < inner[3])))
+    assert settled > 1000  # the shortcut was taken
