@@ -24,10 +24,9 @@ from .grid import TileGrid, tile_dir
 from .scratch import Scratch
 
 __all__ = [
-    "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_points", "drop_source_spill", "source_spill",
-    "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box", "hull_candidates",
-    "route_rows",
-    "grow_hull", "PRODUCT_SPILL", "GROUND_SPILL",
+    "PointCounts", "POINT_FATES", "RouteResult", "TileSpiller", "route_rows", "route_points", "drop_source_spill",
+    "source_spill", "spill_by_source", "spill_intact", "load_tile_points", "neighbour_tile_points", "points_in_box",
+    "hull_candidates", "grow_hull", "PRODUCT_SPILL", "GROUND_SPILL",
 ]
 
 
